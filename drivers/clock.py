@@ -1,0 +1,77 @@
+"""Injected time: one interface, a real monotonic clock and a virtual clock that jumps.
+
+Everything that needs "now" or has to wait takes a :class:`Clock`. Times are seconds
+(float) from an arbitrary origin. The virtual clock never sleeps: waiting moves it
+forward, so a ten-minute show runs in seconds and tests never sleep in real time.
+"""
+
+from __future__ import annotations
+
+import time
+from typing import Protocol, runtime_checkable
+
+
+@runtime_checkable
+class Clock(Protocol):
+    #: True when waiting moves time instead of letting it pass (nothing ever sleeps).
+    virtual: bool
+
+    def now(self) -> float:
+        """Current time in seconds."""
+
+    def wait_until(self, t: float) -> float:
+        """Return once ``now() >= t``; returns ``now()``. Never returns early."""
+
+
+class MonotonicClock:
+    """The host's monotonic clock.
+
+    ``wait_until`` sleeps to ``spin_s`` before the deadline (the OS wakes threads late
+    by ~0.1-1 ms), then spins on the clock for the last stretch.
+    """
+
+    virtual = False
+
+    def __init__(self, spin_s: float = 200e-6) -> None:
+        if not spin_s >= 0.0:
+            raise ValueError(f"spin_s must be >= 0, got {spin_s!r}")
+        self.spin_s = spin_s
+        self._now = time.perf_counter
+
+    def now(self) -> float:
+        return self._now()
+
+    def wait_until(self, t: float) -> float:
+        now = self._now()
+        remaining = t - now - self.spin_s
+        if remaining > 0.0:
+            time.sleep(remaining)
+        while (now := self._now()) < t:
+            pass
+        return now
+
+
+class VirtualClock:
+    """A clock that only moves when told to: ``wait_until`` and ``advance`` jump."""
+
+    virtual = True
+
+    def __init__(self, start: float = 0.0) -> None:
+        self._t = float(start)
+
+    def now(self) -> float:
+        return self._t
+
+    def wait_until(self, t: float) -> float:
+        if t > self._t:
+            self._t = float(t)
+        return self._t
+
+    def advance(self, dt: float) -> float:
+        if dt < 0.0:
+            raise ValueError(f"a clock cannot go back (dt={dt!r})")
+        self._t += dt
+        return self._t
+
+    def __repr__(self) -> str:
+        return f"VirtualClock(t={self._t!r})"

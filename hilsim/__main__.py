@@ -1,0 +1,5 @@
+import sys
+
+from hilsim.cli import main
+
+sys.exit(main())

@@ -1,0 +1,64 @@
+"""The ``hilsim`` command line.
+
+Each subcommand lives in its own module that defines::
+
+    HELP: str                                   # one line for ``hilsim --help``
+    def add_arguments(parser: argparse.ArgumentParser) -> None
+    def run(args: argparse.Namespace) -> int     # the process exit code
+
+and is listed in ``SUBCOMMANDS``. Modules are imported only when the parser is
+built, and must not import matplotlib or dynamixel_sdk at module level (do it
+inside ``run``), so ``hilsim --help`` stays fast.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+from collections.abc import Sequence
+
+#: subcommand name -> module implementing it
+SUBCOMMANDS: dict[str, str] = {
+    "compare": "hilsim.studies.compare",
+    "emulate": "drivers.dxlsim.emulate_cli",
+}
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="hilsim",
+        description="Drive animatronic joints as damped springs on Dynamixel servos "
+        "(or on the built-in emulated bus).",
+    )
+    from hilsim import __version__
+
+    parser.add_argument("--version", action="version", version=f"hilsim {__version__}")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    for name, module_name in SUBCOMMANDS.items():
+        try:
+            module = importlib.import_module(module_name)
+        except ModuleNotFoundError as exc:  # a subcommand still being written
+            if exc.name != module_name:
+                raise
+            continue
+        p = sub.add_parser(name, help=module.HELP, description=module.HELP)
+        module.add_arguments(p)
+        p.set_defaults(_run=module.run)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if getattr(args, "_run", None) is None:
+        parser.print_help()
+        return 2
+    try:
+        return int(args._run(args))
+    except KeyboardInterrupt:
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())
