@@ -1,0 +1,186 @@
+"""Servo model tables: layout invariants, per-model differences, lookups."""
+
+from __future__ import annotations
+
+import itertools
+
+import pytest
+
+from drivers.dxlsim.models import (
+    EEPROM_END,
+    MODELS,
+    PULSE_PER_S2_PER_ACCEL_UNIT,
+    PULSE_PER_S_PER_VELOCITY_UNIT,
+    get_model,
+    normalize_name,
+)
+
+ALL = sorted(MODELS)
+# Addresses every X-series model defines (XL430 lacks 38 and 102: no current control).
+COMMON = (
+    0,
+    2,
+    6,
+    7,
+    8,
+    9,
+    10,
+    11,
+    12,
+    13,
+    20,
+    24,
+    31,
+    32,
+    34,
+    36,
+    44,
+    48,
+    52,
+    63,
+    64,
+    65,
+    68,
+    69,
+    70,
+    76,
+    78,
+    80,
+    82,
+    84,
+    88,
+    90,
+    98,
+    100,
+    104,
+    108,
+    112,
+    116,
+    120,
+    122,
+    123,
+    124,
+    126,
+    128,
+    132,
+    136,
+    140,
+    144,
+    146,
+)
+
+
+@pytest.mark.parametrize("name", ALL)
+def test_fields_are_sorted_and_do_not_overlap(name):
+    fields = MODELS[name].fields
+    for a, b in itertools.pairwise(fields):
+        assert a.end <= b.addr, (a, b)
+    assert fields[0].addr == 0
+    assert MODELS[name].table_end == 147
+
+
+@pytest.mark.parametrize("name", ALL)
+def test_fields_are_well_formed(name):
+    m = MODELS[name]
+    names = [f.name for f in m.fields]
+    assert len(names) == len(set(names))
+    for f in m.fields:
+        assert f.size in (1, 2, 4)
+        assert f.access in ("R", "RW")
+        assert f.lo <= f.hi
+        assert f.accepts(f.default), f
+        assert f.eeprom == (f.addr < EEPROM_END)
+        bits = 8 * f.size
+        if f.signed:
+            assert -(2 ** (bits - 1)) <= f.lo and f.hi < 2 ** (bits - 1), f
+        else:
+            assert f.lo >= 0 and f.hi < 2**bits, f
+
+
+@pytest.mark.parametrize("name", ALL)
+def test_common_layout_is_present(name):
+    m = MODELS[name]
+    for addr in COMMON:
+        assert m.has(addr), (name, addr)
+    assert m.field("model_number").default == m.model_number
+    assert m.field("firmware_version").default == m.firmware
+    assert m.field("operating_mode").default == 3
+    assert m.field("bus_watchdog").signed and m.field("bus_watchdog").hi == 127
+
+
+@pytest.mark.parametrize("name", ALL)
+def test_goal_ranges_follow_the_limit_fields(name):
+    m = MODELS[name]
+    for goal, limit in (
+        ("goal_pwm", "pwm_limit"),
+        ("goal_velocity", "velocity_limit"),
+        ("goal_current", "current_limit"),
+    ):
+        if m.has(goal):
+            hi = m.field(limit).hi
+            assert (m.field(goal).lo, m.field(goal).hi) == (-hi, hi)
+
+
+def test_model_numbers_and_per_model_differences():
+    assert {m.name: m.model_number for m in MODELS.values()} == {
+        "XM430-W350": 1020,
+        "XM430-W210": 1030,
+        "XL430-W250": 1060,
+        "XL330-M288": 1200,
+        "XM540-W270": 1120,
+    }
+    xl430, xl330 = MODELS["XL430-W250"], MODELS["XL330-M288"]
+    assert not xl430.has("current_limit") and not xl430.has("goal_current")
+    assert xl430.field(126).name == "present_load"
+    assert 0 not in xl430.field("operating_mode").choices
+    assert (xl330.field("max_voltage_limit").default, xl330.field("min_voltage_limit").default) == (
+        70,
+        35,
+    )
+    assert xl330.baud_rates[-1] == 4_000_000 and MODELS["XM430-W350"].baud_rates[-1] == 4_500_000
+    assert [
+        MODELS[n].field("velocity_limit").default
+        for n in ("XM430-W350", "XL430-W250", "XL330-M288")
+    ] == [200, 265, 445]
+    assert MODELS["XM540-W270"].field("current_limit").hi == 2047
+    assert MODELS["XM430-W350"].field_at(14) is None  # a gap
+    assert MODELS["XM430-W350"].field_at(134).name == "present_position"
+
+
+def test_unit_constants_match_the_emanual():
+    assert abs(PULSE_PER_S_PER_VELOCITY_UNIT - 15.633) < 5e-4
+    assert abs(PULSE_PER_S2_PER_ACCEL_UNIT - 244.14) < 5e-3
+
+
+def test_fast_read_firmware_thresholds():
+    xm, xl330 = MODELS["XM430-W350"], MODELS["XL330-M288"]
+    assert xm.supports_fast_read(45) and not xm.supports_fast_read(44)
+    assert xl330.supports_fast_read(46) and not xl330.supports_fast_read(45)
+    assert MODELS["XM540-W270"].supports_fast_read(45)
+    assert all(m.supports_fast_read() for m in MODELS.values())
+
+
+def test_get_model_by_name_number_and_spelling():
+    assert get_model("XM430-W350") is MODELS["XM430-W350"]
+    assert get_model("xl330-m288-t") is MODELS["XL330-M288"]
+    assert get_model(1060) is MODELS["XL430-W250"]
+    assert get_model("1120") is MODELS["XM540-W270"]
+    m = get_model("XM430-W210")
+    assert get_model(m) is m
+    with pytest.raises(ValueError, match="XM430-W350 \\(1020\\)"):
+        get_model("AX-12")
+    with pytest.raises(ValueError):
+        get_model(9999)
+
+
+def test_field_lookup_accepts_emanual_names():
+    m = MODELS["XM430-W350"]
+    assert m.field("Goal Position") is m.field(116) is m.field("goal_position")
+    assert normalize_name("Feedforward 2nd Gain") == "feedforward_2nd_gain"
+    with pytest.raises(KeyError):
+        m.field("no_such_field")
+    with pytest.raises(KeyError):
+        m.field(14)
+    assert m.baud_index(1_000_000) == 3
+    with pytest.raises(ValueError, match="bps"):
+        MODELS["XL330-M288"].baud_index(4_500_000)
