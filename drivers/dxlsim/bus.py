@@ -1,0 +1,515 @@
+"""The emulated half-duplex Dynamixel bus: wire timing, addressing, reply chains, faults.
+
+Host side, a :class:`DxlBus` looks like a serial line: :meth:`DxlBus.write` puts bytes
+on the wire, :meth:`DxlBus.read` returns the bytes the host can see *now*. Time comes
+from an injected clock (virtual or real); every byte has a time:
+
+* host bytes leave back to back, ``10 / baud`` s each (8N1), starting when the host
+  writes (or when the line is free);
+* a servo acts on an instruction packet when its last byte has arrived, and starts
+  its status packet ``Return Delay Time + turnaround`` later;
+* in a Sync/Bulk Read chain each servo waits for the previous servo's status packet to
+  end, then its own delay. A servo that stays silent breaks the chain for those after
+  it (they wait for a packet that never comes), which is how Protocol 2.0 slaves behave;
+* Fast Sync/Bulk Read is one packet: the first servo sends the header and its block
+  after its delay, the others append their blocks;
+* the USB adapter (latency timer ``L``): received bytes reach the host when 62 have
+  accumulated, or ``L`` after the line went quiet. ``L = 0`` means every byte is
+  readable the moment its stop bit ends.
+
+So "instruction start -> last reply byte readable" = wire time + Return Delay +
+turnaround (+ L), exactly, on either clock.
+
+Not modelled (named so nobody relies on them): the host transmitting over a reply
+still on the wire (no collision between host and servos), electrical noise other than
+the fault plan, and a servo's own processing time depending on the instruction.
+"""
+
+from __future__ import annotations
+
+import bisect
+from collections.abc import Iterable
+from dataclasses import dataclass
+
+from drivers.clock import Clock, VirtualClock
+from drivers.dxlsim.faults import FaultKind, FaultPlan, parse_fault_plan
+from drivers.dxlsim.protocol import (
+    BROADCAST_ID,
+    HEADER,
+    ErrorCode,
+    Frame,
+    Instruction,
+    StreamParser,
+    encode_fast_status,
+    encode_status,
+)
+from drivers.dxlsim.servo import VirtualServo
+
+#: A servo drops a half-received instruction packet after this much silence (e-Manual).
+INTER_BYTE_TIMEOUT_S = 1.5e-3
+#: Bytes an FTDI adapter sends to the host in one USB packet (64 minus 2 status bytes).
+USB_CHUNK = 62
+#: Default servo turnaround (instruction end -> reply start, beyond Return Delay Time).
+#: Not published for X series; AX-12 measures ~20 us, MX ~50 us.
+DEFAULT_TURNAROUND_S = 20e-6
+
+Inst = Instruction
+
+
+@dataclass(frozen=True, slots=True)
+class TraceRecord:
+    """Bytes on the wire: ``t_start``/``t_end`` are when the first byte began and the last
+    byte's stop bit ended (seconds on the bus clock). ``direction`` is ``"tx"`` (host to
+    servos) or ``"rx"`` (servos to host); ``note`` names the servo and any fault."""
+
+    t_start: float
+    t_end: float
+    direction: str
+    data: bytes
+    note: str = ""
+
+
+class DxlBus:
+    """An emulated bus of :class:`VirtualServo` s behind one host port.
+
+    Parameters
+    ----------
+    servos:
+        The servos on the bus (IDs may repeat only to model a duplicate-ID fault).
+    baud:
+        The host's line rate in bit/s. Servos set to another rate hear noise and never answer.
+    clock:
+        Time source; default a fresh :class:`~drivers.clock.VirtualClock`.
+    latency_timer_ms:
+        USB adapter latency timer (FTDI default 16, tuned 1, or 0 for an ideal port).
+    turnaround_us:
+        Servo processing time added to each servo's Return Delay Time.
+    faults:
+        A :class:`FaultPlan` or its text form (see :mod:`drivers.dxlsim.faults`).
+    trace:
+        Keep a :class:`TraceRecord` for every burst of bytes, both directions.
+    """
+
+    def __init__(
+        self,
+        servos: Iterable[VirtualServo],
+        *,
+        baud: int = 1_000_000,
+        clock: Clock | None = None,
+        latency_timer_ms: float = 0.0,
+        turnaround_us: float = DEFAULT_TURNAROUND_S * 1e6,
+        faults: FaultPlan | str | None = None,
+        seed: int = 0,
+        trace: bool = False,
+    ) -> None:
+        self.servos: list[VirtualServo] = list(servos)
+        if baud <= 0:
+            raise ValueError(f"baud must be positive, got {baud}")
+        if latency_timer_ms < 0 or turnaround_us < 0:
+            raise ValueError("latency_timer_ms and turnaround_us must be >= 0")
+        self.baud = int(baud)
+        self.clock: Clock = clock if clock is not None else VirtualClock()
+        self.latency_s = latency_timer_ms * 1e-3
+        self.turnaround_s = turnaround_us * 1e-6
+        if isinstance(faults, str):
+            faults = parse_fault_plan(faults, seed=seed)
+        self.faults: FaultPlan = faults if faults is not None else FaultPlan(seed=seed)
+        self.t0 = self.clock.now()
+        self.trace: list[TraceRecord] | None = [] if trace else None
+
+        self._parser = StreamParser()
+        self._stream_pos = 0  # stream index of the next host byte fed to the parser
+        self._tx_free = self.t0  # when the host's last byte has left
+        # Received bytes not yet read by the host, sorted by wire time.
+        self._rx_data = bytearray()
+        self._rx_wire: list[float] = []
+        self._rx_vis: list[float] = []
+        self._events = self.faults.events
+        self._offline: dict[int, float] = {}  # id(servo) -> back-online time
+        self.unplugged_at: float | None = None
+        self.stats = {"instructions": 0, "crc_errors": 0, "replies": 0, "bytes_tx": 0, "bytes_rx": 0}
+
+    # ------------------------------------------------------------------ host side
+    @property
+    def byte_time(self) -> float:
+        """Seconds one byte occupies on the wire (10 bits: start, 8 data, stop)."""
+        return 10.0 / self.baud
+
+    def unplugged(self, t: float | None = None) -> bool:
+        t = self.clock.now() if t is None else t
+        return self.unplugged_at is not None and t >= self.unplugged_at
+
+    def write(self, data: bytes) -> float:
+        """Put ``data`` on the wire now; returns when its last byte has left (bus clock)."""
+        now = self.clock.now()
+        self._apply_events(now)
+        bt = self.byte_time
+        start = max(now, self._tx_free)
+        end = start + len(data) * bt
+        if self._parser.pending and start - self._tx_free > INTER_BYTE_TIMEOUT_S:
+            self._parser.reset()  # the servos gave up on the half-received packet
+        base = self._stream_pos
+        self._stream_pos += len(data)
+        self._tx_free = end
+        self.stats["bytes_tx"] += len(data)
+        if self.trace is not None:
+            self.trace.append(TraceRecord(start, end, "tx", bytes(data)))
+        for frame in self._parser.feed(data):
+            t_frame = start + (frame.end - base) * bt
+            self._apply_events(t_frame)
+            self._process(frame, t_frame)
+        return end
+
+    def in_waiting(self, t: float | None = None) -> int:
+        """Bytes the host can read at ``t`` (default now)."""
+        t = self.clock.now() if t is None else t
+        return bisect.bisect_right(self._rx_vis, t)
+
+    def read(self, size: int, t: float | None = None) -> bytes:
+        """Up to ``size`` bytes readable at ``t`` (default now), removed from the buffer."""
+        n = min(size, self.in_waiting(t))
+        if n <= 0:
+            return b""
+        out = bytes(self._rx_data[:n])
+        del self._rx_data[:n], self._rx_wire[:n], self._rx_vis[:n]
+        return out
+
+    def visible_at(self, count: int = 1) -> float | None:
+        """When ``count`` unread bytes will be readable, or None if fewer are on their way."""
+        if count <= 0:
+            return self.clock.now()
+        if count > len(self._rx_vis):
+            return None
+        return self._rx_vis[count - 1]
+
+    @property
+    def pending_rx(self) -> int:
+        """Unread bytes, readable or still on their way."""
+        return len(self._rx_vis)
+
+    def reset_input(self, t: float | None = None) -> None:
+        """Discard what the host could read at ``t`` (bytes still on the wire survive)."""
+        n = self.in_waiting(t)
+        del self._rx_data[:n], self._rx_wire[:n], self._rx_vis[:n]
+
+    # ------------------------------------------------------------------ servos
+    def servo(self, servo_id: int) -> VirtualServo:
+        """The (first) servo with ``servo_id``; KeyError if none."""
+        for s in self.servos:
+            if s.id == servo_id:
+                return s
+        raise KeyError(f"no servo with ID {servo_id} on this bus")
+
+    def _hears(self, servo: VirtualServo, t: float) -> bool:
+        back = self._offline.get(id(servo))
+        if back is not None:
+            if t < back:
+                return False
+            del self._offline[id(servo)]
+            servo.brownout(back)  # power returns: RAM comes back at defaults
+        return servo.baud == self.baud
+
+    def _apply_events(self, t: float) -> None:
+        while self._events and self.t0 + self._events[0].at <= t:
+            ev = self._events.pop(0)
+            te = self.t0 + ev.at
+            if ev.kind is FaultKind.UNPLUG:
+                self.unplugged_at = te
+                continue
+            (sid,) = ev.ids or (None,)
+            targets = [s for s in self.servos if s.id == sid]
+            if not targets:
+                continue
+            servo = targets[0]
+            if ev.kind is FaultKind.BROWNOUT:
+                self._offline[id(servo)] = te + ev.duration
+            elif ev.kind is FaultKind.HARDWARE_ERROR:
+                servo.inject_hardware_error(ev.bits, te)
+            elif ev.kind is FaultKind.TORQUE_OFF:
+                servo.cut_torque(te)
+            elif ev.kind is FaultKind.WATCHDOG_TRIP:
+                servo.trip_watchdog(te)
+            elif ev.kind is FaultKind.DUPLICATE_ID:
+                twin = VirtualServo(
+                    servo.model.name, sid, baud=servo.baud,
+                    return_delay_us=servo.return_delay_s * 1e6, t=te,
+                )
+                self.servos.append(twin)
+
+    # ------------------------------------------------------------------ dispatch
+    def _process(self, frame: Frame, t: float) -> None:
+        self.stats["instructions"] += 1
+        hearing = [s for s in self.servos if self._hears(s, t)]
+        if not frame.crc_ok:
+            self.stats["crc_errors"] += 1
+            # Never executed. A servo that recognises its ID complains (CRC Error).
+            targets = [s for s in hearing if s.id == frame.id]
+            for s in targets:
+                s.touch(t)
+            replies = [
+                (s, encode_status(s.id, self._err(s, ErrorCode.CRC)))
+                for s in targets
+                if s.status_return_level >= 2
+            ]
+            self._send_unicast(replies, t)
+            return
+        pkt = frame.packet
+        inst, params = pkt.instruction, pkt.params
+        if pkt.id == BROADCAST_ID:
+            self._broadcast(inst, params, hearing, t)
+            return
+        targets = [s for s in hearing if s.id == pkt.id]
+        replies = []
+        for s in targets:
+            s.touch(t)
+            err, data = self._execute(s, inst, params, t)
+            if self._replies(s, inst):
+                replies.append((s, encode_status(s.id, err, data)))
+        self._send_unicast(replies, t)
+
+    @staticmethod
+    def _err(servo: VirtualServo, code: int) -> int:
+        return code | (0x80 if servo.alert else 0)
+
+    @staticmethod
+    def _replies(servo: VirtualServo, inst: int) -> bool:
+        level = servo.status_return_level
+        if inst == Inst.PING:
+            return True
+        if inst == Inst.READ:
+            return level >= 1
+        return level >= 2
+
+    def _execute(self, s: VirtualServo, inst: int, params: bytes, t: float) -> tuple[int, bytes]:
+        """One instruction addressed to one servo -> (ERR byte, status params)."""
+        bad = self._err(s, ErrorCode.INSTRUCTION)
+        if inst == Inst.PING:
+            return s.ping(t) if not params else (bad, b"")
+        if inst == Inst.READ:
+            if len(params) != 4:
+                return bad, b""
+            return s.read(params[0] | params[1] << 8, params[2] | params[3] << 8, t)
+        if inst in (Inst.WRITE, Inst.REG_WRITE):
+            if len(params) < 3:
+                return bad, b""
+            fn = s.write if inst == Inst.WRITE else s.reg_write
+            return fn(params[0] | params[1] << 8, params[2:], t), b""
+        if inst == Inst.ACTION:
+            return (s.action(t), b"") if not params else (bad, b"")
+        if inst == Inst.REBOOT:
+            return (s.reboot(t), b"") if not params else (bad, b"")
+        if inst == Inst.FACTORY_RESET:
+            return (s.factory_reset(params[0], t), b"") if len(params) == 1 else (bad, b"")
+        if inst == Inst.CLEAR:
+            return s.clear(params, t), b""
+        return bad, b""  # unknown, or a broadcast-only instruction sent to one ID
+
+    def _broadcast(self, inst: int, params: bytes, hearing: list[VirtualServo], t: float) -> None:
+        if inst == Inst.PING:
+            chain = sorted(hearing, key=lambda s: s.id)
+            for s in chain:
+                s.touch(t)
+            self._send_chain([(s, *s.ping(t)) for s in chain], t)
+        elif inst in (Inst.SYNC_READ, Inst.FAST_SYNC_READ):
+            if len(params) < 5:
+                return
+            addr, length = params[0] | params[1] << 8, params[2] | params[3] << 8
+            self._read_chain(inst == Inst.FAST_SYNC_READ,
+                             [(i, addr, length) for i in params[4:]], hearing, t)
+        elif inst in (Inst.BULK_READ, Inst.FAST_BULK_READ):
+            if len(params) < 5 or len(params) % 5:
+                return
+            items = [
+                (params[k], params[k + 1] | params[k + 2] << 8, params[k + 3] | params[k + 4] << 8)
+                for k in range(0, len(params), 5)
+            ]
+            self._read_chain(inst == Inst.FAST_BULK_READ, items, hearing, t)
+        elif inst == Inst.SYNC_WRITE:
+            if len(params) < 4:
+                return
+            addr, length = params[0] | params[1] << 8, params[2] | params[3] << 8
+            body = params[4:]
+            if length == 0 or len(body) % (length + 1):
+                return  # malformed: every servo ignores it
+            by_id = {}
+            for k in range(0, len(body), length + 1):
+                by_id[body[k]] = body[k + 1 : k + 1 + length]
+            for s in hearing:
+                data = by_id.get(s.id)
+                if data is not None:
+                    s.touch(t)
+                    s.write(addr, data, t)
+        elif inst == Inst.BULK_WRITE:
+            k, items = 0, {}
+            while k + 5 <= len(params):
+                sid, addr = params[k], params[k + 1] | params[k + 2] << 8
+                length = params[k + 3] | params[k + 4] << 8
+                if k + 5 + length > len(params):
+                    return  # malformed
+                items[sid] = (addr, params[k + 5 : k + 5 + length])
+                k += 5 + length
+            if k != len(params):
+                return
+            for s in hearing:
+                if s.id in items:
+                    s.touch(t)
+                    s.write(*items[s.id], t)
+        elif inst in (Inst.WRITE, Inst.REG_WRITE, Inst.ACTION, Inst.REBOOT,
+                      Inst.FACTORY_RESET, Inst.CLEAR):
+            for s in hearing:
+                s.touch(t)
+                self._execute(s, inst, params, t)  # broadcast: executed, never answered
+
+    def _read_chain(self, fast: bool, items: list[tuple[int, int, int]],
+                    hearing: list[VirtualServo], t: float) -> None:
+        """Sync/Bulk Read (plain or fast): servos answer in the order the packet lists them.
+
+        Each link of the chain is ``(answers, length)``; ``answers`` lists ``(servo, err,
+        data)`` for every servo on that ID (several only with a duplicate-ID fault) and is
+        empty when nobody answers, which stops the chain there.
+        """
+        links = []
+        for sid, addr, length in items:
+            members = [s for s in hearing if s.id == sid and (not fast or s.supports_fast_read)]
+            for s in members:
+                s.touch(t)
+            links.append(([(s, *s.read(addr, length, t)) for s in members], length))
+        if fast:
+            self._send_fast(links, t)
+        else:
+            self._send_chain_groups([answers or None for answers, _ in links], t)
+
+    # ------------------------------------------------------------------ replies on the wire
+    def _send_unicast(self, replies: list[tuple[VirtualServo, bytes]], t: float) -> None:
+        if not replies:
+            return
+        self._emit_group(replies, t + replies[0][0].return_delay_s + self.turnaround_s)
+
+    def _send_chain(self, results: list[tuple[VirtualServo, int, bytes]], t: float) -> None:
+        self._send_chain_groups([[r] for r in results], t)
+
+    def _send_chain_groups(self, chain: list, t: float) -> None:
+        """Each entry: servos answering the same link (several only with a duplicate ID)."""
+        ready = t
+        for group in chain:
+            if group is None:
+                return
+            lead = group[0][0]
+            packets = [(s, encode_status(s.id, err, data)) for s, err, data in group]
+            end = self._emit_group(packets, ready + lead.return_delay_s + self.turnaround_s)
+            if end is None:
+                return  # silent (dropped/truncated): later servos never hear it
+            ready = end
+
+    def _emit_group(self, packets: list[tuple[VirtualServo, bytes]], start: float) -> float | None:
+        """Put one status packet (or colliding ones) on the wire; apply reply faults.
+
+        Returns when its last byte ends, or None if the chain must stop here.
+        """
+        lead = packets[0][0]
+        data = packets[0][1]
+        note = f"id={lead.id}"
+        for _, other in packets[1:]:  # same ID twice: both drive the line (0 wins)
+            note += " collision"
+            n = max(len(data), len(other))
+            a, b = data.ljust(n, b"\xff"), other.ljust(n, b"\xff")
+            data = bytes(x & y for x, y in zip(a, b))
+        fault = self.faults.reply_fault(lead.id, start - self.t0)
+        keep_chain = True
+        if fault is not None:
+            note += f" fault={fault.kind}"
+            data, start, keep_chain = self._apply_reply_fault(fault, data, start)
+        if data:
+            end = self._emit(data, start, note)
+        else:
+            end = start
+        self.stats["replies"] += 1
+        return end if keep_chain else None
+
+    def _apply_reply_fault(self, fault, data: bytes, start: float) -> tuple[bytes, float, bool]:
+        rng = self.faults.rng
+        kind = fault.kind
+        if kind is FaultKind.DROP:
+            return b"", start, False
+        if kind is FaultKind.CORRUPT:
+            i = rng.randrange(len(HEADER), len(data))  # keep the header so the host finds it
+            flipped = bytearray(data)
+            flipped[i] ^= rng.randrange(1, 256)
+            return bytes(flipped), start, True
+        if kind is FaultKind.TRUNCATE:
+            return data[: rng.randrange(1, len(data))], start, False
+        if kind is FaultKind.LATE:
+            return data, start + fault.delay, True
+        if kind is FaultKind.GARBAGE:
+            junk = bytes(rng.randrange(256) for _ in range(fault.nbytes))
+            return junk + data, start, True
+        return data, start, True
+
+    def _send_fast(self, links: list[tuple[list, int]], t: float) -> None:
+        """Fast Sync/Bulk Read: one packet, header and first block from the first servo,
+        then each servo appends ``ERR ID data CRC`` (data zero-filled after an error)."""
+        answered = []
+        for answers, _ in links:
+            if not answers:
+                break
+            answered.append(answers)
+        if not answered:
+            return
+        blocks = [
+            (err, s.id, data if len(data) == length else bytes(length))
+            for (s, err, data), (_, length) in zip((a[0] for a in answered), links)
+        ]
+        full = encode_fast_status(blocks, length=1 + sum(n + 4 for _, n in links))
+        lead = answered[0][0][0]
+        ready = t + lead.return_delay_s + self.turnaround_s
+        pos = 0
+        for k, answers in enumerate(answered):
+            size = (8 if k == 0 else 0) + len(blocks[k][2]) + 4
+            part = full[pos : pos + size]
+            pos += size
+            end = self._emit_group([(s, part) for s, _, _ in answers], ready)
+            if end is None:
+                return
+            ready = end
+
+    def _emit(self, data: bytes, start: float, note: str) -> float:
+        bt = self.byte_time
+        times = [start + (k + 1) * bt for k in range(len(data))]
+        end = times[-1]
+        if not self._rx_wire or times[0] >= self._rx_wire[-1]:
+            self._rx_data += data
+            self._rx_wire += times
+        else:  # a late reply overtaken by newer ones: merge by wire time
+            merged = sorted(zip(self._rx_wire + times, self._rx_data + data, strict=True),
+                            key=lambda p: p[0])
+            self._rx_wire = [w for w, _ in merged]
+            self._rx_data = bytearray(b for _, b in merged)
+        self.stats["bytes_rx"] += len(data)
+        self._update_visibility()
+        if self.trace is not None:
+            self.trace.append(TraceRecord(start, end, "rx", bytes(data), note))
+        return end
+
+    def _update_visibility(self) -> None:
+        """Recompute when each unread byte reaches the host through the USB adapter."""
+        wire = self._rx_wire
+        latency = self.latency_s
+        if latency <= 0.0:
+            self._rx_vis = list(wire)
+            return
+        now = self.clock.now()
+        old = self._rx_vis
+        vis = [0.0] * len(wire)
+        chunk_start = 0
+        for i in range(len(wire)):
+            last = i + 1 == len(wire) or wire[i + 1] - wire[i] > latency
+            if i + 1 - chunk_start == USB_CHUNK or last:
+                flush = wire[i] if i + 1 - chunk_start == USB_CHUNK else wire[i] + latency
+                for j in range(chunk_start, i + 1):
+                    vis[j] = flush
+                chunk_start = i + 1
+        # A byte the host could already see stays visible.
+        for j in range(min(len(old), len(vis))):
+            if old[j] <= now and wire[j] <= old[j]:
+                vis[j] = min(vis[j], old[j])
+        self._rx_vis = vis

@@ -1,0 +1,127 @@
+"""pyserial URL handler for ``dxlsim://``: an emulated Dynamixel bus behind a serial port.
+
+pyserial finds this module as ``<package>.protocol_dxlsim`` once ``drivers.dxlsim`` is in
+``serial.protocol_handler_packages`` (importing :mod:`drivers.dxlsim` puts it there).
+
+Reads follow pyserial's timeout rules against the bus's clock: ``timeout=0`` returns
+what is readable now; ``timeout=T`` waits until ``size`` bytes are readable or ``T``
+has passed. On a virtual clock that wait is a jump, so nothing ever sleeps. Once the
+bus's fault plan unplugs the adapter every call raises :class:`serial.SerialException`,
+as a real USB adapter that vanished does.
+"""
+
+from __future__ import annotations
+
+from serial.serialutil import PortNotOpenError, SerialBase, SerialException
+
+from drivers.dxlsim.url import bus_from_url
+
+
+class Serial(SerialBase):
+    """A serial port whose other end is a :class:`~drivers.dxlsim.bus.DxlBus`."""
+
+    bus = None
+
+    def open(self) -> None:
+        if self._port is None:
+            raise SerialException("Port must be configured before it can be used.")
+        if self.is_open:
+            raise SerialException("Port is already open.")
+        try:
+            self.bus = bus_from_url(self.portstr, host_baud=self._baudrate)
+        except ValueError as exc:
+            raise SerialException(str(exc)) from exc
+        self.is_open = True
+        self._reconfigure_port()
+        self.reset_input_buffer()
+
+    @property
+    def clock(self):
+        """The bus's clock: a PortHandler on this port must use it."""
+        return self.bus.clock
+
+    def _reconfigure_port(self) -> None:
+        if self.bus is not None:
+            self.bus.baud = int(self._baudrate)  # the host's line rate; servos keep theirs
+
+    def close(self) -> None:
+        self.is_open = False
+
+    def from_url(self, url: str) -> str:  # pyserial calls this with the whole URL
+        return url
+
+    def _check(self) -> None:
+        if not self.is_open:
+            raise PortNotOpenError()
+        if self.bus.unplugged():
+            self.is_open = False
+            raise SerialException(
+                "device reports readiness to read but returned no data "
+                "(device disconnected or multiple access on port?)"
+            )
+
+    @property
+    def in_waiting(self) -> int:
+        self._check()
+        return self.bus.in_waiting()
+
+    def read(self, size: int = 1) -> bytes:
+        self._check()
+        bus = self.bus
+        if self._timeout is None:
+            due = bus.visible_at(size)
+            if due is None:
+                raise SerialException(
+                    f"read({size}) with timeout=None would block forever: "
+                    f"only {bus.pending_rx} byte(s) are on their way"
+                )
+            bus.clock.wait_until(due)
+        elif self._timeout > 0:
+            clock = bus.clock
+            deadline = clock.now() + self._timeout
+            due = bus.visible_at(size)
+            clock.wait_until(deadline if due is None or due > deadline else due)
+            self._check()
+        return bus.read(size)
+
+    def write(self, data) -> int:
+        self._check()
+        data = bytes(data)
+        self.bus.write(data)
+        return len(data)
+
+    def reset_input_buffer(self) -> None:
+        self._check()
+        self.bus.reset_input()
+
+    def reset_output_buffer(self) -> None:
+        self._check()  # bytes written are already on the wire
+
+    @property
+    def out_waiting(self) -> int:
+        return 0
+
+    def flush(self) -> None:
+        self._check()
+        self.bus.clock.wait_until(self.bus._tx_free)
+
+    # modem lines: accepted and ignored (the bus has none)
+    def _update_break_state(self) -> None: ...
+    def _update_rts_state(self) -> None: ...
+    def _update_dtr_state(self) -> None: ...
+
+    @property
+    def cts(self) -> bool:
+        return True
+
+    @property
+    def dsr(self) -> bool:
+        return True
+
+    @property
+    def ri(self) -> bool:
+        return False
+
+    @property
+    def cd(self) -> bool:
+        return True
