@@ -20,8 +20,11 @@ from collections.abc import Sequence
 
 #: subcommand name -> module implementing it
 SUBCOMMANDS: dict[str, str] = {
-    "compare": "hilsim.studies.compare",
+    "run": "hilsim.run_cli",
+    "scan": "hilsim.scan_cli",
+    "plot": "hilsim.plot_cli",
     "emulate": "drivers.dxlsim.emulate_cli",
+    "compare": "hilsim.studies.compare",
 }
 
 
