@@ -77,8 +77,10 @@ def main(argv=None) -> int:
     rate = args.cycles / wall
     mode = "plain Sync Read" if args.plain else "Fast Sync Read"
     print(f"{args.servos} servos, {mode}, {args.baud} bps, virtual loop at {args.rate:g} Hz")
-    print(f"  {args.cycles} cycles in {wall:.3f} s wall: {rate:,.0f} cycles/s "
-          f"({wall / args.cycles * 1e6:.1f} µs/cycle), {failures} failed")
+    print(
+        f"  {args.cycles} cycles in {wall:.3f} s wall: {rate:,.0f} cycles/s "
+        f"({wall / args.cycles * 1e6:.1f} µs/cycle), {failures} failed"
+    )
     print(f"  a {args.rate:g} Hz show rehearses {rate / args.rate:.1f}x faster than real time")
     if profiler:
         pstats.Stats(profiler).sort_stats("tottime").print_stats(15)

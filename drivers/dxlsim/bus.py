@@ -127,7 +127,13 @@ class DxlBus:
         self._events = self.faults.events
         self._offline: dict[int, float] = {}  # id(servo) -> back-online time
         self.unplugged_at: float | None = None
-        self.stats = {"instructions": 0, "crc_errors": 0, "replies": 0, "bytes_tx": 0, "bytes_rx": 0}
+        self.stats = {
+            "instructions": 0,
+            "crc_errors": 0,
+            "replies": 0,
+            "bytes_tx": 0,
+            "bytes_rx": 0,
+        }
 
     # ------------------------------------------------------------------ host side
     @property
@@ -231,15 +237,22 @@ class DxlBus:
                 servo.trip_watchdog(te)
             elif ev.kind is FaultKind.DUPLICATE_ID:
                 twin = VirtualServo(
-                    servo.model.name, sid, baud=servo.baud,
-                    return_delay_us=servo.return_delay_s * 1e6, t=te,
+                    servo.model.name,
+                    sid,
+                    baud=servo.baud,
+                    return_delay_us=servo.return_delay_s * 1e6,
+                    t=te,
                 )
                 self.servos.append(twin)
 
     # ------------------------------------------------------------------ dispatch
     def _process(self, frame: Frame, t: float) -> None:
         self.stats["instructions"] += 1
-        hearing = [s for s in self.servos if self._hears(s, t)]
+        if self._offline:
+            hearing = [s for s in self.servos if self._hears(s, t)]
+        else:  # the common case: nobody is browned out
+            baud = self.baud
+            hearing = [s for s in self.servos if s.baud == baud]
         if not frame.crc_ok:
             self.stats["crc_errors"] += 1
             # Never executed. A servo that recognises its ID complains (CRC Error).
@@ -263,8 +276,8 @@ class DxlBus:
         for s in targets:
             s.touch(t)
             err, data = self._execute(s, inst, params, t)
-            if self._replies(s, inst):
-                replies.append((s, encode_status(s.id, err, data)))
+            if self._replies(s, inst):  # answers as the ID it was asked as, even after an ID write
+                replies.append((s, encode_status(pkt.id, err, data)))
         self._send_unicast(replies, t)
 
     @staticmethod
@@ -314,8 +327,9 @@ class DxlBus:
             if len(params) < 5:
                 return
             addr, length = params[0] | params[1] << 8, params[2] | params[3] << 8
-            self._read_chain(inst == Inst.FAST_SYNC_READ,
-                             [(i, addr, length) for i in params[4:]], hearing, t)
+            self._read_chain(
+                inst == Inst.FAST_SYNC_READ, [(i, addr, length) for i in params[4:]], hearing, t
+            )
         elif inst in (Inst.BULK_READ, Inst.FAST_BULK_READ):
             if len(params) < 5 or len(params) % 5:
                 return
@@ -354,14 +368,21 @@ class DxlBus:
                 if s.id in items:
                     s.touch(t)
                     s.write(*items[s.id], t)
-        elif inst in (Inst.WRITE, Inst.REG_WRITE, Inst.ACTION, Inst.REBOOT,
-                      Inst.FACTORY_RESET, Inst.CLEAR):
+        elif inst in (
+            Inst.WRITE,
+            Inst.REG_WRITE,
+            Inst.ACTION,
+            Inst.REBOOT,
+            Inst.FACTORY_RESET,
+            Inst.CLEAR,
+        ):
             for s in hearing:
                 s.touch(t)
                 self._execute(s, inst, params, t)  # broadcast: executed, never answered
 
-    def _read_chain(self, fast: bool, items: list[tuple[int, int, int]],
-                    hearing: list[VirtualServo], t: float) -> None:
+    def _read_chain(
+        self, fast: bool, items: list[tuple[int, int, int]], hearing: list[VirtualServo], t: float
+    ) -> None:
         """Sync/Bulk Read (plain or fast): servos answer in the order the packet lists them.
 
         Each link of the chain is ``(answers, length)``; ``answers`` lists ``(servo, err,
@@ -413,16 +434,13 @@ class DxlBus:
             note += " collision"
             n = max(len(data), len(other))
             a, b = data.ljust(n, b"\xff"), other.ljust(n, b"\xff")
-            data = bytes(x & y for x, y in zip(a, b))
+            data = bytes(x & y for x, y in zip(a, b, strict=False))
         fault = self.faults.reply_fault(lead.id, start - self.t0)
         keep_chain = True
         if fault is not None:
             note += f" fault={fault.kind}"
             data, start, keep_chain = self._apply_reply_fault(fault, data, start)
-        if data:
-            end = self._emit(data, start, note)
-        else:
-            end = start
+        end = self._emit(data, start, note) if data else start
         self.stats["replies"] += 1
         return end if keep_chain else None
 
@@ -457,7 +475,7 @@ class DxlBus:
             return
         blocks = [
             (err, s.id, data if len(data) == length else bytes(length))
-            for (s, err, data), (_, length) in zip((a[0] for a in answered), links)
+            for (s, err, data), (_, length) in zip((a[0] for a in answered), links, strict=False)
         ]
         full = encode_fast_status(blocks, length=1 + sum(n + 4 for _, n in links))
         lead = answered[0][0][0]
@@ -474,18 +492,23 @@ class DxlBus:
 
     def _emit(self, data: bytes, start: float, note: str) -> float:
         bt = self.byte_time
-        times = [start + (k + 1) * bt for k in range(len(data))]
+        times = [start + k * bt for k in range(1, len(data) + 1)]
         end = times[-1]
         if not self._rx_wire or times[0] >= self._rx_wire[-1]:
             self._rx_data += data
             self._rx_wire += times
+            if self.latency_s <= 0.0:
+                self._rx_vis += times  # ideal adapter: readable when the stop bit ends
+            else:
+                self._update_visibility()
         else:  # a late reply overtaken by newer ones: merge by wire time
-            merged = sorted(zip(self._rx_wire + times, self._rx_data + data, strict=True),
-                            key=lambda p: p[0])
+            merged = sorted(
+                zip(self._rx_wire + times, self._rx_data + data, strict=True), key=lambda p: p[0]
+            )
             self._rx_wire = [w for w, _ in merged]
             self._rx_data = bytearray(b for _, b in merged)
+            self._update_visibility()
         self.stats["bytes_rx"] += len(data)
-        self._update_visibility()
         if self.trace is not None:
             self.trace.append(TraceRecord(start, end, "rx", bytes(data), note))
         return end

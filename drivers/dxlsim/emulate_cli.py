@@ -26,14 +26,25 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--ids", default="1", help="servo IDs, e.g. 1-4 or 1,3,5 (default 1)")
     p.add_argument("--model", default="XM430-W350", help="servo model (default XM430-W350)")
     p.add_argument("--baud", type=int, default=1_000_000, help="bus baud rate (default 1000000)")
-    p.add_argument("--rdt-us", type=float, default=500.0,
-                   help="Return Delay Time in µs (factory 500)")
-    p.add_argument("--turnaround-us", type=float, default=20.0,
-                   help="servo processing time after the Return Delay Time (default 20)")
-    p.add_argument("--latency-ms", type=float, default=0.0,
-                   help="extra USB latency-timer model on replies (default 0: the pty adds its own)")
+    p.add_argument(
+        "--rdt-us", type=float, default=500.0, help="Return Delay Time in µs (factory 500)"
+    )
+    p.add_argument(
+        "--turnaround-us",
+        type=float,
+        default=20.0,
+        help="servo processing time after the Return Delay Time (default 20)",
+    )
+    p.add_argument(
+        "--latency-ms",
+        type=float,
+        default=0.0,
+        help="extra USB latency-timer model on replies (default 0: the pty adds its own)",
+    )
     p.add_argument("--firmware", type=int, default=None, help="firmware version to report")
-    p.add_argument("--faults", default="", help="fault plan, e.g. 'drop:id=2,rate=0.05;unplug:at=30'")
+    p.add_argument(
+        "--faults", default="", help="fault plan, e.g. 'drop:id=2,rate=0.05;unplug:at=30'"
+    )
     p.add_argument("--seed", type=int, default=0, help="fault plan seed (default 0)")
     p.add_argument("--trace", metavar="FILE", help="write every byte, timestamped, as JSON lines")
 
@@ -45,12 +56,25 @@ def run(args: argparse.Namespace) -> int:
         clock = MonotonicClock()
         t = clock.now()
         servos = [
-            VirtualServo(args.model, i, baud=args.baud, return_delay_us=args.rdt_us,
-                         firmware=args.firmware, t=t)
+            VirtualServo(
+                args.model,
+                i,
+                baud=args.baud,
+                return_delay_us=args.rdt_us,
+                firmware=args.firmware,
+                t=t,
+            )
             for i in ids
         ]
-        bus = DxlBus(servos, baud=args.baud, clock=clock, latency_timer_ms=args.latency_ms,
-                     turnaround_us=args.turnaround_us, faults=plan, trace=bool(args.trace))
+        bus = DxlBus(
+            servos,
+            baud=args.baud,
+            clock=clock,
+            latency_timer_ms=args.latency_ms,
+            turnaround_us=args.turnaround_us,
+            faults=plan,
+            trace=bool(args.trace),
+        )
     except (ValueError, FaultSpecError) as exc:
         print(f"hilsim emulate: {exc}", file=sys.stderr)
         return 2
@@ -64,8 +88,12 @@ def run(args: argparse.Namespace) -> int:
     signal.signal(signal.SIGINT, on_signal)
     signal.signal(signal.SIGTERM, on_signal)
     print(server.path, flush=True)
-    print(f"hilsim emulate: {len(servos)} x {args.model} (IDs {args.ids}) at {args.baud} bps "
-          f"on {server.path}; Ctrl-C to stop", file=sys.stderr, flush=True)
+    print(
+        f"hilsim emulate: {len(servos)} x {args.model} (IDs {args.ids}) at {args.baud} bps "
+        f"on {server.path}; Ctrl-C to stop",
+        file=sys.stderr,
+        flush=True,
+    )
     try:
         server.serve_forever()
     finally:
@@ -73,9 +101,17 @@ def run(args: argparse.Namespace) -> int:
         if args.trace:
             with open(args.trace, "w") as fh:
                 for r in bus.trace or ():
-                    fh.write(json.dumps({"t_start": r.t_start - bus.t0, "t_end": r.t_end - bus.t0,
-                                         "dir": r.direction, "hex": r.data.hex(" "),
-                                         "note": r.note}) + "\n")
-    print(f"hilsim emulate: stopped ({bus.stats['instructions']} packets served)",
-          file=sys.stderr)
+                    fh.write(
+                        json.dumps(
+                            {
+                                "t_start": r.t_start - bus.t0,
+                                "t_end": r.t_end - bus.t0,
+                                "dir": r.direction,
+                                "hex": r.data.hex(" "),
+                                "note": r.note,
+                            }
+                        )
+                        + "\n"
+                    )
+    print(f"hilsim emulate: stopped ({bus.stats['instructions']} packets served)", file=sys.stderr)
     return 0

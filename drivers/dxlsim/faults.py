@@ -53,12 +53,22 @@ class FaultKind(StrEnum):
 REPLY_FAULTS = frozenset(
     {FaultKind.DROP, FaultKind.CORRUPT, FaultKind.TRUNCATE, FaultKind.LATE, FaultKind.GARBAGE}
 )
-_ALIASES = {"hwerr": FaultKind.HARDWARE_ERROR, "hw_error": FaultKind.HARDWARE_ERROR,
-            "torque": FaultKind.TORQUE_OFF, "watchdog": FaultKind.WATCHDOG_TRIP,
-            "dup": FaultKind.DUPLICATE_ID, "duplicate": FaultKind.DUPLICATE_ID}
+_ALIASES = {
+    "hwerr": FaultKind.HARDWARE_ERROR,
+    "hw_error": FaultKind.HARDWARE_ERROR,
+    "torque": FaultKind.TORQUE_OFF,
+    "watchdog": FaultKind.WATCHDOG_TRIP,
+    "dup": FaultKind.DUPLICATE_ID,
+    "duplicate": FaultKind.DUPLICATE_ID,
+}
 #: Hardware Error Status bits by name (addr 70).
-HARDWARE_ERROR_BITS = {"voltage": 0x01, "overheating": 0x04, "encoder": 0x08,
-                       "electrical_shock": 0x10, "overload": 0x20}
+HARDWARE_ERROR_BITS = {
+    "voltage": 0x01,
+    "overheating": 0x04,
+    "encoder": 0x08,
+    "electrical_shock": 0x10,
+    "overload": 0x20,
+}
 
 
 class FaultSpecError(ValueError):
@@ -96,8 +106,10 @@ class Fault:
             raise FaultSpecError(f"{self.kind}: delay/duration must be >= 0 and nbytes >= 1")
         if not 0 < self.bits <= 0xFF:
             raise FaultSpecError(f"{self.kind}: bits must be 1..255")
-        if self.is_event and self.kind is not FaultKind.UNPLUG and (
-            self.ids is None or len(self.ids) != 1
+        if (
+            self.is_event
+            and self.kind is not FaultKind.UNPLUG
+            and (self.ids is None or len(self.ids) != 1)
         ):
             raise FaultSpecError(f"{self.kind} is an event on one servo: give id=N")
 
@@ -148,7 +160,8 @@ class FaultPlan:
 
     def fired(self) -> dict[str, int]:
         """How many times each rule fired, keyed ``"<index>:<kind>"``."""
-        return {f"{i}:{f.kind}": n for i, (f, n) in enumerate(zip(self.faults, self._fired))}
+        pairs = zip(self.faults, self._fired, strict=True)
+        return {f"{i}:{f.kind}": n for i, (f, n) in enumerate(pairs)}
 
 
 _FLOAT_KEYS = {"rate", "at", "until", "delay", "duration"}
@@ -170,7 +183,9 @@ def parse_fault(text: str) -> Fault:
         kind = _ALIASES.get(name) or FaultKind(name)
     except ValueError:
         choices = ", ".join(k.value for k in FaultKind)
-        raise FaultSpecError(f"unknown fault kind {name!r} in {text!r}; choose from: {choices}")
+        raise FaultSpecError(
+            f"unknown fault kind {name!r} in {text!r}; choose from: {choices}"
+        ) from None
     kwargs: dict = {}
     for item in filter(None, (p.strip() for p in rest.split(","))):
         key, eq, value = item.partition("=")

@@ -12,7 +12,9 @@ def parse_ids(text: str) -> list[int]:
             first = int(lo)
             last = int(hi) if dash else first
         except ValueError:
-            raise ValueError(f"bad servo ID {part!r} in {text!r}: use forms like 1-4 or 1,3,5")
+            raise ValueError(
+                f"bad servo ID {part!r} in {text!r}: use forms like 1-4 or 1,3,5"
+            ) from None
         if last < first:
             raise ValueError(f"bad ID range {part!r}: {last} < {first}")
         ids.extend(range(first, last + 1))

@@ -161,12 +161,12 @@ class ServoModel:
         """First address after the last defined field (147 for the X series)."""
         return max(f.end for f in self.fields)
 
-    @property
+    @cached_property
     def baud_rates(self) -> tuple[int, ...]:
         """Supported baud rates in bps, indexed by the Baud Rate (addr 8) value."""
         return BAUD_RATES[: self.field("baud_rate").hi + 1]
 
-    @property
+    @cached_property
     def no_load_speed_pulse_s(self) -> float:
         """No-load speed at nominal voltage, pulse/s."""
         return self.no_load_speed_rpm * PULSES_PER_REV / 60.0

@@ -8,6 +8,7 @@ readable. Accuracy is bounded by the OS's wake-up latency (``select``), typicall
 
 from __future__ import annotations
 
+import contextlib
 import os
 import select
 import threading
@@ -36,10 +37,8 @@ class PtyServer:
 
     def close(self) -> None:
         for fd in (self._master, self._slave):
-            try:
+            with contextlib.suppress(OSError):
                 os.close(fd)
-            except OSError:
-                pass
 
     def serve_forever(self) -> None:
         bus, clock, master = self.bus, self.bus.clock, self._master

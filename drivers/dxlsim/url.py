@@ -32,8 +32,19 @@ from drivers.dxlsim.faults import parse_fault_plan
 from drivers.dxlsim.ids import parse_ids
 from drivers.dxlsim.servo import VirtualServo
 
-_KEYS = ("ids", "model", "baud", "rdt_us", "turnaround_us", "latency_ms", "clock", "faults",
-         "seed", "firmware", "trace")
+_KEYS = (
+    "ids",
+    "model",
+    "baud",
+    "rdt_us",
+    "turnaround_us",
+    "latency_ms",
+    "clock",
+    "faults",
+    "seed",
+    "firmware",
+    "trace",
+)
 _registry: dict[str, DxlBus] = {}
 _lock = threading.Lock()
 

@@ -64,7 +64,7 @@ class PortHandler(dynamixel_sdk.PortHandler):
         return self._clock
 
     # -- the two SDK methods that touch the OS ------------------------------------
-    def setupPort(self, cflag_baud):  # noqa: ARG002  (SDK signature)
+    def setupPort(self, cflag_baud):
         if self.is_open:
             self.closePort()
         self.ser = serial.serial_for_url(

@@ -29,13 +29,33 @@ class Session:
     kind: str
 
 
-def make_bus(ids=IDS, *, model="XM430-W350", rdt_us=0.0, turnaround_us=20.0, baud=BAUD,
-             latency_timer_ms=0.0, faults=None, seed=0, trace=False, **servo_kw) -> DxlBus:
+def make_bus(
+    ids=IDS,
+    *,
+    model="XM430-W350",
+    rdt_us=0.0,
+    turnaround_us=20.0,
+    baud=BAUD,
+    latency_timer_ms=0.0,
+    faults=None,
+    seed=0,
+    trace=False,
+    **servo_kw,
+) -> DxlBus:
     clock = VirtualClock()
-    servos = [VirtualServo(model, i, baud=baud, return_delay_us=rdt_us, t=0.0, **servo_kw)
-              for i in ids]
-    return DxlBus(servos, baud=baud, clock=clock, latency_timer_ms=latency_timer_ms,
-                  turnaround_us=turnaround_us, faults=faults, seed=seed, trace=trace)
+    servos = [
+        VirtualServo(model, i, baud=baud, return_delay_us=rdt_us, t=0.0, **servo_kw) for i in ids
+    ]
+    return DxlBus(
+        servos,
+        baud=baud,
+        clock=clock,
+        latency_timer_ms=latency_timer_ms,
+        turnaround_us=turnaround_us,
+        faults=faults,
+        seed=seed,
+        trace=trace,
+    )
 
 
 def open_session(bus: DxlBus, name: str = "test-bus", latency_timer_ms: float = 16.0) -> Session:
@@ -60,9 +80,21 @@ def dxl():
 def emulator_process():
     """``hilsim emulate`` in a subprocess; yields (process, pty path)."""
     proc = subprocess.Popen(
-        [sys.executable, "-m", "hilsim", "emulate", "--ids", "1-4", "--baud", str(BAUD),
-         "--rdt-us", "0"],
-        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+        [
+            sys.executable,
+            "-m",
+            "hilsim",
+            "emulate",
+            "--ids",
+            "1-4",
+            "--baud",
+            str(BAUD),
+            "--rdt-us",
+            "0",
+        ],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
     )
     path = proc.stdout.readline().strip()
     if not path.startswith("/dev/"):

@@ -1,4 +1,4 @@
-"""Arbitrary bytes never crash the emulator and never change a servo unless a valid packet is in them."""
+"""Arbitrary bytes never crash the emulator, nor change a servo unless they hold a valid packet."""
 
 from __future__ import annotations
 
@@ -36,7 +36,9 @@ def test_garbage_never_raises_and_never_changes_state(chunks):
 
 packets = st.builds(
     lambda sid, addr, value: encode_instruction(sid, Instruction.WRITE, bytes([addr, 0, value])),
-    st.sampled_from([1, 2]), st.sampled_from([65, 68]), st.integers(0, 1),
+    st.sampled_from([1, 2]),
+    st.sampled_from([65, 68]),
+    st.integers(0, 1),
 )
 
 

@@ -36,11 +36,17 @@ def opened():
 @pytest.mark.parametrize("latency_ms", [0.0, 1.0, 16.0])
 def test_single_transaction_time(opened, baud, rdt_us, latency_ms):
     turnaround_us = 20.0
-    bus = make_bus((1,), baud=baud, rdt_us=rdt_us, turnaround_us=turnaround_us,
-                   latency_timer_ms=latency_ms, trace=True)
+    bus = make_bus(
+        (1,),
+        baud=baud,
+        rdt_us=rdt_us,
+        turnaround_us=turnaround_us,
+        latency_timer_ms=latency_ms,
+        trace=True,
+    )
     s = opened(bus, latency_timer_ms=max(latency_ms, 16.0))
     t0 = bus.clock.now()
-    value, result, error = s.ph.read4ByteTxRx(s.port, 1, ADDR_PRESENT_POS)
+    _value, result, error = s.ph.read4ByteTxRx(s.port, 1, ADDR_PRESENT_POS)
     assert (result, error) == (OK, 0)
     elapsed = bus.clock.now() - t0
     wire = 10 * (14 + 15) / baud  # Read instruction 14 B + status with 4 data bytes 15 B
@@ -54,10 +60,14 @@ def test_single_transaction_time(opened, baud, rdt_us, latency_ms):
 
 # Theoretical loop rates from dynamixel.md (RDT = 0, t_proc = 0), plain / fast, Hz.
 TABLE = {
-    (1, 1_000_000): (2041, 2000), (4, 1_000_000): (893, 1087),
-    (8, 1_000_000): (510, 676), (16, 1_000_000): (275, 385),
-    (1, 4_000_000): (8163, 8000), (4, 4_000_000): (3571, 4348),
-    (8, 4_000_000): (2041, 2703), (16, 4_000_000): (1099, 1538),
+    (1, 1_000_000): (2041, 2000),
+    (4, 1_000_000): (893, 1087),
+    (8, 1_000_000): (510, 676),
+    (16, 1_000_000): (275, 385),
+    (1, 4_000_000): (8163, 8000),
+    (4, 4_000_000): (3571, 4348),
+    (8, 4_000_000): (2041, 2703),
+    (16, 4_000_000): (1099, 1538),
 }
 
 

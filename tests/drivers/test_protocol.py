@@ -25,8 +25,11 @@ from drivers.dxlsim.protocol import (
 )
 
 GOLDEN_PATH = pathlib.Path(__file__).parent / "golden_packets.json"
-GOLDEN = {k: bytes.fromhex(v) for k, v in json.loads(GOLDEN_PATH.read_text()).items()
-          if not k.startswith("_")}
+GOLDEN = {
+    k: bytes.fromhex(v)
+    for k, v in json.loads(GOLDEN_PATH.read_text()).items()
+    if not k.startswith("_")
+}
 PLAIN = {k: v for k, v in GOLDEN.items() if k != "fast_sync_read_status_ids_3_7_4"}
 
 
@@ -50,7 +53,10 @@ def test_golden_fast_sync_read_reply():
     frame = GOLDEN["fast_sync_read_status_ids_3_7_4"]
     blocks = parse_fast_status(frame, [4, 4, 4])
     assert [(e, i, int.from_bytes(d, "little"), ok) for e, i, d, ok in blocks] == [
-        (0, 3, 166, True), (0, 7, 2079, True), (0, 4, 1023, True)]
+        (0, 3, 166, True),
+        (0, 7, 2079, True),
+        (0, 4, 1023, True),
+    ]
     assert encode_fast_status([(e, i, d) for e, i, d, _ in blocks]) == frame
     assert len(frame) == 8 + 3 * (4 + 4)  # dynamixel.md: 8 + N(X+4)
 
@@ -83,8 +89,11 @@ def test_stuff_unstuff_round_trip(body):
     assert b"\xff\xff\xfd" not in stuffed.replace(b"\xff\xff\xfd\xfd", b"")
 
 
-@given(st.integers(0, 252), st.sampled_from([i for i in Instruction if i != Instruction.STATUS]),
-       st.binary(max_size=40))
+@given(
+    st.integers(0, 252),
+    st.sampled_from([i for i in Instruction if i != Instruction.STATUS]),
+    st.binary(max_size=40),
+)
 def test_any_instruction_round_trips(pid, inst, params):
     frame = encode_instruction(pid, inst, params)
     packet = decode(frame)

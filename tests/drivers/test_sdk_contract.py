@@ -7,7 +7,6 @@
 from __future__ import annotations
 
 import dynamixel_sdk as sdk
-import pytest
 
 from drivers.dxlsim.protocol import ErrorCode, Instruction, encode_instruction
 
@@ -133,7 +132,11 @@ def test_fast_sync_read(session):
         reader.addParam(dxl_id)
     assert reader.fastSyncRead() == OK
     assert {i: reader.getData(i, ADDR_PROFILE_VEL, 4) for i in (1, 2, 3, 4)} == {
-        1: 10, 2: 20, 3: 30, 4: 40}
+        1: 10,
+        2: 20,
+        3: 30,
+        4: 40,
+    }
 
 
 def test_bulk_read_and_bulk_write(session):

@@ -14,8 +14,9 @@ PING1 = encode_instruction(1, Instruction.PING)
 
 
 def test_url_builds_a_bus_and_answers_a_ping():
-    port = serial.serial_for_url("dxlsim://?ids=1-3&model=XL430-W250&rdt_us=0",
-                                 baudrate=1_000_000, timeout=0)
+    port = serial.serial_for_url(
+        "dxlsim://?ids=1-3&model=XL430-W250&rdt_us=0", baudrate=1_000_000, timeout=0
+    )
     assert port.bus.clock.virtual
     assert [s.id for s in port.bus.servos] == [1, 2, 3]
     port.write(PING1)
@@ -26,8 +27,9 @@ def test_url_builds_a_bus_and_answers_a_ping():
 
 
 def test_read_with_timeout_jumps_the_virtual_clock_exactly():
-    port = serial.serial_for_url("dxlsim://?ids=1&rdt_us=0&turnaround_us=0", baudrate=1_000_000,
-                                 timeout=1.0)
+    port = serial.serial_for_url(
+        "dxlsim://?ids=1&rdt_us=0&turnaround_us=0", baudrate=1_000_000, timeout=1.0
+    )
     clock = port.clock
     t0 = clock.now()
     port.write(PING1)
@@ -63,8 +65,9 @@ def test_bad_urls_say_what_is_wrong(url, message):
 
 def test_named_bus_object_api_and_trace():
     clock = VirtualClock()
-    bus = DxlBus([VirtualServo("XM430-W350", 7, baud=57_600, t=0.0)], baud=57_600, clock=clock,
-                 trace=True)
+    bus = DxlBus(
+        [VirtualServo("XM430-W350", 7, baud=57_600, t=0.0)], baud=57_600, clock=clock, trace=True
+    )
     url = register_bus("bench-7", bus)
     try:
         port = serial.serial_for_url(url, baudrate=57_600, timeout=0.1)
