@@ -6,7 +6,13 @@
 
 from __future__ import annotations
 
+import json
+import signal
+import subprocess
+import sys
+
 import dynamixel_sdk as sdk
+import pytest
 
 from drivers.dxlsim.protocol import ErrorCode, Instruction, encode_instruction
 
@@ -191,3 +197,40 @@ def test_status_return_level_zero_answers_only_ping(session):
     assert ph.ping(port, 3)[1] == OK
     _, result, _ = ph.read1ByteTxRx(port, 3, ADDR_LED)
     assert result == sdk.COMM_RX_TIMEOUT
+
+
+@pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM])
+def test_emulate_serves_until_signalled_and_writes_its_trace(tmp_path, signum):
+    trace = tmp_path / "trace.jsonl"
+    proc = subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "hilsim",
+            "emulate",
+            "--ids",
+            "1",
+            "--rdt-us",
+            "0",
+            "--trace",
+            str(trace),
+        ],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        path = proc.stdout.readline().strip()
+        port = sdk.PortHandler(path)
+        assert port.openPort() and port.setBaudRate(1_000_000)
+        assert sdk.PacketHandler(2.0).ping(port, 1)[1] == OK
+        port.closePort()
+        proc.send_signal(signum)
+        assert proc.wait(timeout=10) == 0
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    records = [json.loads(line) for line in trace.read_text().splitlines()]
+    assert [r["dir"] for r in records] == ["tx", "rx"]
+    assert records[0]["hex"].startswith("ff ff fd 00 01 03 00 01")
+    assert records[1]["t_start"] >= records[0]["t_end"]

@@ -88,3 +88,34 @@ def test_host_baud_change_reaches_the_bus():
     port = serial.serial_for_url("dxlsim://?ids=1&baud=57600", baudrate=57_600)
     port.baudrate = 115_200
     assert port.bus.baud == 115_200
+
+
+def test_xm430_w210_firmware_38_answers_the_manual_ping_byte_for_byte():
+    golden = {
+        k: bytes.fromhex(v)
+        for k, v in __import__("json")
+        .loads((__import__("pathlib").Path(__file__).parent / "golden_packets.json").read_text())
+        .items()
+        if not k.startswith("_")
+    }
+    bus = DxlBus([VirtualServo("XM430-W210", 1, baud=57_600, firmware=38, t=0.0)], baud=57_600)
+    bus.write(golden["ping_id1_instruction"])
+    assert bus.read(100, bus.clock.now() + 0.01) == golden["ping_id1_status_model1030_fw38"]
+
+
+def test_real_clock_bytes_become_readable_only_when_their_time_comes():
+    port = serial.serial_for_url(
+        "dxlsim://?ids=1&clock=real&rdt_us=500", baudrate=1_000_000, timeout=0
+    )
+    clock = port.clock
+    assert not clock.virtual
+    t0 = clock.now()
+    port.write(PING1)
+    early = port.read(14)
+    port.timeout = 0.5
+    late = port.read(14)
+    elapsed = clock.now() - t0
+    # 24 bytes on the wire + 500 µs Return Delay + 20 µs turnaround = 760 µs at the earliest.
+    assert len(early + late) == 14
+    assert elapsed >= 760e-6
+    assert len(early) < 14
