@@ -23,6 +23,7 @@ SUBCOMMANDS: dict[str, str] = {
     "run": "hilsim.run_cli",
     "scan": "hilsim.scan_cli",
     "plot": "hilsim.plot_cli",
+    "bench": "hilsim.bench_cli",
     "emulate": "drivers.dxlsim.emulate_cli",
     "compare": "hilsim.studies.compare",
 }
