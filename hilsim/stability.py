@@ -1,0 +1,234 @@
+"""Stability guard: will a fixed step h blow a spring bank up, and how many substeps would not?
+
+An explicit method multiplies each free mode of a spring by a growth factor every step (|R(h·λ)| for
+a Runge–Kutta method, the spectral radius of the update matrix for semi-implicit Euler). As h grows,
+h·λ moves out from 0 along the ray of λ (the direction set by the damping ratio: 90° undamped, 180°
+critically or overdamped) and leaves the stability region at some radius r*. A rig is stable when
+h·|λ| ≤ r* for every spring; otherwise n substeps of h/n are needed, n = the smallest integer with
+h/n ≤ r*/|λ|.
+
+Boundaries are computed numerically from each method's growth function, so they are right for damped
+springs, whose rays are not the axes the textbooks tabulate: a scan of r on a grid finds the first
+unstable radius, and bisection pins the crossing to rounding. The growth is evaluated as
+|R|² − 1 = 2·Re(R − 1) + |R − 1|², which keeps its sign even when |R| is within 1e-15 of 1.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+import numpy.typing as npt
+
+from hilsim.integrators import Integrator, get_method
+from hilsim.springs import FloatArray, Spring
+
+#: scan limit in h·|λ|: explicit methods with up to four stages are unstable well before 10
+R_MAX = 10.0
+#: scan resolution (grid step R_MAX / N_GRID = 0.005), then bisection to rounding
+N_GRID = 2000
+_BISECTIONS = 60
+#: boundaries below this are reported as exactly 0: the method amplifies the mode at any step size
+#: (e.g. Euler or midpoint on an undamped spring), and rounding alone decides where below it
+ZERO_FLOOR = 1e-6
+
+
+def _first_crossing(growth_of_r: Callable[[FloatArray], FloatArray], width: int) -> FloatArray:
+    """Per column, the radius where ``growth_of_r`` first turns positive (inf if not by R_MAX).
+
+    ``growth_of_r`` maps radii shaped (G, 1) or (1, width) to growth shaped (G, width).
+    """
+    r = np.linspace(R_MAX / N_GRID, R_MAX, N_GRID)[:, np.newaxis]
+    unstable = growth_of_r(r) > 0.0
+    first = np.argmax(unstable, axis=0)
+    hi = r[first, 0]
+    lo = np.where(first > 0, r[np.maximum(first - 1, 0), 0], 0.0)
+    for _ in range(_BISECTIONS):
+        mid = 0.5 * (lo + hi)
+        bad = growth_of_r(mid[np.newaxis, :])[0] > 0.0
+        hi = np.where(bad, mid, hi)
+        lo = np.where(bad, lo, mid)  # lo stays a radius known to be stable
+    r_star = np.where(unstable.any(axis=0), lo, np.inf)
+    return np.where(r_star < ZERO_FLOOR, 0.0, r_star).reshape(width)
+
+
+def stability_boundary(method: str | type[Integrator], angle: npt.ArrayLike) -> float | FloatArray:
+    """Radius r* where the ray z = r·e^(i·angle) first leaves the method's stability region.
+
+    Args:
+        method: a method name or class.
+        angle: direction of h·λ in radians (π/2 the imaginary axis, π the negative real axis);
+            number or array.
+
+    Returns:
+        r* (same shape as ``angle``); 0.0 when the method is unstable arbitrarily close to 0 along
+        the ray, inf when stable out to :data:`R_MAX`. RK4: 2√2 ≈ 2.8284 at π/2, ≈ 2.7853 at π.
+        For semi-implicit Euler the ray is read as an underdamped spring's eigenvalue pair
+        (see :meth:`SemiImplicitEuler.growth`): 2 at π/2.
+    """
+    cls = get_method(method)
+    angle_arr = np.asarray(angle, dtype=np.float64)
+    flat = angle_arr.reshape(-1)
+    # cos(π/2) is 6e-17, not 0: enough to tip a method that is exactly neutral on the axis
+    # (semi-implicit Euler, undamped) into "growing". Snap the axes to exact directions.
+    re, im = np.cos(flat), np.sin(flat)
+    re[np.abs(re) < 1e-12] = 0.0
+    im[np.abs(im) < 1e-12] = 0.0
+    direction = re + 1j * im
+    r_star = _first_crossing(lambda r: cls.growth(r * direction), direction.size)
+    return float(r_star[0]) if angle_arr.ndim == 0 else r_star.reshape(angle_arr.shape)
+
+
+def _coefficients(spring: Spring) -> tuple[FloatArray, FloatArray, FloatArray]:
+    n = spring.n
+    w2 = np.reshape(spring.k / spring.m, n)
+    cm = np.reshape(spring.c / spring.m, n)
+    lam_max = np.abs(np.reshape(spring.eigenvalues, (n, 2))).max(axis=1)
+    return w2, cm, lam_max
+
+
+def critical_step(spring: Spring, method: str | type[Integrator] = "rk4") -> FloatArray:
+    """Largest step h* (s) per spring such that every h ≤ h* is stable, shape ``(n,)``.
+
+    0 when no step is stable (Euler or midpoint on an undamped spring).
+    """
+    cls = get_method(method)
+    w2, cm, lam_max = _coefficients(spring)
+    r_star = _first_crossing(lambda r: cls.spectral_growth(r / lam_max, w2, cm), spring.n)
+    return r_star / lam_max
+
+
+@dataclass(frozen=True, eq=False)
+class StabilityReport:
+    """Whether ``method`` with step ``h`` is stable for every spring of a bank. Arrays are ``(n,)``.
+
+    Attributes:
+        method: the method's name.
+        h: the step checked (s).
+        spring: the bank checked.
+        h_lambda: h·|λ|max per spring, |λ|max the largest eigenvalue magnitude (rad/s).
+        boundary: r* per spring: the largest stable h·|λ|max along that spring's eigenvalue ray.
+        critical_step: r* / |λ|max, the largest stable step per spring (s).
+        angle: direction of the spring's eigenvalue λ in degrees (90 undamped, 180 overdamped).
+        stable_springs: h ≤ critical_step per spring.
+        min_substeps: smallest n ≥ 1 with h/n stable for every spring; None if no n works.
+    """
+
+    method: str
+    h: float
+    spring: Spring
+    h_lambda: FloatArray
+    boundary: FloatArray
+    critical_step: FloatArray
+    angle: FloatArray
+    stable_springs: npt.NDArray[np.bool_]
+    min_substeps: int | None
+
+    @property
+    def stable(self) -> bool:
+        """True when h is stable for every spring (then ``min_substeps == 1``)."""
+        return bool(self.stable_springs.all())
+
+    @property
+    def message(self) -> str:
+        """A paragraph a rig loader can print when it refuses (or accepts) a rig."""
+        n = self.spring.n
+        f_hz = np.reshape(self.spring.natural_frequency, n) / (2.0 * math.pi)
+        zeta = np.reshape(self.spring.damping_ratio, n)
+
+        def who(j: int) -> str:
+            label = "the spring" if n == 1 else f"spring {j}"
+            return f"{label} (f = {f_hz[j]:.3g} Hz, ζ = {zeta[j]:.3g})"
+
+        head = f"{self.method} with h = {_ms(self.h)}"
+        if self.stable:
+            j = int(np.argmax(self.h_lambda / self.boundary))
+            where = f"{who(j)}" if n == 1 else f"all {n} springs; the tightest is {who(j)}"
+            return (
+                f"{head} is stable for {where}: h·|λ| = {self.h_lambda[j]:.4g} against a "
+                f"boundary of {self.boundary[j]:.4g} along arg λ = {self.angle[j]:.1f}°; "
+                f"largest stable step {_ms(float(self.critical_step.min()))}."
+            )
+        bad = np.flatnonzero(~self.stable_springs)
+        count = "" if n == 1 else f" for {len(bad)} of {n} springs"
+        lines = [f"{head} is UNSTABLE{count}:"]
+        for j in bad[:5]:
+            if self.boundary[j] == 0.0:
+                lines.append(
+                    f"  {who(j)}: no step is stable; arg λ = {self.angle[j]:.1f}° lies where "
+                    f"{self.method} amplifies at every step size."
+                )
+            else:
+                lines.append(
+                    f"  {who(j)}: h·|λ| = {self.h_lambda[j]:.4g} exceeds the boundary "
+                    f"{self.boundary[j]:.4g} along arg λ = {self.angle[j]:.1f}° "
+                    f"(largest stable step {_ms(float(self.critical_step[j]))})."
+                )
+        if len(bad) > 5:
+            lines.append(f"  … and {len(bad) - 5} more.")
+        if self.min_substeps is None:
+            lines.append(
+                "No number of substeps helps: add damping or choose 'rk4' or 'semi_implicit_euler'."
+            )
+        else:
+            lines.append(
+                f"Use {self.min_substeps} substeps (h/{self.min_substeps} = "
+                f"{_ms(self.h / self.min_substeps)}) or a step ≤ "
+                f"{_ms(float(self.critical_step.min()))}."
+            )
+        return "\n".join(lines)
+
+    def __str__(self) -> str:
+        return self.message
+
+
+def _ms(seconds: float) -> str:
+    return f"{seconds * 1e3:.4g} ms"
+
+
+def check_stability(
+    spring: Spring, h: float, method: str | type[Integrator] = "rk4"
+) -> StabilityReport:
+    """Check that a fixed step h is stable for every spring of ``spring`` under ``method``.
+
+    Args:
+        spring: one spring or a bank.
+        h: step (s), finite and > 0.
+        method: method name or class.
+
+    Returns:
+        a :class:`StabilityReport`; ``str(report)`` explains the verdict.
+
+    Raises:
+        ValueError: h is not finite and positive, or the method is unknown.
+    """
+    if not (isinstance(h, int | float) and math.isfinite(h) and h > 0.0):
+        raise ValueError(f"h must be finite and > 0, got {h!r}")
+    cls = get_method(method)
+    _, _, lam_max = _coefficients(spring)
+    h_star = critical_step(spring, cls)
+    lam = np.reshape(spring.eigenvalues, (spring.n, 2))[:, 0]
+    stable = h <= h_star
+    h_min = float(h_star.min())
+    if h_min == 0.0:
+        substeps = None
+    else:
+        substeps = max(1, math.ceil(h / h_min))
+        # ceil of a rounded quotient can be one off either way; settle it with the same test
+        while h / substeps > h_min:
+            substeps += 1
+        while substeps > 1 and h / (substeps - 1) <= h_min:
+            substeps -= 1
+    return StabilityReport(
+        method=cls.name,
+        h=float(h),
+        spring=spring,
+        h_lambda=h * lam_max,
+        boundary=h_star * lam_max,
+        critical_step=h_star,
+        angle=np.degrees(np.angle(lam)),
+        stable_springs=stable,
+        min_substeps=substeps,
+    )

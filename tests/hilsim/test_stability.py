@@ -1,0 +1,114 @@
+"""Stability guard: boundaries along rays, critical steps, the smallest substep count."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from hypothesis import assume, given, settings
+from hypothesis import strategies as st
+
+from hilsim.integrators import INTEGRATORS, get_method, make_integrator
+from hilsim.springs import Spring
+from hilsim.stability import check_stability, critical_step, stability_boundary
+
+
+def test_rk4_limits_on_the_axes() -> None:
+    assert stability_boundary("rk4", math.pi / 2) == pytest.approx(2 * math.sqrt(2), abs=1e-3)
+    assert stability_boundary("rk4", math.pi) == pytest.approx(2.7853, abs=1e-3)
+    assert stability_boundary("rk4", math.pi / 2) == pytest.approx(2 * math.sqrt(2), rel=1e-12)
+
+
+@pytest.mark.parametrize(
+    ("method", "imaginary", "negative_real"),
+    [("euler", 0.0, 2.0), ("midpoint", 0.0, 2.0), ("semi_implicit_euler", 2.0, 2 * (2**0.5 - 1))],
+)
+def test_other_methods_on_the_axes(method: str, imaginary: float, negative_real: float) -> None:
+    assert stability_boundary(method, math.pi / 2) == pytest.approx(imaginary, abs=1e-12)
+    assert stability_boundary(method, math.pi) == pytest.approx(negative_real, rel=1e-12)
+
+
+def test_euler_boundary_along_a_damped_ray_is_a_chord_of_its_disk() -> None:
+    # |1 + r·e^(iφ)| = 1  <=>  r = −2·cos φ
+    angles = np.radians([100.0, 120.0, 150.0, 170.0])
+    np.testing.assert_allclose(stability_boundary("euler", angles), -2 * np.cos(angles), rtol=1e-12)
+
+
+@pytest.mark.parametrize("zeta", [0.0, 0.1, 0.5, 1.0, 2.0])
+def test_semi_implicit_euler_critical_step_has_a_closed_form(zeta: float) -> None:
+    w0 = 7.0
+    spring = Spring(m=1.0, c=2 * zeta * w0, k=w0**2)
+    theta_star = 2 * (math.sqrt(1 + zeta**2) - zeta)
+    assert critical_step(spring, "semi_implicit_euler")[0] * w0 == pytest.approx(theta_star)
+
+
+def test_check_stability_of_a_stable_rig() -> None:
+    spring = Spring(m=1.0, c=0.5, k=15.0)
+    report = check_stability(spring, 0.001, "rk4")
+    assert report.stable and report.min_substeps == 1
+    assert report.h_lambda[0] == pytest.approx(0.001 * math.sqrt(15.0))
+    assert "stable" in report.message and "UNSTABLE" not in report.message
+    assert str(report) == report.message
+
+
+def test_check_stability_of_an_unstable_bank_names_the_spring_and_the_fix() -> None:
+    bank = Spring.from_animation([1.0, 60.0], [0.2, 0.2])
+    report = check_stability(bank, 0.01, "rk4")
+    assert not report.stable
+    assert list(report.stable_springs) == [True, False]
+    assert report.min_substeps == math.ceil(0.01 / report.critical_step[1])
+    assert "spring 1 (f = 60 Hz" in report.message
+    assert f"Use {report.min_substeps} substeps" in report.message
+
+
+def test_no_substep_count_makes_euler_stable_on_an_undamped_spring() -> None:
+    report = check_stability(Spring(m=1.0, c=0.0, k=4.0), 1e-4, "euler")
+    assert not report.stable and report.min_substeps is None
+    assert report.boundary[0] == 0.0
+    assert "No number of substeps" in report.message
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    method=st.sampled_from(list(INTEGRATORS)),
+    log_w0=st.floats(-1.0, 3.0),
+    zeta=st.floats(0.0, 4.0),
+    h=st.floats(1e-3, 0.5),
+)
+def test_substep_count_is_the_smallest_that_works(
+    method: str, log_w0: float, zeta: float, h: float
+) -> None:
+    w0 = 10.0**log_w0
+    spring = Spring(m=1.0, c=2.0 * zeta * w0, k=w0**2)
+    report = check_stability(spring, h, method)
+    n = report.min_substeps
+    assume(n is not None and n < 10**7)
+    cls = get_method(method)
+    w2, cm = w0**2, 2.0 * zeta * w0
+
+    def stable(step: float) -> bool:
+        return bool(cls.spectral_growth(step, w2, cm) <= 0.0)
+
+    assert stable(h / n)
+    if n > 1:
+        assert not stable(h / (n - 1))
+    assert report.stable == (n == 1)
+
+
+@pytest.mark.parametrize("method", ["rk4", "semi_implicit_euler"])
+def test_the_boundary_separates_bounded_from_growing_motion(method: str) -> None:
+    spring = Spring(m=1.0, c=0.3, k=100.0)
+    h_star = critical_step(spring, method)[0]
+    peaks = []
+    for h in (0.98 * h_star, 1.02 * h_star):
+        xs, _ = make_integrator(method, spring).run(1.0, 0.0, h, 3000)
+        peaks.append(np.nan_to_num(np.abs(xs[-300:]).max(), nan=np.inf))  # nan: overflowed
+    assert peaks[0] < 1.0 < peaks[1]
+
+
+def test_bad_step_is_refused() -> None:
+    with pytest.raises(ValueError, match=r"^h must be"):
+        check_stability(Spring(1.0, 0.5, 15.0), 0.0)
+    with pytest.raises(ValueError, match=r"^method must be one of"):
+        check_stability(Spring(1.0, 0.5, 15.0), 0.01, "leapfrog")
