@@ -209,9 +209,8 @@ class _Reader:
         try:
             return enum(value)
         except ValueError:
-            raise self.fail(
-                name, f"must be one of {', '.join(e.value for e in enum)}; got {value!r}"
-            )
+            allowed = ", ".join(e.value for e in enum)
+            raise self.fail(name, f"must be one of {allowed}; got {value!r}") from None
 
     def sub(self, name: str, *, required: bool = False) -> _Reader:
         table = self.get(name, dict, ... if required else {})
@@ -426,7 +425,8 @@ def load_rig(path: str | Path, *, port: str | None = None) -> Rig:
         report = check_stability(j.spring, loop.h_s, loop.integrator)
         if not report.stable:
             fix = (
-                f"\nSet loop.substeps = {report.min_substeps * loop.substeps}, or soften the spring."
+                f"\nSet loop.substeps = {report.min_substeps * loop.substeps}, "
+                "or soften the spring."
                 if report.min_substeps is not None
                 else ""
             )

@@ -62,7 +62,7 @@ def test_hardware_example_loads():
 
 def test_minimal_rig_defaults_and_units(tmp_path):
     rig = load_rig(write(tmp_path, BASE))
-    pan, tilt = rig.joints
+    pan, _tilt = rig.joints
     assert pan.min_rad == pytest.approx(-math.pi / 3)
     assert pan.max_speed_rad_s == pytest.approx(math.radians(180))
     assert rig.loop.h_s == pytest.approx(0.002)
