@@ -1,0 +1,94 @@
+"""The wire-time model of one control cycle: the physical limit every measurement is set beside.
+
+One cycle is a Sync Write of ``data_bytes`` (Goal Position, 4 B) to N servos and a Sync Read
+(plain or Fast) of ``data_bytes`` (Present Position, 4 B) from them, back to back, 8N1 (10 bit
+times per byte)::
+
+    Sync Write            14 + N·(1 + X)      no reply
+    Sync Read request     14 + N
+    plain replies         N·(11 + X)          each servo waits its Return Delay Time + turnaround
+    Fast reply            8 + N·(X + 4)       one packet: one Return Delay Time + turnaround
+
+With X = 4 that is 28 + 21N bytes (plain) and 36 + 14N bytes (fast), and
+
+    cycle time = 10·bytes/baud + n_d·(RDT + turnaround) + L
+
+with n_d = N (plain) or 1 (fast) and L the USB adapter's latency timer, paid once per read
+transaction: the adapter sends the last bytes of the reply when the line has been quiet for L,
+unless they filled a whole 62-byte USB packet (then they go at once). Host CPU time is not in
+the model: the ratio achieved/model is what the host loses.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+#: Bytes an FTDI adapter passes to the host per USB packet (64 minus 2 status bytes).
+USB_CHUNK = 62
+#: Servo turnaround assumed when nothing better is known (AX-12 ≈ 20 µs; not published for X).
+DEFAULT_TURNAROUND_S = 20e-6
+
+
+def sync_write_bytes(n: int, data_bytes: int = 4) -> int:
+    """Bytes on the wire of one Sync Write of ``data_bytes`` to ``n`` servos."""
+    return 14 + n * (1 + data_bytes)
+
+
+def read_request_bytes(n: int) -> int:
+    """Bytes of a (Fast) Sync Read request naming ``n`` servos."""
+    return 14 + n
+
+
+def read_reply_bytes(n: int, fast: bool, data_bytes: int = 4) -> int:
+    """Bytes the servos send back: ``n`` status packets (plain) or one Fast Sync Read packet."""
+    return 8 + n * (data_bytes + 4) if fast else n * (11 + data_bytes)
+
+
+def cycle_bytes(n: int, fast: bool, data_bytes: int = 4) -> int:
+    """All bytes of one write+read cycle: 28 + 21N (plain) or 36 + 14N (fast) for 4-byte data."""
+    return (
+        sync_write_bytes(n, data_bytes)
+        + read_request_bytes(n)
+        + read_reply_bytes(n, fast, data_bytes)
+    )
+
+
+def latency_term_s(reply_bytes: int, latency_s: float) -> float:
+    """What the adapter's latency timer adds to one read transaction (s)."""
+    if latency_s <= 0.0 or reply_bytes % USB_CHUNK == 0:
+        return 0.0
+    return latency_s
+
+
+def cycle_time_s(
+    n: int,
+    baud: float,
+    fast: bool,
+    *,
+    return_delay_s: float | Sequence[float] = 0.0,
+    turnaround_s: float = DEFAULT_TURNAROUND_S,
+    latency_s: float = 0.0,
+    data_bytes: int = 4,
+) -> float:
+    """Model time (s) of one write+read cycle with ``n`` servos at ``baud`` bit/s.
+
+    ``return_delay_s`` is one Return Delay Time for every servo or one per servo (in read
+    order); plain Sync Read pays each servo's, Fast Sync Read only the first servo's.
+    """
+    if n < 1 or baud <= 0:
+        raise ValueError(f"need n >= 1 and baud > 0, got n={n}, baud={baud}")
+    rdts = (
+        [float(return_delay_s)] * n
+        if isinstance(return_delay_s, int | float)
+        else list(return_delay_s)
+    )
+    if len(rdts) != n:
+        raise ValueError(f"{len(rdts)} return delays for {n} servos")
+    delays = rdts[0] + turnaround_s if fast else sum(rdts) + n * turnaround_s
+    wire = 10.0 * cycle_bytes(n, fast, data_bytes) / baud
+    return wire + delays + latency_term_s(read_reply_bytes(n, fast, data_bytes), latency_s)
+
+
+def cycle_rate_hz(n: int, baud: float, fast: bool, **kw) -> float:
+    """``1 / cycle_time_s(...)``: the most write+read cycles per second the bus allows."""
+    return 1.0 / cycle_time_s(n, baud, fast, **kw)
