@@ -1,0 +1,186 @@
+"""``hilsim bench [CONFIG | --port P] [--quick] [--json FILE] [--out DIR]``.
+
+"Why does my loop only reach 60 Hz?" in one command: the tick scheduler's lateness (beside
+cyclictest when installed), the bus's achieved write+read cycle rate beside its wire-time
+model, command/feedback latencies, and a diagnosis of the bus with the fix for each problem
+and the rate it would give.
+
+Without CONFIG or --port the bus side runs on the built-in emulator on the real clock (1, 4,
+8 and 16 servos at 1 and 4 Mbps). With a rig file it measures that rig's bus and loop rate;
+``--port`` measures any port (``/dev/ttyUSB0``, a pty, ``dxlsim://?...``).
+
+Exit codes: 0 measured, 1 the rig or the bus cannot be used.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+import urllib.parse
+from pathlib import Path
+
+HELP = "measure loop timing, bus rate and latency beside the physical limit; diagnose the bus"
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("config", nargs="?", help="rig file (TOML); its bus, servos and rate")
+    parser.add_argument("--port", help="port to measure instead (or overriding the rig's)")
+    parser.add_argument("--baud", type=int, help="baud rate with --port (default 1000000)")
+    parser.add_argument("--ids", help="servo IDs with --port, e.g. 1-4 (default: discover)")
+    parser.add_argument("--quick", action="store_true", help="short runs (~20 s in all)")
+    parser.add_argument(
+        "--json", metavar="FILE", help="write the JSON here (default OUT/bench.json)"
+    )
+    parser.add_argument(
+        "--out", metavar="DIR", help="directory for JSON and PNGs (default runs/bench-TIME)"
+    )
+    parser.add_argument("--no-plots", action="store_true", help="skip the PNGs")
+    parser.add_argument(
+        "--sched",
+        choices=("auto", "fifo", "other"),
+        default="auto",
+        help="scheduling class of the timed runs: auto = SCHED_FIFO when permitted (default)",
+    )
+    parser.add_argument("--priority", type=int, default=80, help="SCHED_FIFO priority (80)")
+    parser.add_argument("--spin-us", type=float, default=200.0, help="scheduler spin (µs, 200)")
+    parser.add_argument("--no-cyclictest", action="store_true", help="do not run cyclictest")
+    parser.add_argument("--rate", type=float, help="latency loop rate, Hz (default: rig's or 500)")
+    parser.add_argument(
+        "--move",
+        action="store_true",
+        help="on hardware, step the servos' goal by --step pulses to time command to motion",
+    )
+    parser.add_argument("--step", type=int, default=40, help="goal step, pulses (40)")
+    parser.add_argument(
+        "--clock",
+        choices=("real", "virtual"),
+        default="real",
+        help="clock of emulated buses: virtual reproduces the wire model exactly "
+        "(loop timing is skipped)",
+    )
+    parser.add_argument("--servos", default="1,4,8,16", help="emulator sweep: servo counts")
+    parser.add_argument("--bauds", default="1000000,4000000", help="emulator sweep: baud rates")
+
+
+def build_plan(args: argparse.Namespace, argv_text: str = "hilsim bench"):
+    """The :class:`~hilsim.bench.runner.BenchPlan` for parsed arguments (may load the rig)."""
+    from drivers.dxlsim.ids import parse_ids
+    from hilsim.bench.runner import BenchPlan, BusTarget
+
+    quick = bool(args.quick)
+    common = dict(
+        quick=quick,
+        clock=args.clock,
+        loop_ticks=2000 if quick else 10_000,
+        spin_us=args.spin_us,
+        sched=args.sched,
+        priority=args.priority,
+        use_cyclictest=not args.no_cyclictest,
+        bus_duration_s=0.3 if quick else 1.2,
+        latency_duration_s=0.3 if quick else 1.0,
+        move=bool(args.move),
+        step_pulses=args.step,
+        command=argv_text,
+    )
+    if args.config:
+        from hilsim.rig import load_rig
+
+        rig = load_rig(args.config, port=args.port)
+        rate = float(rig.loop.rate_hz)
+        read = str(getattr(rig.bus.read, "value", rig.bus.read))
+        return BenchPlan(
+            **common,
+            loop_rates_hz=(1000.0,) if rate == 1000.0 else (1000.0, rate),
+            target=BusTarget(rig.bus.port, int(rig.bus.baud), tuple(rig.servo_ids), read),
+            sweep=(),
+            latency_rate_hz=args.rate or rate,
+            subject=f"rig {args.config} on {rig.bus.port} at {rig.bus.baud} bps",
+            rig_rate_hz=rate,
+        )
+    if args.port:
+        baud = args.baud or _url_baud(args.port) or 1_000_000
+        ids = tuple(parse_ids(args.ids)) if args.ids else None
+        return BenchPlan(
+            **common,
+            target=BusTarget(args.port, baud, ids),
+            sweep=(),
+            latency_rate_hz=args.rate or 500.0,
+            subject=f"{args.port} at {baud} bps",
+        )
+    counts = [int(x) for x in args.servos.split(",") if x.strip()]
+    bauds = [int(x) for x in args.bauds.split(",") if x.strip()]
+    return BenchPlan(
+        **common,
+        sweep=tuple((n, b) for b in bauds for n in counts),
+        latency_rate_hz=args.rate or 500.0,
+        subject=f"the built-in emulator (dxlsim, {args.clock} clock)",
+    )
+
+
+def run(args: argparse.Namespace) -> int:
+    from hilsim.bench.runner import run_bench
+    from hilsim.bench.session import BenchError
+    from hilsim.rig import RigError
+
+    t_start = time.perf_counter()
+    command = "hilsim bench " + " ".join(sys.argv[2:]) if sys.argv[1:2] == ["bench"] else None
+    try:
+        plan = build_plan(args, command or "hilsim bench")
+    except (RigError, ValueError) as exc:
+        print(f"hilsim bench: {exc}", file=sys.stderr)
+        return 1
+    out = Path(args.out or f"runs/bench-{time.strftime('%Y%m%d-%H%M%S')}")
+
+    def progress(msg: str) -> None:
+        print(f"[{time.perf_counter() - t_start:5.1f} s] {msg}", file=sys.stderr, flush=True)
+
+    try:
+        report = run_bench(plan, progress)
+    except BenchError as exc:
+        print(f"hilsim bench: {exc}", file=sys.stderr)
+        return 1
+    out.mkdir(parents=True, exist_ok=True)
+    if not args.no_plots:
+        progress("plotting")
+        report.files += _plots(report, out)
+    json_path = Path(args.json) if args.json else out / "bench.json"
+    report.files.insert(0, str(json_path))
+    report.notes.append(f"whole command: {time.perf_counter() - t_start:.1f} s wall time")
+    report.write_json(json_path)
+    print(report.text(), end="")
+    return 0
+
+
+def _plots(report, out: Path) -> list[str]:
+    from hilsim.bench import plots
+
+    files = []
+    if report.loops:
+        files.append(plots.plot_lateness(report.loops[0], out / "lateness.png"))
+    if report.bus:
+        files.append(plots.plot_bus_rate(report.bus, out / "bus_rate.png"))
+    if report.latency is not None:
+        step = plots.plot_step(report.latency, out / "step.png")
+        if step is not None:
+            files.append(step)
+    return [str(f) for f in files]
+
+
+def _url_baud(port: str) -> int | None:
+    """The ``baud=`` of a ``dxlsim://?...`` URL, if it has one."""
+    if not port.startswith("dxlsim:"):
+        return None
+    values = urllib.parse.parse_qs(urllib.parse.urlsplit(port).query).get("baud")
+    return int(values[-1]) if values else None
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Run as ``python -m hilsim.bench_cli`` (before ``hilsim bench`` is registered)."""
+    parser = argparse.ArgumentParser(prog="hilsim bench", description=HELP)
+    add_arguments(parser)
+    return run(parser.parse_args(argv))
+
+
+if __name__ == "__main__":
+    sys.exit(main())
