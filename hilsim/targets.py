@@ -1,0 +1,661 @@
+"""Animation targets: where each joint should be at show time t, and how fast it is moving there.
+
+A *track* is one joint's target: :meth:`Track.sample` gives u(t) (rad) and u'(t) (rad/s), the
+velocity analytic (the springs with response r ≠ 0 feed it forward). A :class:`TargetSet` holds one
+track per joint in joint order and fills preallocated ``(n_joints,)`` arrays every tick.
+
+Tracks::
+
+    Keyframes(times_s, values_rad, easing)   keys with a named easing per segment (table below)
+    CsvCurve(times_s, values_rad)            one CSV column, linearly interpolated
+    Hold(value_rad)   Step(at_s, before_rad, after_rad)   Sine(amplitude_rad, frequency_hz, ...)
+
+Keyframes and CSV curves hold their first value before the first key and their last value after the
+last (velocity 0 there); their :attr:`~Track.duration` is the time of the last key. Generators have
+no end: their duration is None.
+
+Easings. A segment from (t0, v0) to (t1, v1) follows v0 + (v1 − v0)·e(τ), τ = (t − t0)/(t1 − t0).
+"peak" is the largest e'(τ): the segment's top speed is peak·|v1 − v0|/(t1 − t0), worth checking
+against a joint's speed limit::
+
+    name          e(τ)                                  e'(0)  e'(1)  peak
+    linear        τ                                     1      1      1
+    step          0, jumping to v1 at t1 (velocity 0)   0      0      -
+    ease_in       τ³                                    0      3      3
+    ease_out      1 − (1 − τ)³                          3      0      3
+    ease_in_out   4τ³, then 1 − (2 − 2τ)³/2             0      0      3
+    sine_in_out   (1 − cos πτ)/2                        0      0      π/2
+    smooth        cubic Hermite through the keys        tangents from the keys, see below
+
+``smooth`` uses Catmull-Rom tangents (v[i+1] − v[i−1])/(t[i+1] − t[i−1]), zero at the first and
+last key (so it leaves and joins the holds at rest) and at every local extremum, and clamped to
+three times the smaller neighbouring secant (Fritsch–Carlson): the curve never overshoots its
+keys, so keys inside a joint's limits give a curve inside them. A run of consecutive smooth
+segments is C¹; where a smooth segment meets another easing the velocity is continuous only if the
+two agree.
+
+Rig files describe tracks in degrees; :func:`track_from_spec` turns one spec dict into a track.
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+from abc import ABC, abstractmethod
+from bisect import bisect_right
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from types import MappingProxyType
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+FloatArray = npt.NDArray[np.float64]
+
+#: easing names accepted by :class:`Keyframes`
+EASINGS = ("linear", "step", "ease_in", "ease_out", "ease_in_out", "sine_in_out", "smooth")
+#: header names accepted for the CSV time column (case-insensitive)
+TIME_COLUMNS = ("time_s", "time", "t")
+
+
+class Track(ABC):
+    """One joint's target u(t) in rad and u'(t) in rad/s; t is show time in s (finite)."""
+
+    @abstractmethod
+    def sample(self, t: float) -> tuple[float, float]:
+        """(u(t), u'(t)) as Python floats: position (rad) and velocity (rad/s)."""
+
+    def value(self, t: float) -> float:
+        """u(t) (rad)."""
+        return self.sample(t)[0]
+
+    def velocity(self, t: float) -> float:
+        """u'(t) (rad/s)."""
+        return self.sample(t)[1]
+
+    @property
+    def duration(self) -> float | None:
+        """Time (s) after which the track holds still; None if it never ends."""
+        return None
+
+
+def _finite(name: str, value: Any) -> float:
+    x = float(value)
+    if not math.isfinite(x):
+        raise ValueError(f"{name} must be finite, got {x!r}")
+    return x
+
+
+def _frozen(arr: FloatArray) -> FloatArray:
+    arr = np.array(arr, dtype=np.float64)
+    arr.flags.writeable = False
+    return arr
+
+
+def _times_values(times: npt.ArrayLike, values: npt.ArrayLike) -> tuple[FloatArray, FloatArray]:
+    """Validated read-only copies: 1-D, same length ≥ 1, finite, times strictly increasing."""
+    t = np.asarray(times, dtype=np.float64)
+    v = np.asarray(values, dtype=np.float64)
+    if t.ndim != 1 or t.size == 0 or v.shape != t.shape:
+        raise ValueError(
+            f"times and values must be 1-D, non-empty and of one length, got shapes "
+            f"{t.shape} and {v.shape}"
+        )
+    for name, arr in (("time", t), ("value", v)):
+        bad = np.flatnonzero(~np.isfinite(arr))
+        if bad.size:
+            raise ValueError(f"key {bad[0]}: {name} must be finite, got {float(arr[bad[0]])!r}")
+    with np.errstate(divide="ignore", over="ignore"):
+        # 1/Δt overflows for subnormal gaps; treat those as not increasing
+        bad = np.flatnonzero(~(np.isfinite(1.0 / np.diff(t)) & (np.diff(t) > 0)))
+    if bad.size:
+        i = int(bad[0]) + 1
+        raise ValueError(
+            f"times must strictly increase: key {i} (t = {float(t[i])!r} s) is not after "
+            f"key {i - 1} (t = {float(t[i - 1])!r} s)"
+        )
+    return _frozen(t), _frozen(v)
+
+
+# --------------------------------------------------------------------------------- generators
+
+
+@dataclass(frozen=True)
+class Hold(Track):
+    """A constant target: u = value_rad, u' = 0."""
+
+    value_rad: float
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "value_rad", _finite("value_rad", self.value_rad))
+
+    def sample(self, t: float) -> tuple[float, float]:
+        return self.value_rad, 0.0
+
+
+@dataclass(frozen=True)
+class Step(Track):
+    """before_rad until at_s, after_rad from at_s on (velocity 0: the jump carries no impulse)."""
+
+    at_s: float
+    before_rad: float
+    after_rad: float
+
+    def __post_init__(self) -> None:
+        for name in ("at_s", "before_rad", "after_rad"):
+            object.__setattr__(self, name, _finite(name, getattr(self, name)))
+
+    def sample(self, t: float) -> tuple[float, float]:
+        return (self.before_rad if t < self.at_s else self.after_rad), 0.0
+
+
+@dataclass(frozen=True)
+class Sine(Track):
+    """u = offset + amplitude·sin(2π·f·t + phase); u' = amplitude·2π·f·cos(2π·f·t + phase).
+
+    Args: amplitude_rad (rad, any sign), frequency_hz (Hz, ≥ 0), phase_rad (rad), offset_rad (rad).
+    """
+
+    amplitude_rad: float
+    frequency_hz: float
+    phase_rad: float = 0.0
+    offset_rad: float = 0.0
+    _omega: float = field(init=False, repr=False, compare=False)
+
+    def __post_init__(self) -> None:
+        for name in ("amplitude_rad", "frequency_hz", "phase_rad", "offset_rad"):
+            object.__setattr__(self, name, _finite(name, getattr(self, name)))
+        if self.frequency_hz < 0.0:
+            raise ValueError(f"frequency_hz must be >= 0, got {self.frequency_hz!r}")
+        object.__setattr__(self, "_omega", 2.0 * math.pi * self.frequency_hz)
+
+    def sample(self, t: float) -> tuple[float, float]:
+        arg = self._omega * t + self.phase_rad
+        return (
+            self.offset_rad + self.amplitude_rad * math.sin(arg),
+            self.amplitude_rad * self._omega * math.cos(arg),
+        )
+
+
+# ---------------------------------------------------------------------------------- keyframes
+
+
+def _easing_names(easing: str | Sequence[str], n_segments: int) -> tuple[str, ...]:
+    names = (easing,) * n_segments if isinstance(easing, str) else tuple(easing)
+    if len(names) != n_segments:
+        raise ValueError(
+            f"easing: one name, or one per segment ({n_segments}), got {len(names)} names"
+        )
+    for i, name in enumerate(names):
+        if name not in EASINGS:
+            where = "" if isinstance(easing, str) else f" (segment {i})"
+            raise ValueError(f"unknown easing {name!r}{where}; choose one of {', '.join(EASINGS)}")
+    return names
+
+
+def _tangents(t: FloatArray, v: FloatArray) -> list[float]:
+    """Clamped Catmull-Rom tangents (rad/s) at every key; see the module docstring."""
+    k = len(t)
+    m = [0.0] * k
+    for i in range(1, k - 1):
+        left = (v[i] - v[i - 1]) / (t[i] - t[i - 1])
+        right = (v[i + 1] - v[i]) / (t[i + 1] - t[i])
+        if left * right <= 0.0:  # an extremum or a flat neighbour: a non-zero tangent overshoots
+            continue
+        cr = (v[i + 1] - v[i - 1]) / (t[i + 1] - t[i - 1])
+        limit = 3.0 * min(abs(left), abs(right))  # Fritsch–Carlson: monotone within each segment
+        m[i] = float(math.copysign(min(abs(cr), limit), cr))
+    return m
+
+
+# one piece of a keyframe track: start time, 1/duration, then u(τ) = c0 + c1·τ + c2·τ² + c3·τ³,
+# or, when the flag is set, c0 + c1·(1 − cos πτ)/2 (sine_in_out is not a polynomial); τ ∈ [0, 1)
+_Piece = tuple[float, float, float, float, float, float, bool]
+
+
+def _pieces(t: FloatArray, v: FloatArray, easing: tuple[str, ...]) -> list[_Piece]:
+    """Every segment as polynomial pieces in τ (ease_in_out splits at its middle)."""
+    tangents = _tangents(t, v) if "smooth" in easing else []
+    pieces: list[_Piece] = [(float(t[0]), 0.0, float(v[0]), 0.0, 0.0, 0.0, False)]
+    for i, name in enumerate(easing):
+        t0, h, v0, dv = float(t[i]), float(t[i + 1] - t[i]), float(v[i]), float(v[i + 1] - v[i])
+        inv = 1.0 / h
+        if name == "linear":
+            pieces.append((t0, inv, v0, dv, 0.0, 0.0, False))
+        elif name == "step":
+            pieces.append((t0, inv, v0, 0.0, 0.0, 0.0, False))
+        elif name == "ease_in":
+            pieces.append((t0, inv, v0, 0.0, 0.0, dv, False))
+        elif name == "ease_out":
+            pieces.append((t0, inv, v0, 3.0 * dv, -3.0 * dv, dv, False))
+        elif name == "ease_in_out":
+            # in the local τ of each half: v0 + dv/2·τ³, then v0 + dv/2 + dv/2·(1 − (1 − τ)³)
+            half = 0.5 * dv
+            pieces.append((t0, 2.0 * inv, v0, 0.0, 0.0, half, False))
+            pieces.append((t0 + 0.5 * h, 2.0 * inv, v0 + half, 3 * half, -3 * half, half, False))
+        elif name == "sine_in_out":
+            pieces.append((t0, inv, v0, dv, 0.0, 0.0, True))
+        else:  # smooth: cubic Hermite with tangents m0, m1 scaled to the segment
+            a, b = h * tangents[i], h * tangents[i + 1]
+            pieces.append((t0, inv, v0, a, 3.0 * dv - 2.0 * a - b, -2.0 * dv + a + b, False))
+    pieces.append((float(t[-1]), 0.0, float(v[-1]), 0.0, 0.0, 0.0, False))
+    return pieces
+
+
+@dataclass(frozen=True, eq=False)
+class Keyframes(Track):
+    """Keys (t, value) joined by named easings (see the module docstring for the table).
+
+    Args:
+        times_s: key times, shape ``(k,)``, k ≥ 1, finite and strictly increasing (s).
+        values_rad: key values, shape ``(k,)``, finite (rad).
+        easing: one name for every segment, or a sequence of k − 1 names (segment i runs from
+            key i to key i + 1). One of :data:`EASINGS`.
+
+    Raises:
+        ValueError: bad shapes, a non-finite key, times not strictly increasing (names the key),
+            or an unknown easing (lists the choices).
+    """
+
+    times_s: npt.ArrayLike
+    values_rad: npt.ArrayLike
+    easing: str | Sequence[str] = "linear"
+    _starts: list[float] = field(init=False, repr=False)
+    _pieces: list[_Piece] = field(init=False, repr=False)
+
+    def __post_init__(self) -> None:
+        t, v = _times_values(self.times_s, self.values_rad)
+        easing = _easing_names(self.easing, len(t) - 1)
+        pieces = _pieces(t, v, easing)
+        object.__setattr__(self, "times_s", t)
+        object.__setattr__(self, "values_rad", v)
+        object.__setattr__(self, "easing", easing)
+        object.__setattr__(self, "_pieces", pieces)
+        # the first piece (the hold before the first key) must catch every t, however early
+        object.__setattr__(self, "_starts", [-math.inf] + [p[0] for p in pieces[1:]])
+
+    def sample(self, t: float) -> tuple[float, float]:
+        t0, inv, c0, c1, c2, c3, sine = self._pieces[bisect_right(self._starts, t) - 1]
+        tau = (t - t0) * inv
+        if sine:
+            a = math.pi * tau
+            return c0 + 0.5 * c1 * (1.0 - math.cos(a)), 0.5 * math.pi * c1 * math.sin(a) * inv
+        value = c0 + tau * (c1 + tau * (c2 + tau * c3))
+        return value, (c1 + tau * (2.0 * c2 + 3.0 * c3 * tau)) * inv
+
+    @property
+    def duration(self) -> float:
+        return float(self.times_s[-1])
+
+
+# ------------------------------------------------------------------------------------- CSV
+
+
+class CsvFormatError(ValueError):
+    """A CSV animation that cannot be used; the message starts with ``file:line:``."""
+
+    def __init__(self, path: str | Path, line: int, message: str) -> None:
+        super().__init__(f"{path}:{line}: {message}")
+        self.path, self.line = str(path), line
+
+
+@dataclass(frozen=True, eq=False)
+class CsvCurve(Track):
+    """One joint's column of a CSV animation: linear between rows, held before and after.
+
+    Args:
+        times_s: row times, shape ``(k,)``, finite, strictly increasing (s).
+        values_rad: the column, shape ``(k,)``, finite (rad).
+        source: where it came from, for messages (e.g. ``"demo_animation.csv:jaw"``).
+
+    The velocity is the slope of the segment t lies in (at a row: the segment that starts there).
+    Kept lean (two lists and the slopes, no per-segment objects) because a show-length CSV has
+    thousands of rows per joint.
+    """
+
+    times_s: npt.ArrayLike
+    values_rad: npt.ArrayLike
+    source: str = ""
+    _t: list[float] = field(init=False, repr=False)
+    _v: list[float] = field(init=False, repr=False)
+    _slope: list[float] = field(init=False, repr=False)
+
+    def __post_init__(self) -> None:
+        t, v = _times_values(self.times_s, self.values_rad)
+        object.__setattr__(self, "times_s", t)
+        object.__setattr__(self, "values_rad", v)
+        object.__setattr__(self, "_t", t.tolist())
+        object.__setattr__(self, "_v", v.tolist())
+        object.__setattr__(self, "_slope", (np.diff(v) / np.diff(t)).tolist())
+
+    def sample(self, t: float) -> tuple[float, float]:
+        ts = self._t
+        i = bisect_right(ts, t)
+        if i == 0:
+            return self._v[0], 0.0
+        if i == len(ts):
+            return self._v[-1], 0.0
+        slope = self._slope[i - 1]
+        return self._v[i - 1] + slope * (t - ts[i - 1]), slope
+
+    @property
+    def duration(self) -> float:
+        return float(self.times_s[-1])
+
+
+@dataclass(frozen=True, eq=False)
+class CsvAnimation:
+    """A CSV animation file, loaded once: a time column (s) and one column per joint (degrees).
+
+    Format: a header row, then one row per sample. The first column is the time in seconds, headed
+    ``time_s`` (or ``time``, ``t``); the others are named after joints and hold degrees. Blank lines
+    and lines starting with ``#`` are skipped. Times must strictly increase; every cell must be a
+    finite number. ``columns`` maps each joint name to its values in radians, shape ``(k,)``.
+    """
+
+    path: Path
+    times_s: FloatArray
+    columns: Mapping[str, FloatArray]
+
+    @classmethod
+    def load(cls, path: str | Path) -> CsvAnimation:
+        """Read and check the file.
+
+        Raises:
+            CsvFormatError: ``file:line: ...`` for a bad header, cell, row length or time.
+            OSError: the file cannot be read.
+        """
+        path = Path(path)
+        header: list[str] | None = None
+        rows: list[list[float]] = []
+        prev_line = 0
+        with path.open(newline="", encoding="utf-8-sig") as f:
+            reader = csv.reader(f)
+            for row in reader:
+                line = reader.line_num
+                if not any(c.strip() for c in row) or row[0].lstrip().startswith("#"):
+                    continue
+                if header is None:
+                    header = _csv_header(path, line, row)
+                    continue
+                if len(row) != len(header):
+                    raise CsvFormatError(
+                        path, line, f"{len(row)} cells, but the header has {len(header)}"
+                    )
+                values = [
+                    _csv_number(path, line, name, cell)
+                    for name, cell in zip(header, row, strict=True)
+                ]
+                if rows and values[0] <= rows[-1][0]:
+                    raise CsvFormatError(
+                        path,
+                        line,
+                        f"time {values[0]!r} s is not after {rows[-1][0]!r} s on line {prev_line}",
+                    )
+                rows.append(values)
+                prev_line = line
+        if header is None:
+            raise CsvFormatError(path, 1, "no header row (expected e.g. 'time_s,jaw,tail')")
+        if not rows:
+            raise CsvFormatError(path, 2, "no data rows after the header")
+        data = np.array(rows, dtype=np.float64)
+        columns = {name: _frozen(np.radians(data[:, j])) for j, name in enumerate(header) if j}
+        return cls(path=path, times_s=_frozen(data[:, 0]), columns=MappingProxyType(columns))
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        """The joint columns, in file order."""
+        return tuple(self.columns)
+
+    @property
+    def duration(self) -> float:
+        """Time of the last row (s)."""
+        return float(self.times_s[-1])
+
+    def curve(self, column: str) -> CsvCurve:
+        """The track of one column. Raises :class:`CsvFormatError` (line 1) if there is none."""
+        if column not in self.columns:
+            raise CsvFormatError(
+                self.path, 1, f"no column {column!r}; the joint columns are {', '.join(self.names)}"
+            )
+        return CsvCurve(self.times_s, self.columns[column], source=f"{self.path}:{column}")
+
+
+def _csv_header(path: Path, line: int, row: list[str]) -> list[str]:
+    names = [c.strip() for c in row]
+    if names[0].lower() not in TIME_COLUMNS:
+        raise CsvFormatError(
+            path, line, f"the first column must be the time in seconds, headed 'time_s', "
+            f"got {names[0]!r}"
+        )  # fmt: skip
+    if len(names) < 2:
+        raise CsvFormatError(path, line, "no joint columns after the time column")
+    seen: set[str] = set()
+    for name in names[1:]:
+        if not name:
+            raise CsvFormatError(path, line, "a joint column has an empty name")
+        if name in seen:
+            raise CsvFormatError(path, line, f"column {name!r} appears twice")
+        seen.add(name)
+    return names
+
+
+def _csv_number(path: Path, line: int, name: str, cell: str) -> float:
+    try:
+        x = float(cell)
+    except ValueError:
+        raise CsvFormatError(
+            path, line, f"column {name!r}: {cell.strip()!r} is not a number"
+        ) from None
+    if not math.isfinite(x):
+        raise CsvFormatError(path, line, f"column {name!r}: {cell.strip()!r} is not finite")
+    return x
+
+
+# -------------------------------------------------------------------------------- target set
+
+
+class TargetSet:
+    """One track per joint, in a fixed joint order; fills preallocated arrays every tick.
+
+    Args:
+        tracks: n ≥ 1 tracks; track i drives joint i.
+        names: joint names, for messages and telemetry (default ``joint0``, ``joint1``, …).
+    """
+
+    def __init__(self, tracks: Sequence[Track], names: Sequence[str] | None = None) -> None:
+        self.tracks = tuple(tracks)
+        if not self.tracks:
+            raise ValueError("a TargetSet needs at least one track")
+        for i, tr in enumerate(self.tracks):
+            if not isinstance(tr, Track):
+                raise ValueError(f"track {i} is not a Track, got {type(tr).__name__}")
+        n = len(self.tracks)
+        self.names = tuple(names) if names is not None else tuple(f"joint{i}" for i in range(n))
+        if len(self.names) != n:
+            raise ValueError(f"{len(self.names)} names for {n} tracks")
+        self._samplers = tuple(enumerate(tr.sample for tr in self.tracks))
+        self._pos = np.zeros(n)
+        self._vel = np.zeros(n)
+
+    @property
+    def n_joints(self) -> int:
+        return len(self.tracks)
+
+    @property
+    def duration(self) -> float | None:
+        """The end of the longest keyframe or CSV track (s); None if every track is a generator."""
+        ends = [d for d in (tr.duration for tr in self.tracks) if d is not None]
+        return max(ends) if ends else None
+
+    def sample(self, t: float, out_pos: FloatArray, out_vel: FloatArray | None = None) -> None:
+        """Write u(t) into ``out_pos`` and, if given, u'(t) into ``out_vel``.
+
+        Both are float64 arrays shaped ``(n_joints,)`` (rad, rad/s), not checked here (the
+        real-time path). Allocates no arrays.
+        """
+        if out_vel is None:
+            for i, sample in self._samplers:
+                out_pos[i] = sample(t)[0]
+        else:
+            for i, sample in self._samplers:
+                out_pos[i], out_vel[i] = sample(t)
+
+    def __call__(self, t: float) -> tuple[FloatArray, FloatArray]:
+        """(u(t), u'(t)) in buffers owned by the set, overwritten by the next call.
+
+        This is the integrator's callable target (``integrator.step(x, v, h, t, targets)``
+        samples it at every stage time).
+        """
+        self.sample(t, self._pos, self._vel)
+        return self._pos, self._vel
+
+
+# ------------------------------------------------------------------------ spec → track
+
+
+class SpecError(ValueError):
+    """A target spec that cannot be used. ``key`` is the offending key inside the spec (e.g.
+    ``"easing"`` or ``"keys[2]"``); the message is ``"<key>: <what is wrong and what is allowed>"``
+    so a rig loader can prefix its file name and the spec's own key path."""
+
+    def __init__(self, key: str, message: str) -> None:
+        super().__init__(f"{key}: {message}")
+        self.key, self.detail = key, message
+
+
+#: per target type: (required keys, optional keys), besides "type"
+SPEC_KEYS: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = {
+    "keyframes": (("keys",), ("easing",)),
+    "csv": (("file",), ("column",)),
+    "sine": (("amplitude_deg", "frequency_hz"), ("phase_deg", "offset_deg")),
+    "step": (("at_s", "before_deg", "after_deg"), ()),
+    "hold": (("value_deg",), ()),
+}
+
+
+def _spec_number(key: str, value: Any) -> float:
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        raise SpecError(key, f"must be a number, got {value!r}")
+    if not math.isfinite(value):
+        raise SpecError(key, f"must be finite, got {value!r}")
+    return float(value)
+
+
+def track_from_spec(
+    spec: Mapping[str, Any],
+    *,
+    base_dir: str | Path = ".",
+    joint_name: str,
+    csv_cache: dict[Path, CsvAnimation] | None = None,
+) -> Track:
+    """Build a track from a rig file's target table (angles in degrees, times in seconds).
+
+    Specs, one per type (keys marked ? are optional)::
+
+        {type = "keyframes", keys = [[t_s, deg], ...], easing? = "linear" | [name per segment]}
+        {type = "csv", file = "anim.csv", column? = <joint_name>}     file relative to base_dir
+        {type = "sine", amplitude_deg, frequency_hz, phase_deg? = 0, offset_deg? = 0}
+        {type = "step", at_s, before_deg, after_deg}
+        {type = "hold", value_deg}
+
+    Args:
+        spec: the table, e.g. parsed TOML.
+        base_dir: directory that CSV file names are relative to (the rig file's directory).
+        joint_name: the joint this track drives; the default CSV column.
+        csv_cache: a dict shared across calls so each CSV file is read once (keyed by the
+            resolved path).
+
+    Raises:
+        SpecError: unknown type or key, a missing key, a wrong value; names the key, lists what is
+            allowed.
+        CsvFormatError: a CSV file that cannot be used (``file:line: ...``).
+    """
+    kind = spec.get("type")
+    if kind not in SPEC_KEYS:
+        got = "missing" if kind is None else f"unknown target type {kind!r}"
+        raise SpecError("type", f"{got}; allowed: {', '.join(sorted(SPEC_KEYS))}")
+    required, optional = SPEC_KEYS[kind]
+    allowed = ("type", *required, *optional)
+    for key in spec:
+        if key not in allowed:
+            raise SpecError(
+                str(key), f"unknown key for a {kind!r} target; allowed: {', '.join(allowed)}"
+            )
+    for key in required:
+        if key not in spec:
+            raise SpecError(key, f"missing; a {kind!r} target needs {', '.join(required)}")
+    deg = math.radians
+    if kind == "hold":
+        return Hold(deg(_spec_number("value_deg", spec["value_deg"])))
+    if kind == "step":
+        at, before, after = (_spec_number(k, spec[k]) for k in required)
+        return Step(at, deg(before), deg(after))
+    if kind == "sine":
+        freq = _spec_number("frequency_hz", spec["frequency_hz"])
+        if freq < 0.0:
+            raise SpecError("frequency_hz", f"must be >= 0, got {freq!r}")
+        return Sine(
+            deg(_spec_number("amplitude_deg", spec["amplitude_deg"])),
+            freq,
+            deg(_spec_number("phase_deg", spec.get("phase_deg", 0.0))),
+            deg(_spec_number("offset_deg", spec.get("offset_deg", 0.0))),
+        )
+    if kind == "keyframes":
+        return _keyframes_from_spec(spec)
+    return _csv_from_spec(spec, Path(base_dir), joint_name, csv_cache)
+
+
+def _keyframes_from_spec(spec: Mapping[str, Any]) -> Keyframes:
+    keys = spec["keys"]
+    if not isinstance(keys, list | tuple) or not keys:
+        raise SpecError("keys", f"must be a non-empty list of [time_s, deg] pairs, got {keys!r}")
+    times, values = [], []
+    for i, key in enumerate(keys):
+        if not isinstance(key, list | tuple) or len(key) != 2:
+            raise SpecError(f"keys[{i}]", f"must be a [time_s, deg] pair, got {key!r}")
+        times.append(_spec_number(f"keys[{i}][0]", key[0]))
+        values.append(math.radians(_spec_number(f"keys[{i}][1]", key[1])))
+    easing = spec.get("easing", "linear")
+    if not isinstance(easing, str) and not (
+        isinstance(easing, list | tuple) and all(isinstance(e, str) for e in easing)
+    ):
+        raise SpecError("easing", f"must be a name or a list of names, got {easing!r}")
+    try:
+        names = _easing_names(easing, len(keys) - 1)
+    except ValueError as exc:
+        raise SpecError("easing", str(exc).removeprefix("easing: ")) from None
+    try:
+        return Keyframes(times, values, names)
+    except ValueError as exc:
+        raise SpecError("keys", str(exc)) from None
+
+
+def _csv_from_spec(
+    spec: Mapping[str, Any],
+    base_dir: Path,
+    joint_name: str,
+    cache: dict[Path, CsvAnimation] | None,
+) -> CsvCurve:
+    file, column = spec["file"], spec.get("column", joint_name)
+    if not isinstance(file, str) or not file:
+        raise SpecError("file", f"must be a file name, got {file!r}")
+    if not isinstance(column, str) or not column:
+        raise SpecError("column", f"must be a column name, got {column!r}")
+    path = (base_dir / file).resolve()
+    anim = cache.get(path) if cache is not None else None
+    if anim is None:
+        if not path.is_file():
+            raise SpecError("file", f"no such file: {path}")
+        anim = CsvAnimation.load(path)
+        if cache is not None:
+            cache[path] = anim
+    if column not in anim.columns:
+        how = "" if "column" in spec else " (the column defaults to the joint name)"
+        raise SpecError(
+            "column",
+            f"{path}:1: no column {column!r}{how}; the joint columns are {', '.join(anim.names)}",
+        )
+    return anim.curve(column)
