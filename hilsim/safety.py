@@ -41,8 +41,8 @@ position: the filter brakes to a standstill.
 
 The per-tick path runs in pure Python on lists and allocates no arrays: for the 1–16 joints of one
 bus that beats numpy, whose ~0.6 µs per call adds up over the dozen-plus calls a vectorised filter
-needs (measured: ~2.6 µs per tick for 4 joints and ~4 µs for 8 when nothing is limited, ~3.5 and
-~5.7 µs with every limit working, against ~9 µs for 13 bare numpy calls on 8 joints).
+needs (measured: ~2.5 µs per tick for 4 joints and ~4 µs for 8 when nothing is limited, ~3 and
+~5 µs with every limit working, against ~9 µs for 13 bare numpy calls on 8 joints).
 """
 
 from __future__ import annotations
