@@ -21,6 +21,7 @@ from hilsim.bench.session import BenchError, emulator_url, open_bus
 
 DEFAULT_SERVO_COUNTS = (1, 4, 8, 16)
 DEFAULT_EMULATOR_BAUDS = (1_000_000, 4_000_000)
+MIN_LOOP_TICKS = 100
 
 
 @dataclass(frozen=True)
@@ -40,7 +41,7 @@ class BenchPlan:
     quick: bool = False
     clock: str = "real"  # emulated buses: "virtual" gives the model exactly (loop timing skipped)
     loop_rates_hz: tuple[float, ...] = (1000.0,)
-    loop_ticks: int = 10_000
+    loop_duration_s: float = 10.0  # per rate (at least MIN_LOOP_TICKS ticks)
     spin_us: float = 200.0
     sched: str = "auto"
     priority: int = DEFAULT_PRIORITY
@@ -138,20 +139,21 @@ def _loops(plan: BenchPlan, report: BenchReport, progress: Callable[[str], None]
             f"{cyclictest.INSTALL_HINT}"
         )
     for rate in plan.loop_rates_hz:
-        progress(f"loop timing at {rate:g} Hz ({plan.loop_ticks / rate:.1f} s)")
+        ticks = max(MIN_LOOP_TICKS, round(plan.loop_duration_s * rate))
+        progress(f"loop timing at {rate:g} Hz ({ticks / rate:.1f} s)")
         ours = measure_scheduler(
             MonotonicClock(spin_s=plan.spin_us * 1e-6),
             rate,
-            plan.loop_ticks,
+            ticks,
             sched=plan.sched,
             priority=plan.priority,
         )
         ct = None
         if ct_path is not None:
-            progress(f"cyclictest at {rate:g} Hz, right after ({plan.loop_ticks / rate:.1f} s)")
+            progress(f"cyclictest at {rate:g} Hz, right after ({ticks / rate:.1f} s)")
             ct = cyclictest.run(
                 round(1e6 / rate),
-                plan.loop_ticks,
+                ticks,
                 fifo=ours.sched == SCHED_FIFO,
                 priority=plan.priority,
                 path=ct_path,

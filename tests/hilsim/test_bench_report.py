@@ -192,7 +192,7 @@ target = { type = "sine", amplitude_deg = 30, frequency_hz = 0.25 }
     assert plan.loop_rates_hz == (1000.0, 250.0) and plan.rig_rate_hz == 250.0
     assert plan.target.ids == (1, 2) and plan.target.baud == 1_000_000
     assert plan.sweep == () and plan.latency_rate_hz == 250.0
-    assert plan.loop_ticks == 2000 and plan.bus_duration_s == 0.3
+    assert plan.loop_duration_s == 2.0 and plan.bus_duration_s == 0.3
 
 
 def test_importing_the_cli_imports_neither_matplotlib_nor_the_sdk():
