@@ -1,0 +1,1162 @@
+"""Run telemetry: a per-tick CSV written by a background thread, events, a summary, and a reader.
+
+A run directory holds::
+
+    telemetry.csv    one row per tick (columns below), header on the first line
+    events.jsonl     one JSON object per line: start/stop, faults, warnings, signals, dropped rows
+    summary.json     written once by :meth:`TelemetryWriter.close` (absent if the process died)
+    rig.toml         a verbatim copy of the rig config text the loop passed (``config_text``)
+
+**CSV columns** (:func:`csv_columns`), grouped by quantity, joints in the order given::
+
+    tick                       tick number (int, from 0)
+    t_sched                    scheduled tick time, s since run start
+    t_actual                   time the tick started, s since run start
+    lateness_us                (t_actual - t_sched) * 1e6, µs
+    target_<j>  ...            animation target, rad              (one column per joint j, then the
+    sim_x_<j>   ...            spring position, rad                next quantity for every joint)
+    sim_v_<j>   ...            spring velocity, rad/s
+    cmd_<j>     ...            commanded position after safety, rad
+    present_<j> ...            present position read back, rad; ``nan`` when there was no valid read
+    status_<j>  ...            read status (:class:`ReadStatus`: 0 OK, 1 STALE, 2 ERROR, 3 ALERT)
+    t_sim_us  t_safety_us  t_bus_us  t_telemetry_us    per-stage wall time of this tick, µs
+    overrun                    1 if the tick missed its deadline, else 0
+    comm_errors                cumulative communication errors on the bus
+
+Times, targets, spring state, commands and present positions are written with ``%.17g`` (every
+float64 round-trips exactly); µs columns with ``%.3f`` (ns resolution); integer columns as integers;
+a value never given is ``nan``.
+
+**Real-time contract.** :meth:`TelemetryWriter.record` copies the tick's numbers into a slot of a
+preallocated ring (a float64 array, one row per slot) and into the run statistics
+(:class:`RunStats`, preallocated chunks), and returns; it never touches the disk, takes no lock and
+allocates nothing but a row view. A row is handed to the writer thread when the *next* row is
+recorded (or at :meth:`~TelemetryWriter.flush`/:meth:`~TelemetryWriter.close`), so values known
+only at the end of the tick (overrun, the telemetry stage's own time) can still be filled in with
+:meth:`~TelemetryWriter.amend`. The writer thread drains the ring every few tens of ms, formats rows
+in small chunks (yielding the GIL between chunks of ~50 µs, so the loop thread is not held off),
+writes them, flushes every ``flush_interval_s`` and ``os.fsync``-s on fault events and at close.
+The ring is single-producer/single-consumer: the loop only advances the head, the writer only the
+tail; CPython's GIL orders the row stores before the head store. When the ring is full (disk
+stalled) the row is dropped and counted (``overflow="drop"``, the real-time default) or record waits
+for space (``overflow="block"``, for virtual-time runs that must be lossless). Dropped rows are
+reported as an event, in the summary and by :func:`read_run`; the statistics still cover them.
+
+Exceptions::
+
+    TelemetryError                  base of everything raised here
+     ├── WriterFailedError          the writer thread died (disk full, I/O error) or stalled at
+     │                              close; raised by the next record()/flush()/close(); __cause__
+     │                              holds the original error
+     ├── NotARunError               read_run: no telemetry.csv in the directory
+     │                              (also a FileNotFoundError)
+     └── RunFormatError             read_run: the CSV header is not a telemetry header
+                                    (also a ValueError)
+
+Loop usage::
+
+    tel = TelemetryWriter(run_dir, joint_names, servo_ids=ids, config_text=rig_text)
+    tel.event("start", "run started", 0, 0.0, rate_hz=rate)
+    every tick k:
+        tel.record(k, t_sched, t_actual, target, sim_x, sim_v, cmd, present, status,
+                   t_sim_us, t_safety_us, t_bus_us, nan, False, comm_errors)
+        ...                                     # the rest of the tick
+        tel.amend(k, t_telemetry_us=dt_us, overrun=late)   # optional, before the next record
+    on a fault:   tel.event("fault", msg, k, t, joint="jaw")   # fsync-ed; listed in the summary
+    interventions that are not events:  tel.stats.safety_limit("speed", joint)
+    at the end:   summary = tel.close({"exit_code": 0, "exit_reason": "end of show"})
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import math
+import os
+import queue
+import threading
+import time
+from collections.abc import Iterable, Mapping, Sequence
+from dataclasses import dataclass, field
+from enum import IntEnum
+from functools import cached_property
+from pathlib import Path
+from typing import Any, Literal, TextIO
+
+import numpy as np
+import numpy.typing as npt
+
+TELEMETRY_CSV = "telemetry.csv"
+EVENTS_JSONL = "events.jsonl"
+SUMMARY_JSON = "summary.json"
+CONFIG_NAME = "rig.toml"
+
+#: columns before the per-joint blocks
+HEAD_COLUMNS: tuple[str, ...] = ("tick", "t_sched", "t_actual", "lateness_us")
+#: per-joint quantities; the CSV has one block of columns ``<field>_<joint>`` per field, in order
+JOINT_FIELDS: tuple[str, ...] = ("target", "sim_x", "sim_v", "cmd", "present", "status")
+#: loop stages timed every tick; column ``t_<stage>_us``
+STAGES: tuple[str, ...] = ("sim", "safety", "bus", "telemetry")
+#: columns after the per-joint blocks
+TAIL_COLUMNS: tuple[str, ...] = (*(f"t_{s}_us" for s in STAGES), "overrun", "comm_errors")
+#: event kinds that are fsync-ed by default (``event(..., fsync=None)``)
+FSYNC_KINDS: frozenset[str] = frozenset({"fault", "signal", "stop"})
+#: percentiles reported in the summary, as (key, q)
+PERCENTILES: tuple[tuple[str, float], ...] = (("p50", 50.0), ("p99", 99.0), ("p99.9", 99.9))
+
+_EXACT = "%.17g"  # round-trips every float64; also prints integral floats as integers
+_MICROS = "%.3f"
+_CHUNK_FLOATS = 128  # floats formatted between GIL yields: ~50 µs of work
+_yield_gil = getattr(os, "sched_yield", lambda: time.sleep(0))
+_monotonic = time.monotonic
+
+
+class ReadStatus(IntEnum):
+    """Per-servo result of the present-position read, as written in the ``status_<j>`` columns."""
+
+    OK = 0
+    #: no fresh reply this tick (timeout, dropped or corrupt packet): present position is unknown
+    STALE = 1
+    #: the servo replied with an error in its status packet
+    ERROR = 2
+    #: the servo replied with the Alert bit set (hardware error latched)
+    ALERT = 3
+
+
+class TelemetryError(Exception):
+    """Base class of the errors raised by :mod:`hilsim.telemetry`."""
+
+
+class WriterFailedError(TelemetryError):
+    """The writer thread died or could not finish; rows may be lost (see ``__cause__``)."""
+
+
+class NotARunError(TelemetryError, FileNotFoundError):
+    """The directory holds no ``telemetry.csv``."""
+
+
+class RunFormatError(TelemetryError, ValueError):
+    """``telemetry.csv`` does not start with a telemetry header."""
+
+
+def csv_columns(joint_names: Sequence[str]) -> list[str]:
+    """The CSV header for these joints: head, one block per :data:`JOINT_FIELDS` entry, tail."""
+    names = list(joint_names)
+    return [
+        *HEAD_COLUMNS,
+        *(f"{f}_{j}" for f in JOINT_FIELDS for j in names),
+        *TAIL_COLUMNS,
+    ]
+
+
+def _check_joint_names(joint_names: Iterable[str]) -> tuple[str, ...]:
+    names = tuple(str(j) for j in joint_names)
+    if not names:
+        raise ValueError("at least one joint is needed")
+    if len(set(names)) != len(names):
+        raise ValueError(f"joint names must be unique: {names!r}")
+    for j in names:
+        if not j or any(c in j for c in ',"\r\n') or j != j.strip():
+            raise ValueError(f"joint name {j!r} cannot be a CSV column suffix")
+    return names
+
+
+def _row_format(n: int) -> str:
+    exact_block = [_EXACT] * n
+    fields = [
+        _EXACT,  # tick
+        _EXACT,  # t_sched
+        _EXACT,  # t_actual
+        _MICROS,  # lateness_us
+        *exact_block * len(JOINT_FIELDS),  # target, sim_x, sim_v, cmd, present, status
+        *[_MICROS] * len(STAGES),
+        _EXACT,  # overrun
+        _EXACT,  # comm_errors
+    ]
+    return ",".join(fields) + "\n"
+
+
+def _json_default(obj: Any) -> Any:
+    if isinstance(obj, np.generic):
+        return obj.item()
+    if isinstance(obj, np.ndarray):
+        return obj.tolist()
+    if isinstance(obj, Path):
+        return str(obj)
+    if isinstance(obj, set | frozenset | tuple):
+        return list(obj)
+    return repr(obj)
+
+
+def _dumps(obj: Any, **kw: Any) -> str:
+    return json.dumps(obj, default=_json_default, ensure_ascii=False, **kw)
+
+
+def _fsync_dir(path: Path) -> None:
+    """Persist directory entries (new files, renames); best effort, POSIX only."""
+    try:
+        fd = os.open(path, os.O_RDONLY)
+    except OSError:
+        return
+    try:
+        os.fsync(fd)
+    except OSError:
+        pass
+    finally:
+        os.close(fd)
+
+
+_STOP = object()
+_WAKE = object()
+
+
+class TelemetryWriter:
+    """Writes one run directory from a background thread; the loop only calls cheap methods.
+
+    ``run_dir`` is created if needed; a ``telemetry.csv`` already in it is an error (a run directory
+    holds one run). ``joint_names`` become column suffixes (no commas, quotes or newlines);
+    ``servo_ids`` (same order) name the servos in the summary's ``comm_errors``. ``queue_size``
+    ring rows absorb a disk stall of ``queue_size / rate`` seconds (16384 rows: 16 s at 1 kHz;
+    ``8 * (10 + 6 * n_joints)`` bytes a row, 7.6 MB for 8 joints). ``overflow`` picks what a full
+    ring does: ``"drop"`` (count the row, return False: never blocks) or ``"block"`` (wait for the
+    writer: lossless, for virtual-time runs). ``config_text`` is copied to ``run_dir/config_name``.
+
+    :attr:`stats` (a :class:`RunStats`) is fed by :meth:`record`, :meth:`amend` and :meth:`event`
+    (faults); :meth:`close` turns it into the summary.
+
+    Thread safety: :meth:`record`, :meth:`amend` and :meth:`flush` from the loop thread only.
+    :meth:`event` and :meth:`close` may also be called from a signal handler: neither takes a lock
+    that the interrupted code could hold (``queue.SimpleQueue.put`` is reentrant; close waits by
+    joining the thread), and a row interrupted half-written is never handed to the writer.
+    """
+
+    def __init__(
+        self,
+        run_dir: str | os.PathLike[str],
+        joint_names: Sequence[str],
+        *,
+        servo_ids: Sequence[Any] | None = None,
+        flush_interval_s: float = 0.5,
+        queue_size: int = 16384,
+        overflow: Literal["drop", "block"] = "drop",
+        config_text: str | None = None,
+        config_name: str = CONFIG_NAME,
+        max_pending_events: int = 10_000,
+    ) -> None:
+        names = _check_joint_names(joint_names)
+        if not flush_interval_s >= 0.0:
+            raise ValueError(f"flush_interval_s must be >= 0, got {flush_interval_s!r}")
+        if int(queue_size) < 2:
+            raise ValueError(f"queue_size must be >= 2, got {queue_size!r}")
+        if overflow not in ("drop", "block"):
+            raise ValueError(f"overflow must be 'drop' or 'block', got {overflow!r}")
+        self.run_dir = Path(run_dir)
+        self.joint_names = names
+        self.columns: tuple[str, ...] = tuple(csv_columns(names))
+        self.flush_interval_s = float(flush_interval_s)
+        self.queue_size = int(queue_size)
+        self.overflow = overflow
+        self.max_pending_events = int(max_pending_events)
+        self.stats = RunStats(names, servo_ids=servo_ids)
+
+        n = len(names)
+        self._ncols = len(self.columns)
+        self._ring = np.full((self.queue_size, self._ncols), np.nan)
+        base = len(HEAD_COLUMNS)
+        (
+            self._s_target,
+            self._s_sim_x,
+            self._s_sim_v,
+            self._s_cmd,
+            self._s_present,
+            self._s_status,
+        ) = (slice(base + k * n, base + (k + 1) * n) for k in range(len(JOINT_FIELDS)))
+        self._tail_at = base + len(JOINT_FIELDS) * n
+        self._fmt = _row_format(n)
+        self._chunk_rows = max(1, _CHUNK_FLOATS // self._ncols)
+        # drain often enough that formatting is spread thin; flush to the OS on its own interval
+        self._poll_s = min(0.05, self.flush_interval_s) if self.flush_interval_s > 0 else 0.01
+
+        # Loop-side state (written by the loop thread, or a signal handler on it). _cursor is
+        # 2 * rows handed to the writer + 1 if the next slot holds a complete row not yet handed
+        # over (the one amend() may still change): one int, so a single store both publishes
+        # the previous row and marks the new one pending.
+        self._cursor = 0
+        self.rows_dropped = 0
+        self._last_dropped_tick: int | None = None
+        self._events_put = 0
+        self.events_dropped = 0
+        self._close_requested = False
+        # writer-side counters (written only by the writer thread)
+        self._tail = 0
+        self.rows_written = 0
+        self._events_got = 0
+        self._dropped_reported = 0
+        # shared state
+        self._failed = False
+        self._error: BaseException | None = None
+        self._summary: dict[str, Any] = {}
+        self._written_summary: dict[str, Any] | None = None
+        self._finished = False
+        self._failure_handled = False
+        self._inbox: queue.SimpleQueue[Any] = queue.SimpleQueue()
+        self._space = threading.Event()
+
+        self.run_dir.mkdir(parents=True, exist_ok=True)
+        self._csv: TextIO | None = None
+        self._events: TextIO | None = None
+        try:
+            self._csv = self._open(self.run_dir / TELEMETRY_CSV, "x")
+            self._events = self._open(self.run_dir / EVENTS_JSONL, "a")
+            self._csv.write(",".join(self.columns) + "\n")
+            self._csv.flush()
+            if config_text is not None:
+                (self.run_dir / config_name).write_text(config_text, encoding="utf-8")
+        except BaseException:
+            self._close_files()
+            raise
+        self._thread = threading.Thread(target=self._run, name="telemetry-writer", daemon=True)
+        self._thread.start()
+
+    # ----------------------------------------------------------------- the loop's side
+
+    def record(
+        self,
+        tick: int,
+        t_sched: float,
+        t_actual: float,
+        target: npt.ArrayLike,
+        sim_x: npt.ArrayLike,
+        sim_v: npt.ArrayLike,
+        cmd: npt.ArrayLike,
+        present: npt.ArrayLike,
+        status: npt.ArrayLike,
+        t_sim_us: float,
+        t_safety_us: float,
+        t_bus_us: float,
+        t_telemetry_us: float,
+        overrun: bool,
+        comm_errors: int,
+    ) -> bool:
+        """Queue one tick's row; return True if queued, False if dropped (ring full, disk stalled).
+
+        Arrays are shaped ``(n_joints,)`` (numpy arrays or sequences; copied, so the loop may reuse
+        its buffers): ``target``, ``sim_x``, ``cmd``, ``present`` in rad, ``sim_v`` in rad/s,
+        ``present`` NaN where there was no valid read, ``status`` :class:`ReadStatus` codes. Times
+        in s since run start; stage times in µs (NaN if not known yet: see :meth:`amend`);
+        ``comm_errors`` cumulative. Never blocks with ``overflow="drop"``; a dropped row still
+        counts in :attr:`stats`.
+
+        Raises :class:`WriterFailedError` if the writer thread has died, and
+        :class:`TelemetryError` after :meth:`close`.
+        """
+        if self._failed or self._close_requested:
+            self._raise_not_open()
+        lateness_us = (t_actual - t_sched) * 1e6
+        self.stats.add(
+            t_actual,
+            lateness_us,
+            overrun,
+            t_sim_us,
+            t_safety_us,
+            t_bus_us,
+            t_telemetry_us,
+            status,
+            tick,
+        )
+        # the previous row (if pending) counts as handed over from here on
+        head = (self._cursor + 1) >> 1
+        if head - self._tail >= self.queue_size and not self._wait_for_space(tick, head):
+            self._cursor = head << 1  # hand the previous row over; this one is gone
+            return False
+        row = self._ring[head % self.queue_size]
+        row[0] = tick
+        row[1] = t_sched
+        row[2] = t_actual
+        row[3] = lateness_us
+        row[self._s_target] = target
+        row[self._s_sim_x] = sim_x
+        row[self._s_sim_v] = sim_v
+        row[self._s_cmd] = cmd
+        row[self._s_present] = present
+        row[self._s_status] = status
+        k = self._tail_at
+        row[k] = t_sim_us
+        row[k + 1] = t_safety_us
+        row[k + 2] = t_bus_us
+        row[k + 3] = t_telemetry_us
+        row[k + 4] = overrun
+        row[k + 5] = comm_errors
+        self._cursor = (head << 1) | 1  # publish the previous row, this one pending
+        return True
+
+    def amend(
+        self,
+        tick: int,
+        *,
+        overrun: bool | None = None,
+        t_sim_us: float | None = None,
+        t_safety_us: float | None = None,
+        t_bus_us: float | None = None,
+        t_telemetry_us: float | None = None,
+    ) -> bool:
+        """Fill in values of the last recorded tick that were known only after :meth:`record`.
+
+        Only ``tick`` == the last recorded tick can be amended. :attr:`stats` is always updated;
+        the CSV row only until it is handed to the writer (at the next :meth:`record`,
+        :meth:`flush`, :meth:`close` or fsync-ed :meth:`event`): the return value says whether it
+        was (False also when the row was dropped). Raises ``ValueError`` for any other tick.
+        """
+        self.stats.amend(
+            tick,
+            overrun=overrun,
+            t_sim_us=t_sim_us,
+            t_safety_us=t_safety_us,
+            t_bus_us=t_bus_us,
+            t_telemetry_us=t_telemetry_us,
+        )
+        cursor = self._cursor
+        if not cursor & 1:
+            return False
+        row = self._ring[(cursor >> 1) % self.queue_size]
+        if row[0] != tick:
+            return False
+        k = self._tail_at
+        if t_sim_us is not None:
+            row[k] = t_sim_us
+        if t_safety_us is not None:
+            row[k + 1] = t_safety_us
+        if t_bus_us is not None:
+            row[k + 2] = t_bus_us
+        if t_telemetry_us is not None:
+            row[k + 3] = t_telemetry_us
+        if overrun is not None:
+            row[k + 4] = overrun
+        return True
+
+    def event(
+        self,
+        kind: str,
+        message: str = "",
+        tick: int | None = None,
+        t: float | None = None,
+        *,
+        fsync: bool | None = None,
+        **fields: Any,
+    ) -> bool:
+        """Queue one ``events.jsonl`` line: ``{"tick", "t", "wall", "kind", "message", **fields}``.
+
+        ``t`` is clock time in s since run start; ``wall`` (Unix time) is added here. With
+        ``fsync=True`` (default: ``kind in FSYNC_KINDS``, i.e. faults, signals, stop) the writer
+        drains pending rows (including the last recorded one) and events, flushes and
+        ``os.fsync``-s both files right away. Events of
+        kind ``"fault"`` also go into the summary's ``faults`` list. Never blocks and never raises
+        for a dead writer (it may be called while handling a fault or a signal); returns False if
+        the event was not queued (writer closed or failed, or more than ``max_pending_events``
+        waiting), which is counted in ``events_dropped``.
+        """
+        if kind == "fault":
+            self.stats.fault(kind, message, tick, t, **fields)
+        if self._failed or self._close_requested:
+            self.events_dropped += 1
+            return False
+        if self._events_put - self._events_got >= self.max_pending_events:
+            self.events_dropped += 1
+            return False
+        ev = {"tick": tick, "t": t, "wall": time.time(), "kind": str(kind), "message": str(message)}
+        if fields:
+            ev.update(fields)
+        sync = kind in FSYNC_KINDS if fsync is None else bool(fsync)
+        if sync:
+            self._publish_pending()  # the last complete row belongs in what gets fsync-ed
+        self._events_put += 1
+        self._inbox.put((ev, sync))
+        return True
+
+    def flush(self, timeout_s: float | None = 10.0) -> bool:
+        """Hand over the pending row, write everything queued, flush and fsync; wait for it.
+
+        Blocks (never call it inside the tick; loop thread only). Returns False on timeout.
+        Raises :class:`WriterFailedError` if the writer thread has died.
+        """
+        if self._failed:
+            self._raise_not_open()
+        if self._finished or self._close_requested:
+            return True
+        self._publish_pending()
+        done = threading.Event()
+        self._inbox.put(done)
+        deadline = None if timeout_s is None else _monotonic() + timeout_s
+        while not done.wait(0.05):
+            if not self._thread.is_alive() or (deadline is not None and _monotonic() > deadline):
+                break
+        if self._failed:
+            self._raise_not_open()
+        return done.is_set()
+
+    def close(
+        self, summary: Mapping[str, Any] | None = None, *, timeout_s: float = 10.0
+    ) -> dict[str, Any]:
+        """Drain the ring, fsync, write ``summary.json``; return the summary written.
+
+        The summary is :meth:`RunStats.summary` of :attr:`stats`, updated with ``summary``'s keys
+        (the caller's win: e.g. ``exit_code``, ``exit_reason``, ``duration_s``), plus a
+        ``"telemetry"`` entry (rows recorded/written/dropped/lost, events dropped, error).
+        Idempotent: the first call's summary wins, later calls wait for the same completion and
+        return the same dict. Safe from a signal handler and after a writer failure (no lock;
+        joins the thread). Raises :class:`WriterFailedError` (every call) if the writer died
+        (summary.json is still written when the disk allows) or did not finish within
+        ``timeout_s`` (disk stalled).
+        """
+        if not self._close_requested:
+            self._summary = dict(summary) if summary is not None else {}
+            self._publish_pending()
+            self._close_requested = True
+            self._inbox.put(_STOP)
+        self._thread.join(timeout_s)
+        if self._thread.is_alive():
+            raise WriterFailedError(
+                f"telemetry writer did not finish within {timeout_s} s (disk stalled?); "
+                f"{self._handed_over() - self._tail} rows still queued"
+            )
+        if self._failed:
+            self._handle_failure()
+            raise WriterFailedError(f"telemetry writer failed: {self._error!r}") from self._error
+        return self._written_summary if self._written_summary is not None else {}
+
+    def __enter__(self) -> TelemetryWriter:
+        return self
+
+    def __exit__(self, *exc_info: object) -> None:
+        self.close()
+
+    @property
+    def failed(self) -> bool:
+        """True once the writer thread has died; :attr:`error` holds why."""
+        return self._failed
+
+    @property
+    def error(self) -> BaseException | None:
+        return self._error
+
+    @property
+    def rows_recorded(self) -> int:
+        """Rows accepted by :meth:`record` (queued; written or about to be)."""
+        return (self._cursor + 1) >> 1
+
+    def _handed_over(self) -> int:
+        return self._cursor >> 1
+
+    def _publish_pending(self) -> None:
+        cursor = self._cursor
+        if cursor & 1:
+            self._cursor = cursor + 1
+
+    def _raise_not_open(self) -> None:
+        if self._failed:
+            raise WriterFailedError(f"telemetry writer failed: {self._error!r}") from self._error
+        raise TelemetryError("telemetry writer is closed")
+
+    def _wait_for_space(self, tick: int, head: int) -> bool:
+        if self.overflow == "drop":
+            self.rows_dropped += 1
+            self._last_dropped_tick = tick
+            return False
+        self._cursor = head << 1  # hand the previous row over so the writer can drain it
+        woke = False
+        while head - self._tail >= self.queue_size:
+            if self._failed:
+                self._raise_not_open()
+            self._space.clear()
+            if head - self._tail < self.queue_size:
+                break
+            if not woke:
+                self._inbox.put(_WAKE)
+                woke = True
+            self._space.wait(0.1)
+        return True
+
+    # ----------------------------------------------------------------- the writer thread
+
+    def _open(self, path: Path, mode: str) -> TextIO:
+        """Open one output file (a hook: tests wrap it to simulate a stalled or full disk)."""
+        return open(path, mode, encoding="utf-8", newline="", buffering=1 << 16)
+
+    def _run(self) -> None:
+        try:
+            last_flush = _monotonic()
+            while True:
+                try:
+                    items = [self._inbox.get(timeout=self._poll_s)]
+                except queue.Empty:
+                    items = []
+                with contextlib.suppress(queue.Empty):
+                    while True:
+                        items.append(self._inbox.get_nowait())
+                stop = _STOP in items
+                self._drain_rows()
+                sync = stop
+                waiters = []
+                for item in items:
+                    if isinstance(item, tuple):
+                        ev, fsync = item
+                        self._write_event(ev)
+                        sync = sync or fsync
+                    elif isinstance(item, threading.Event):
+                        waiters.append(item)
+                        sync = True
+                self._report_drops()
+                if sync:
+                    self._drain_rows()  # rows handed over while events were written
+                now = _monotonic()
+                if sync or now - last_flush >= self.flush_interval_s:
+                    self._flush_files(fsync=sync)
+                    last_flush = now
+                for w in waiters:
+                    w.set()
+                if stop:
+                    self._finish()
+                    return
+        except BaseException as exc:
+            self._error = exc
+            self._failed = True
+            self._space.set()
+            # wake anyone waiting in flush()
+            with contextlib.suppress(queue.Empty):
+                while True:
+                    item = self._inbox.get_nowait()
+                    if isinstance(item, threading.Event):
+                        item.set()
+
+    def _drain_rows(self) -> None:
+        assert self._csv is not None
+        cap = self.queue_size
+        fmt = self._fmt
+        while (pending := (self._cursor >> 1) - self._tail) > 0:
+            start = self._tail % cap
+            count = min(pending, self._chunk_rows, cap - start)
+            rows = self._ring[start : start + count].tolist()
+            self._tail += count  # slots are free once copied out
+            if self.overflow == "block":
+                self._space.set()
+            self._csv.write("".join([fmt % tuple(r) for r in rows]))
+            self.rows_written += count
+            _yield_gil()  # let the loop thread have the GIL between chunks
+
+    def _write_event(self, ev: dict[str, Any]) -> None:
+        assert self._events is not None
+        self._events_got += 1
+        self._events.write(_dumps(ev) + "\n")
+
+    def _report_drops(self) -> None:
+        dropped = self.rows_dropped
+        if dropped != self._dropped_reported:
+            ev = {
+                "tick": self._last_dropped_tick,
+                "t": None,
+                "wall": time.time(),
+                "kind": "telemetry_dropped",
+                "message": f"telemetry queue full (disk stalled?): "
+                f"{dropped - self._dropped_reported} rows dropped, {dropped} in total",
+                "rows": dropped - self._dropped_reported,
+                "total": dropped,
+            }
+            self._dropped_reported = dropped
+            assert self._events is not None
+            self._events.write(_dumps(ev) + "\n")
+
+    def _flush_files(self, *, fsync: bool) -> None:
+        for f in (self._csv, self._events):
+            if f is not None:
+                f.flush()
+                if fsync:
+                    os.fsync(f.fileno())
+
+    def _finish(self) -> None:
+        self._drain_rows()
+        with contextlib.suppress(queue.Empty):
+            while True:
+                item = self._inbox.get_nowait()
+                if isinstance(item, tuple):
+                    self._write_event(item[0])
+                elif isinstance(item, threading.Event):
+                    item.set()
+        self._report_drops()
+        self._flush_files(fsync=True)
+        self._close_files()
+        self._write_summary()
+        self._finished = True
+
+    def _telemetry_summary(self) -> dict[str, Any]:
+        recorded = self.rows_recorded
+        return {
+            "rows_recorded": recorded,
+            "rows_written": self.rows_written,
+            "rows_dropped": self.rows_dropped,
+            "rows_lost": recorded - self.rows_written,
+            "events_dropped": self.events_dropped,
+            "queue_size": self.queue_size,
+            "overflow": self.overflow,
+            "error": None if self._error is None else repr(self._error),
+        }
+
+    def _write_summary(self) -> None:
+        summary = self.stats.summary()
+        summary.update(self._summary)
+        summary["telemetry"] = self._telemetry_summary()
+        path = self.run_dir / SUMMARY_JSON
+        tmp = path.with_name(path.name + ".tmp")
+        with open(tmp, "w", encoding="utf-8") as f:
+            f.write(_dumps(summary, indent=2) + "\n")
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+        _fsync_dir(self.run_dir)
+        self._written_summary = summary
+
+    def _close_files(self) -> None:
+        for name in ("_csv", "_events"):
+            f = getattr(self, name, None)
+            setattr(self, name, None)
+            if f is not None:
+                with contextlib.suppress(OSError, ValueError):
+                    f.close()
+
+    def _handle_failure(self) -> None:
+        """After the writer thread died: best-effort flush/close and a summary, once."""
+        if self._failure_handled:
+            return
+        self._failure_handled = True
+        with contextlib.suppress(Exception):
+            self._flush_files(fsync=True)
+        self._close_files()
+        with contextlib.suppress(Exception):
+            self._write_summary()
+
+
+# --------------------------------------------------------------------------- run statistics
+
+
+def _percentiles(values: np.ndarray) -> dict[str, float | None]:
+    """p50/p99/p99.9/max/mean of the finite values (numpy's linear interpolation); None if none."""
+    v = np.asarray(values, dtype=np.float64)
+    v = v[np.isfinite(v)]
+    if v.size == 0:
+        return {**{k: None for k, _ in PERCENTILES}, "max": None, "mean": None}
+    qs = np.percentile(v, [q for _, q in PERCENTILES])
+    out: dict[str, float | None] = {k: float(x) for (k, _), x in zip(PERCENTILES, qs, strict=True)}
+    out["max"] = float(v.max())
+    out["mean"] = float(v.mean())
+    return out
+
+
+def summarize(
+    *,
+    joint_names: Sequence[str],
+    t_actual: npt.ArrayLike,
+    lateness_us: npt.ArrayLike,
+    overrun: npt.ArrayLike,
+    stage_us: Mapping[str, npt.ArrayLike],
+    status: npt.ArrayLike,
+    servo_ids: Sequence[Any] | None = None,
+    comm_errors: Mapping[Any, int] | None = None,
+    safety_limits: Mapping[str, Mapping[str, int]] | None = None,
+    faults: Sequence[Mapping[str, Any]] = (),
+    exit_code: int | None = None,
+    exit_reason: str | None = None,
+    **extra: Any,
+) -> dict[str, Any]:
+    """Build the summary dict (JSON-ready) from whole-run arrays.
+
+    ``t_actual`` (s), ``lateness_us``, ``overrun`` and each ``stage_us[stage]`` (µs) are shaped
+    ``(ticks,)``; ``status`` is ``(ticks, n_joints)`` of :class:`ReadStatus` codes.
+
+    Keys: ``ticks``; ``duration_s`` (first to last tick start) and ``rate_hz`` (achieved:
+    (ticks - 1) / duration); ``lateness_us`` and ``stage_us[stage]`` as p50/p99/p99.9/max/mean
+    (numpy's linear interpolation over finite values; None when there are none); ``overruns``;
+    ``stale_reads``/``error_reads``/``alert_reads`` per joint; ``comm_errors`` per servo (reads that
+    were not OK, plus ``comm_errors`` given here) and ``comm_errors_total``; ``safety_limits``
+    (kind -> joint -> count); ``faults``; ``exit_code``, ``exit_reason``; then ``extra`` verbatim.
+    """
+    names = list(joint_names)
+    ids = [str(s) for s in (servo_ids if servo_ids is not None else names)]
+    if len(ids) != len(names):
+        raise ValueError(f"{len(ids)} servo ids for {len(names)} joints")
+    lat = np.asarray(lateness_us, dtype=np.float64).reshape(-1)
+    ticks = int(lat.size)
+    st = np.asarray(status).reshape(ticks, len(names))
+    t = np.asarray(t_actual, dtype=np.float64).reshape(-1)
+    span = float(t[-1] - t[0]) if ticks else 0.0
+
+    def per_joint(code: ReadStatus) -> list[int]:
+        return [int(c) for c in (st == code).sum(axis=0)]
+
+    not_ok = [int(c) for c in (st != ReadStatus.OK).sum(axis=0)]
+    comm = dict(zip(ids, not_ok, strict=True))
+    for sid, count in (comm_errors or {}).items():
+        comm[str(sid)] = comm.get(str(sid), 0) + int(count)
+    return {
+        "ticks": ticks,
+        "duration_s": span,
+        "rate_hz": (ticks - 1) / span if span > 0 else None,
+        "lateness_us": _percentiles(lat),
+        "overruns": int(np.count_nonzero(np.nan_to_num(np.asarray(overrun, dtype=np.float64)))),
+        "stage_us": {s: _percentiles(np.asarray(v, dtype=np.float64)) for s, v in stage_us.items()},
+        "stale_reads": dict(zip(names, per_joint(ReadStatus.STALE), strict=True)),
+        "error_reads": dict(zip(names, per_joint(ReadStatus.ERROR), strict=True)),
+        "alert_reads": dict(zip(names, per_joint(ReadStatus.ALERT), strict=True)),
+        "comm_errors": comm,
+        "comm_errors_total": sum(comm.values()),
+        "safety_limits": {
+            k: {str(j): int(n) for j, n in v.items()} for k, v in (safety_limits or {}).items()
+        },
+        "faults": [dict(f) for f in faults],
+        "exit_code": exit_code,
+        "exit_reason": exit_reason,
+        **extra,
+    }
+
+
+class RunStats:
+    """Accumulates what the summary needs, cheaply, on the loop thread; percentiles at the end.
+
+    Per tick, :meth:`add` stores the tick's start time, lateness, overrun flag, the four stage
+    times and the read status into preallocated chunks of ``chunk_ticks`` rows (when one fills a
+    new one is allocated, never copied: no tick pays for a large copy). Rare things are counted
+    when they happen: :meth:`comm_error`, :meth:`safety_limit`, :meth:`fault`. :meth:`summary`
+    computes everything with numpy (:func:`summarize`). A :class:`TelemetryWriter` owns one and
+    feeds it; use one directly only without a writer.
+    """
+
+    #: columns of the per-tick float chunk
+    _COLS = ("t_actual", "lateness_us", "overrun", *(f"t_{s}_us" for s in STAGES))
+
+    def __init__(
+        self,
+        joint_names: Sequence[str],
+        *,
+        servo_ids: Sequence[Any] | None = None,
+        chunk_ticks: int = 1 << 16,
+    ) -> None:
+        self.joint_names = _check_joint_names(joint_names)
+        if servo_ids is not None and len(servo_ids) != len(self.joint_names):
+            raise ValueError(f"{len(servo_ids)} servo ids for {len(self.joint_names)} joints")
+        self.servo_ids = None if servo_ids is None else tuple(servo_ids)
+        self._n = len(self.joint_names)
+        self._chunk_ticks = int(chunk_ticks)
+        self._done: list[tuple[np.ndarray, np.ndarray]] = []
+        self._new_chunk()
+        self._last_tick: int | None = None
+        self.comm_errors: dict[Any, int] = {}
+        self.safety_limits: dict[str, dict[str, int]] = {}
+        self.faults: list[dict[str, Any]] = []
+
+    def _new_chunk(self) -> None:
+        self._f = np.full((self._chunk_ticks, len(self._COLS)), np.nan)
+        self._s = np.zeros((self._chunk_ticks, self._n), dtype=np.int8)
+        self._i = 0
+
+    def add(
+        self,
+        t_actual: float,
+        lateness_us: float,
+        overrun: bool,
+        t_sim_us: float,
+        t_safety_us: float,
+        t_bus_us: float,
+        t_telemetry_us: float,
+        status: npt.ArrayLike,
+        tick: int | None = None,
+    ) -> None:
+        """Store one tick: start time (s), lateness and stage times (µs), overrun, status (n,)."""
+        i = self._i
+        if i == self._chunk_ticks:
+            self._done.append((self._f, self._s))
+            self._new_chunk()
+            i = 0
+        row = self._f[i]
+        row[0] = t_actual
+        row[1] = lateness_us
+        row[2] = overrun
+        row[3] = t_sim_us
+        row[4] = t_safety_us
+        row[5] = t_bus_us
+        row[6] = t_telemetry_us
+        self._s[i] = status
+        self._i = i + 1
+        self._last_tick = tick
+
+    def amend(
+        self,
+        tick: int | None,
+        *,
+        overrun: bool | None = None,
+        t_sim_us: float | None = None,
+        t_safety_us: float | None = None,
+        t_bus_us: float | None = None,
+        t_telemetry_us: float | None = None,
+    ) -> None:
+        """Change values of the last tick added (``tick`` must be the one given to :meth:`add`)."""
+        if self._i == 0 or tick != self._last_tick:
+            raise ValueError(f"can only amend the last tick ({self._last_tick}), not {tick}")
+        row = self._f[self._i - 1]
+        if overrun is not None:
+            row[2] = overrun
+        if t_sim_us is not None:
+            row[3] = t_sim_us
+        if t_safety_us is not None:
+            row[4] = t_safety_us
+        if t_bus_us is not None:
+            row[5] = t_bus_us
+        if t_telemetry_us is not None:
+            row[6] = t_telemetry_us
+
+    def comm_error(self, servo: Any, n: int = 1) -> None:
+        """Count ``n`` communication errors on one servo that no read status shows (a failed
+        write, a retry); reads that were not OK are counted from the status already."""
+        self.comm_errors[servo] = self.comm_errors.get(servo, 0) + n
+
+    def safety_limit(self, kind: str, joint: str | int, n: int = 1) -> None:
+        """Count a safety intervention of ``kind`` (e.g. "position", "speed") on a joint."""
+        name = self.joint_names[joint] if isinstance(joint, int) else str(joint)
+        per_kind = self.safety_limits.setdefault(kind, {})
+        per_kind[name] = per_kind.get(name, 0) + n
+
+    def fault(
+        self, kind: str, message: str, tick: int | None, t: float | None, **fields: Any
+    ) -> None:
+        """Remember a fault for the summary's ``faults`` list."""
+        self.faults.append({"kind": kind, "message": message, "tick": tick, "t": t, **fields})
+
+    @property
+    def ticks(self) -> int:
+        return len(self._done) * self._chunk_ticks + self._i
+
+    def arrays(self) -> tuple[np.ndarray, np.ndarray]:
+        """``(ticks, 7)`` float array (columns ``_COLS``) and ``(ticks, n)`` int8 status, copied
+        together from the chunks."""
+        fs = [f for f, _ in self._done] + [self._f[: self._i]]
+        ss = [s for _, s in self._done] + [self._s[: self._i]]
+        return np.concatenate(fs), np.concatenate(ss)
+
+    def summary(self, **extra: Any) -> dict[str, Any]:
+        """The run summary (:func:`summarize`); ``extra`` (``exit_code``, ``exit_reason``, ...)
+        is passed on."""
+        f, s = self.arrays()
+        return summarize(
+            joint_names=self.joint_names,
+            t_actual=f[:, 0],
+            lateness_us=f[:, 1],
+            overrun=f[:, 2],
+            stage_us={stage: f[:, 3 + k] for k, stage in enumerate(STAGES)},
+            status=s,
+            servo_ids=self.servo_ids,
+            comm_errors=self.comm_errors,
+            safety_limits=self.safety_limits,
+            faults=self.faults,
+            **extra,
+        )
+
+
+# --------------------------------------------------------------------------- reading a run
+
+
+@dataclass(eq=False)
+class Run:
+    """One run directory, loaded. Columns are float64 arrays shaped ``(ticks,)`` by CSV name.
+
+    ``warnings`` lists what was tolerated: a truncated last line (crash mid-write), unparsable
+    lines, tick gaps (dropped rows), a missing or corrupt summary. ``truncated`` is True when the
+    CSV's last line was cut off.
+    """
+
+    path: Path
+    joint_names: tuple[str, ...]
+    columns: dict[str, np.ndarray]
+    events: list[dict[str, Any]] = field(default_factory=list)
+    summary: dict[str, Any] | None = None
+    config_text: str | None = None
+    warnings: list[str] = field(default_factory=list)
+    truncated: bool = False
+
+    @property
+    def n_ticks(self) -> int:
+        return int(self.columns["tick"].size)
+
+    @cached_property
+    def tick(self) -> np.ndarray:
+        return self.columns["tick"].astype(np.int64)
+
+    @property
+    def t_sched(self) -> np.ndarray:
+        return self.columns["t_sched"]
+
+    @property
+    def t_actual(self) -> np.ndarray:
+        return self.columns["t_actual"]
+
+    @property
+    def lateness_us(self) -> np.ndarray:
+        return self.columns["lateness_us"]
+
+    @property
+    def overrun(self) -> np.ndarray:
+        return self.columns["overrun"] != 0
+
+    @property
+    def comm_errors(self) -> np.ndarray:
+        return self.columns["comm_errors"].astype(np.int64)
+
+    def joint(self, quantity: str) -> np.ndarray:
+        """``(ticks, n_joints)`` array of one :data:`JOINT_FIELDS` quantity (``status``: int8)."""
+        if quantity not in JOINT_FIELDS:
+            raise KeyError(f"{quantity!r} is not one of {JOINT_FIELDS}")
+        out = np.column_stack([self.columns[f"{quantity}_{j}"] for j in self.joint_names])
+        out = out.reshape(self.n_ticks, len(self.joint_names))
+        return out.astype(np.int8) if quantity == "status" else out
+
+    def stage_us(self, stage: str) -> np.ndarray:
+        """``(ticks,)`` wall time of one :data:`STAGES` entry, µs."""
+        return self.columns[f"t_{stage}_us"]
+
+
+def _parse_header(line: str) -> tuple[list[str], tuple[str, ...]]:
+    names = line.rstrip("\r\n").split(",")
+    head, tail = len(HEAD_COLUMNS), len(TAIL_COLUMNS)
+    middle = names[head : len(names) - tail]
+    ok = (
+        len(names) >= head + tail + len(JOINT_FIELDS)
+        and tuple(names[:head]) == HEAD_COLUMNS
+        and tuple(names[len(names) - tail :]) == TAIL_COLUMNS
+        and len(middle) % len(JOINT_FIELDS) == 0
+    )
+    if ok:
+        n = len(middle) // len(JOINT_FIELDS)
+        prefix = JOINT_FIELDS[0] + "_"
+        joints = tuple(c[len(prefix) :] for c in middle[:n])
+        ok = (
+            all(c.startswith(prefix) for c in middle[:n])
+            and middle == csv_columns(joints)[head : len(names) - tail]
+        )
+        if ok:
+            return names, joints
+    raise RunFormatError(f"not a telemetry header: {line[:120]!r}")
+
+
+def _parse_rows(lines: list[str], ncols: int, warnings: list[str]) -> np.ndarray:
+    if not lines:
+        return np.empty((0, ncols))
+    try:
+        data = np.loadtxt(lines, delimiter=",", dtype=np.float64, ndmin=2, comments=None)
+        if data.shape[1] == ncols:
+            return data
+    except ValueError:
+        pass
+    # slow path: skip what does not parse, accept empty fields as NaN
+    rows: list[list[float]] = []
+    bad: list[int] = []
+    for i, line in enumerate(lines):
+        parts = line.rstrip("\r").split(",")
+        try:
+            if len(parts) != ncols:
+                raise ValueError
+            rows.append([float(p) if p else math.nan for p in parts])
+        except ValueError:
+            bad.append(i + 2)  # 1-based file line, after the header
+    if bad:
+        shown = ", ".join(map(str, bad[:10])) + (" ..." if len(bad) > 10 else "")
+        warnings.append(f"{TELEMETRY_CSV}: skipped {len(bad)} unparsable line(s): {shown}")
+    return np.array(rows, dtype=np.float64).reshape(-1, ncols)
+
+
+def _read_lines(path: Path, warnings: list[str]) -> tuple[list[str], bool]:
+    """Complete lines of a text file; a cut-off last line (or NUL tail) is dropped and reported."""
+    data = path.read_bytes().rstrip(b"\x00")
+    text = data.decode("utf-8", errors="replace")
+    lines = text.split("\n")
+    partial = lines.pop()  # "" when the file ends with a newline
+    if partial:
+        warnings.append(
+            f"{path.name}: last line is incomplete ({len(partial)} chars, "
+            "the run probably ended abruptly); ignored"
+        )
+    return [ln for ln in lines if ln.strip()], bool(partial)
+
+
+def read_run(run_dir: str | os.PathLike[str]) -> Run:
+    """Load a run directory written by :class:`TelemetryWriter` (possibly while it is written,
+    or after a crash). Raises :class:`NotARunError` if there is no ``telemetry.csv`` and
+    :class:`RunFormatError` if its header is not a telemetry header; everything else that is
+    wrong is tolerated and listed in ``Run.warnings``."""
+    path = Path(run_dir)
+    csv_path = path / TELEMETRY_CSV
+    if not csv_path.is_file():
+        raise NotARunError(f"{path} is not a run directory (no {TELEMETRY_CSV})")
+    warnings: list[str] = []
+    lines, truncated = _read_lines(csv_path, warnings)
+    if not lines:
+        raise RunFormatError(f"{csv_path} has no header")
+    names, joints = _parse_header(lines[0])
+    data = _parse_rows(lines[1:], len(names), warnings)
+    columns = {name: data[:, k].copy() for k, name in enumerate(names)}
+
+    tick = columns["tick"]
+    if tick.size > 1:
+        steps = np.diff(tick)
+        missing = int(np.sum(steps[steps > 1] - 1))
+        if missing:
+            warnings.append(f"{TELEMETRY_CSV}: {missing} tick(s) missing (rows dropped?)")
+        if np.any(steps < 1):
+            warnings.append(f"{TELEMETRY_CSV}: tick numbers are not increasing")
+
+    events: list[dict[str, Any]] = []
+    ev_path = path / EVENTS_JSONL
+    if ev_path.is_file():
+        ev_lines, _ = _read_lines(ev_path, warnings)
+        bad = 0
+        for ln in ev_lines:
+            try:
+                obj = json.loads(ln)
+            except ValueError:
+                bad += 1
+                continue
+            if isinstance(obj, dict):
+                events.append(obj)
+            else:
+                bad += 1
+        if bad:
+            warnings.append(f"{EVENTS_JSONL}: skipped {bad} unparsable line(s)")
+    else:
+        warnings.append(f"no {EVENTS_JSONL}")
+
+    summary: dict[str, Any] | None = None
+    sum_path = path / SUMMARY_JSON
+    if sum_path.is_file():
+        try:
+            loaded = json.loads(sum_path.read_text(encoding="utf-8"))
+            summary = loaded if isinstance(loaded, dict) else None
+        except ValueError as exc:
+            warnings.append(f"{SUMMARY_JSON}: unreadable ({exc})")
+    else:
+        warnings.append(f"no {SUMMARY_JSON} (the run did not close cleanly, or is still running)")
+    tel = summary.get("telemetry") if summary else None
+    if isinstance(tel, dict):
+        if tel.get("rows_dropped"):
+            warnings.append(f"{tel['rows_dropped']} row(s) dropped while recording (disk stalled)")
+        if tel.get("rows_lost"):
+            warnings.append(
+                f"{tel['rows_lost']} recorded row(s) never written ({tel.get('error')})"
+            )
+
+    cfg = path / CONFIG_NAME
+    config_text = cfg.read_text(encoding="utf-8") if cfg.is_file() else None
+    return Run(
+        path=path,
+        joint_names=joints,
+        columns=columns,
+        events=events,
+        summary=summary,
+        config_text=config_text,
+        warnings=warnings,
+        truncated=truncated,
+    )
