@@ -118,10 +118,9 @@ def run_cycles(
     ``goals`` default to the servos' own Goal Position registers (nothing changes). On a real
     clock a
     timed run is cut into chunks of at most ``chunk_s`` run under :func:`realtime`
-    (``sched``), with ``gap_s`` of sleep outside it between chunks: a SCHED_FIFO thread
-    that busy-polls longer than the kernel's RT budget (0.95 s per 1 s) is throttled for
-    the rest of the second, which would show up as a slow bus. The SCHED class in effect
-    is returned in ``CycleTiming.sched``.
+    (``sched``), each after a rest of ``gap_s`` outside SCHED_FIFO (see ``realtime``): a
+    throttled SCHED_FIFO busy-poll would show up as a slow bus. The class in effect is
+    returned in ``CycleTiming.sched``.
     """
     if (duration_s is None) == (cycles is None):
         raise ValueError("give exactly one of duration_s and cycles")
@@ -135,18 +134,13 @@ def run_cycles(
     if bb.clock.virtual:  # nothing else runs in virtual time: one chunk, no OS scheduling
         return _timed(tx, rx, now, warmup, duration_s, cycles, SCHED_OTHER)
     if cycles is not None:
-        _rest(gap_s)
-        with realtime(sched, priority) as (actual, _locked):
-            timing = _timed(tx, rx, now, warmup, None, cycles, actual)
-        _last_chunk_end[0] = time.monotonic()
-        return timing
+        with realtime(sched, priority, rest_s=gap_s) as (actual, _locked):
+            return _timed(tx, rx, now, warmup, None, cycles, actual)
     parts = []
     n_chunks = max(1, math.ceil(duration_s / chunk_s - 1e-9))
     for _ in range(n_chunks):
-        _rest(gap_s)
-        with realtime(sched, priority) as (actual, _locked):
+        with realtime(sched, priority, rest_s=gap_s) as (actual, _locked):
             parts.append(_timed(tx, rx, now, warmup, duration_s / n_chunks, None, actual))
-        _last_chunk_end[0] = time.monotonic()
     return CycleTiming(
         cycles=sum(p.cycles for p in parts),
         failures=sum(p.failures for p in parts),
@@ -154,17 +148,6 @@ def run_cycles(
         cpu_s=sum(p.cpu_s for p in parts),
         sched=parts[0].sched if len({p.sched for p in parts}) == 1 else "mixed",
     )
-
-
-#: When the last real-clock chunk ended (time.monotonic), across calls: rows run back to back.
-_last_chunk_end = [-math.inf]
-
-
-def _rest(gap_s: float) -> None:
-    """Sleep until ``gap_s`` after the previous chunk ended (keeps SCHED_FIFO within budget)."""
-    wait = _last_chunk_end[0] + gap_s - time.monotonic()
-    if wait > 0:
-        time.sleep(wait)
 
 
 def _timed(tx, rx, now, warmup, duration_s, cycles, sched) -> CycleTiming:

@@ -125,7 +125,9 @@ def measure_latency(
 
     ``bb`` should be opened with ``stamped=True`` (hardware) and ``trace=True``
     (emulator). ``move=False`` never changes a goal (nothing moves; no motion figures).
-    With ``move`` the servos' torque is switched on for the run and restored after.
+    With ``move`` the servos' torque is switched on for the run and restored after. On a
+    real clock the loop runs under ``realtime(sched)``; keep ``duration_s`` under ~0.6 s
+    there, so a busy-polling SCHED_FIFO loop stays inside the kernel's RT budget.
     """
     ids = tuple(ids)
     clock = bb.clock
@@ -166,7 +168,8 @@ def measure_latency(
     gc_was_enabled = gc.isenabled()
     gc.disable()
     try:
-        with realtime(sched, priority) if not clock.virtual else nullcontext():
+        rt = realtime(sched, priority, rest_s=0.2) if not clock.virtual else nullcontext()
+        with rt:
             next_due = clock.now() + period
             for k in range(ticks):
                 t_tick[k] = clock.wait_until(next_due)

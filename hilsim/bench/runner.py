@@ -54,7 +54,7 @@ class BenchPlan:
     )
     bus_duration_s: float = 1.2
     latency_rate_hz: float = 500.0
-    latency_duration_s: float = 1.0
+    latency_duration_s: float = 0.6  # SCHED_FIFO busy-polls: stay inside the RT budget
     move: bool = True
     step_pulses: int = 40
     subject: str = "the built-in emulator (dxlsim, real clock)"

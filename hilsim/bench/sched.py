@@ -168,17 +168,32 @@ def _libc() -> ctypes.CDLL | None:
         return None
 
 
+#: When this process last left SCHED_FIFO (time.monotonic), for ``realtime(rest_s=...)``.
+_fifo_left_at = [-math.inf]
+
+
 @contextmanager
-def realtime(sched: str = "auto", priority: int = DEFAULT_PRIORITY) -> Iterator[tuple[str, bool]]:
+def realtime(
+    sched: str = "auto", priority: int = DEFAULT_PRIORITY, *, rest_s: float = 0.0
+) -> Iterator[tuple[str, bool]]:
     """Run the body in SCHED_FIFO at ``priority`` with memory locked, when permitted.
 
     ``sched``: ``"fifo"`` or ``"auto"`` try SCHED_FIFO (falling back to SCHED_OTHER when the
     OS refuses); ``"other"`` leaves scheduling alone. Yields ``(class in effect, memory
     locked)``; the previous policy is restored and memory unlocked on exit.
+
+    ``rest_s``: first sleep until this long after the process last left SCHED_FIFO. A
+    SCHED_FIFO thread that busy-polls (the SDK does) for more than the kernel's RT budget
+    (``sched_rt_runtime_us``, 0.95 s of every 1 s) is stopped for the rest of the second;
+    resting between timed runs keeps every run inside the budget.
     """
     if sched not in ("auto", "fifo", "other"):
         raise ValueError(f"sched must be auto, fifo or other, got {sched!r}")
     has_sched = hasattr(os, "sched_setscheduler")
+    if sched != "other" and has_sched and rest_s > 0:
+        wait = _fifo_left_at[0] + rest_s - time.monotonic()
+        if wait > 0:
+            time.sleep(wait)
     old = (os.sched_getscheduler(0), os.sched_getparam(0)) if has_sched else None
     actual = SCHED_OTHER
     if sched != "other" and has_sched:
@@ -196,3 +211,4 @@ def realtime(sched: str = "auto", priority: int = DEFAULT_PRIORITY) -> Iterator[
             libc.munlockall()
         if old is not None and actual == SCHED_FIFO:
             os.sched_setscheduler(0, *old)
+            _fifo_left_at[0] = time.monotonic()
