@@ -115,12 +115,11 @@ def run_cycles(
 ) -> CycleTiming:
     """Time write+read cycles for ``duration_s`` (bus clock) or exactly ``cycles`` of them.
 
-    ``goals`` default to the servos' own Goal Position registers (nothing changes). On a real
-    clock a
-    timed run is cut into chunks of at most ``chunk_s`` run under :func:`realtime`
-    (``sched``), each after a rest of ``gap_s`` outside SCHED_FIFO (see ``realtime``): a
-    throttled SCHED_FIFO busy-poll would show up as a slow bus. The class in effect is
-    returned in ``CycleTiming.sched``.
+    ``goals`` default to the servos' own Goal Position registers (nothing changes). On a
+    real clock a timed run is cut into chunks of at most ``chunk_s``, each run under
+    :func:`~hilsim.bench.sched.realtime` (``sched``) after a rest of ``gap_s`` outside
+    SCHED_FIFO: a throttled SCHED_FIFO busy-poll would show up as a slow bus. The class in
+    effect is returned in ``CycleTiming.sched``.
     """
     if (duration_s is None) == (cycles is None):
         raise ValueError("give exactly one of duration_s and cycles")

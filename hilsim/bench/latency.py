@@ -138,8 +138,8 @@ def measure_latency(
     torque = {i: bb.read(i, ADDR_TORQUE, 1) for i in ids} if move else {}
     if move:
         for i in ids:
-            bb.write1(i, ADDR_TORQUE, 1)  # torque on sets Goal Position := Present Position
-    start = bb.read_goals(ids)  # written back unchanged, except for the step
+            bb.write1(i, ADDR_TORQUE, 1)
+    start = bb.read_goals(ids)  # read after torque-on: written back unchanged, but for the step
     writer = bb.goal_writer(start)
     reader = bb.position_reader(ids)
     tx = writer.txPacket
@@ -154,7 +154,7 @@ def measure_latency(
         rx()
         times.append(clock.now() - t0)
     cycle_s = sorted(times)[len(times) // 2]
-    ticks = max(30, int(duration_s / max(period, cycle_s)))
+    ticks = max(15, int(duration_s / max(period, cycle_s)))
     step_tick = max(5, ticks // 3) if move else None
     sign = 1 if start[ids[0]] < 2048 else -1
     step = sign * abs(step_pulses)
