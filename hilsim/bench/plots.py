@@ -175,7 +175,8 @@ def plot_step(lat: LatencyResult, path: str | Path) -> Path | None:
     t_ms = (lat.sample_t - t0) * 1e3
     p0 = lat.positions[k0 - 1]
     fig, ax = plt.subplots(figsize=(8, 4.4), layout="constrained")
-    ax.plot(t_ms[ok], lat.positions[ok], marker=".", ms=4, lw=1, label="Present Position (read)")
+    ax.plot(t_ms[ok], lat.positions[ok], marker="o", ms=3.5, lw=1, drawstyle="steps-post",
+            label="Present Position (as read; held between samples)")  # fmt: skip
     ax.axhline(p0 + lat.step_pulses, color="k", ls="--", lw=1, label="goal after the step")
     ax.axhline(
         p0 + FRACTION_63 * lat.step_pulses, color="grey", ls=":", lw=1, label="63 % of the step"
@@ -188,8 +189,9 @@ def plot_step(lat: LatencyResult, path: str | Path) -> Path | None:
         if value is not None:
             ms = value * 1e3
             ax.axvline(ms, color=color, ls="-.", lw=1.2, label=f"{label}: {ms:.1f} ms")
+    cycle_ms = float(np.nanmedian(np.diff(lat.t_tick))) * 1e3
     after = 60.0 if lat.motion_63_s is None else max(30.0, 3 * lat.motion_63_s * 1e3)
-    ax.set_xlim(-10.0, after)
+    ax.set_xlim(-max(10.0, 1.5 * cycle_ms), after)
     ax.set_xlabel("time from the step tick's start (ms); samples at the servos' reply")
     ax.set_ylabel("position (pulses)")
     ax.set_title(
