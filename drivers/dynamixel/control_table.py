@@ -1,0 +1,222 @@
+"""The host-side view of the X-series control table: the addresses the driver uses, as data.
+
+Only what the driver reads or writes is here (Protocol 2.0, X series; identical addresses
+on X330/X430/X540). Values are little endian, two's complement when ``signed``. This
+module is data and tiny lookups; it imports neither ``dynamixel_sdk`` nor the emulator,
+so the driver stands without :mod:`drivers.dxlsim`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from enum import IntEnum, IntFlag
+
+
+@dataclass(frozen=True, slots=True)
+class Item:
+    """One control-table item: ``addr`` and ``size`` in bytes (1, 2 or 4)."""
+
+    name: str
+    addr: int
+    size: int
+    signed: bool = False
+
+    @property
+    def end(self) -> int:
+        """First address after the item."""
+        return self.addr + self.size
+
+    def decode(self, block: bytes | bytearray, start: int = 0) -> int:
+        """The item's value from ``block``, a read that began at address ``start``."""
+        i = self.addr - start
+        return int.from_bytes(block[i : i + self.size], "little", signed=self.signed)
+
+    def encode(self, value: int) -> bytes:
+        """``value`` as the item's little-endian bytes (wraps like the wire does)."""
+        return (int(value) & ((1 << (8 * self.size)) - 1)).to_bytes(self.size, "little")
+
+
+MODEL_NUMBER = Item("Model Number", 0, 2)
+FIRMWARE_VERSION = Item("Firmware Version", 6, 1)
+ID = Item("ID", 7, 1)
+BAUD_RATE = Item("Baud Rate", 8, 1)
+RETURN_DELAY_TIME = Item("Return Delay Time", 9, 1)  # unit 2 µs
+DRIVE_MODE = Item("Drive Mode", 10, 1)
+OPERATING_MODE = Item("Operating Mode", 11, 1)
+HOMING_OFFSET = Item("Homing Offset", 20, 4, signed=True)
+VELOCITY_LIMIT = Item("Velocity Limit", 44, 4)
+MAX_POSITION_LIMIT = Item("Max Position Limit", 48, 4)
+MIN_POSITION_LIMIT = Item("Min Position Limit", 52, 4)
+SHUTDOWN = Item("Shutdown", 63, 1)
+TORQUE_ENABLE = Item("Torque Enable", 64, 1)
+LED = Item("LED", 65, 1)
+STATUS_RETURN_LEVEL = Item("Status Return Level", 68, 1)
+HARDWARE_ERROR_STATUS = Item("Hardware Error Status", 70, 1)
+BUS_WATCHDOG = Item("Bus Watchdog", 98, 1, signed=True)  # reads -1 once tripped
+GOAL_POSITION = Item("Goal Position", 116, 4, signed=True)
+PRESENT_VELOCITY = Item("Present Velocity", 128, 4, signed=True)
+PRESENT_POSITION = Item("Present Position", 132, 4, signed=True)
+
+#: One Read from address 0 of this many bytes covers every item the start-up check needs
+#: (EEPROM, Torque Enable, Status Return Level, Hardware Error, Bus Watchdog, Goal and
+#: Present Position). Gaps read as 0.
+STARTUP_BLOCK = Item("start-up block", 0, PRESENT_POSITION.end)
+
+#: Addresses below this are EEPROM: writes are refused (Access Error) while torque is on.
+EEPROM_END = 64
+#: Return Delay Time unit, s.
+RETURN_DELAY_UNIT_S = 2e-6
+#: Bus Watchdog unit, s; 1..127 arms it, 0 disarms and clears a trip, -1 reads "tripped".
+WATCHDOG_UNIT_S = 0.020
+WATCHDOG_MAX_UNITS = 127
+WATCHDOG_TRIPPED = -1
+#: Goal Position range in Extended Position / Current-based Position Control Mode, ticks.
+EXTENDED_GOAL_LIMIT = 1_048_575
+#: Status Return Level (68): 0 answers Ping only, 1 Ping and Read, 2 everything.
+STATUS_RETURN_ALL = 2
+
+#: Baud Rate (addr 8) index -> bit/s. X330 accepts indices 0..6, X430/X540 0..7.
+BAUD_RATES: dict[int, int] = {
+    0: 9_600,
+    1: 57_600,
+    2: 115_200,
+    3: 1_000_000,
+    4: 2_000_000,
+    5: 3_000_000,
+    6: 4_000_000,
+    7: 4_500_000,
+}
+BAUD_INDEX: dict[int, int] = {bps: i for i, bps in BAUD_RATES.items()}
+
+
+class OperatingMode(IntEnum):
+    """Operating Mode (addr 11)."""
+
+    CURRENT = 0
+    VELOCITY = 1
+    POSITION = 3
+    EXTENDED_POSITION = 4
+    CURRENT_BASED_POSITION = 5
+    PWM = 16
+
+
+#: Modes in which Goal Position is obeyed.
+POSITION_MODES = frozenset(
+    {
+        OperatingMode.POSITION,
+        OperatingMode.EXTENDED_POSITION,
+        OperatingMode.CURRENT_BASED_POSITION,
+    }
+)
+
+
+class HardwareError(IntFlag):
+    """Bits of Hardware Error Status (addr 70); latched until Reboot."""
+
+    INPUT_VOLTAGE = 0x01
+    OVERHEATING = 0x04
+    MOTOR_ENCODER = 0x08
+    ELECTRICAL_SHOCK = 0x10
+    OVERLOAD = 0x20
+
+
+def describe_hardware_error(bits: int) -> str:
+    """``0x24`` -> ``"overheating, overload"``; unknown bits are shown in hex."""
+    names = [f.name.lower() for f in HardwareError if bits & f]
+    rest = bits & ~sum(HardwareError)
+    if rest:
+        names.append(f"0x{rest:02X}")
+    return ", ".join(names) or "none"
+
+
+#: Status packet ERR byte: bit 7 is the Alert bit (Hardware Error Status is non-zero).
+ALERT_BIT = 0x80
+ERROR_NUMBER_MASK = 0x7F
+
+
+class StatusError(IntEnum):
+    """The error number in bits 0-6 of a status packet's ERR byte."""
+
+    NONE = 0
+    RESULT_FAIL = 1
+    INSTRUCTION = 2
+    CRC = 3
+    DATA_RANGE = 4
+    DATA_LENGTH = 5
+    DATA_LIMIT = 6
+    ACCESS = 7
+
+
+_ERROR_TEXT = {
+    StatusError.NONE: "no error",
+    StatusError.RESULT_FAIL: "Result Fail",
+    StatusError.INSTRUCTION: "Instruction Error",
+    StatusError.CRC: "CRC Error",
+    StatusError.DATA_RANGE: "Data Range Error",
+    StatusError.DATA_LENGTH: "Data Length Error",
+    StatusError.DATA_LIMIT: "Data Limit Error",
+    StatusError.ACCESS: "Access Error",
+}
+
+
+def error_name(number: int) -> str:
+    """Readable name of a status error number (bits 0-6 of ERR)."""
+    try:
+        return _ERROR_TEXT[StatusError(number)]
+    except ValueError:
+        return f"unknown error {number}"
+
+
+#: Model Number (addr 0) -> model name.
+MODEL_NAMES: dict[int, str] = {
+    1000: "XH430-W350",
+    1020: "XM430-W350",
+    1030: "XM430-W210",
+    1060: "XL430-W250",
+    1120: "XM540-W270",
+    1190: "XL330-M077",
+    1200: "XL330-M288",
+    1240: "XC330-M288",
+}
+MODEL_NUMBERS: dict[str, int] = {name: number for number, name in MODEL_NAMES.items()}
+
+#: Lowest firmware (addr 6) with Fast Sync/Bulk Read, by series (name prefix).
+FAST_READ_MIN_FIRMWARE: dict[str, int] = {"X330": 46, "X430": 45, "X540": 45}
+
+
+def model_name(number: int) -> str:
+    """``1020`` -> ``"XM430-W350"``; unknown numbers -> ``"unknown model 1234"``."""
+    return MODEL_NAMES.get(number, f"unknown model {number}")
+
+
+def model_number(name: str) -> int:
+    """``"xm430-w350"`` (case-insensitive, ``-T``/``-R`` suffix allowed) -> ``1020``.
+
+    Raises ValueError listing the known models.
+    """
+    key = name.strip().upper()
+    for suffix in ("-T", "-R"):
+        if key.endswith(suffix) and key[: -len(suffix)] in MODEL_NUMBERS:
+            key = key[: -len(suffix)]
+    try:
+        return MODEL_NUMBERS[key]
+    except KeyError:
+        known = ", ".join(f"{n} ({m})" for m, n in MODEL_NAMES.items())
+        raise ValueError(f"unknown servo model {name!r}; known: {known}") from None
+
+
+def series(name: str) -> str:
+    """``"XM430-W350"`` -> ``"X430"``: the family that sets firmware features."""
+    return "X" + name[2:5] if len(name) >= 5 and name.startswith("X") else name
+
+
+def fast_read_min_firmware(number: int) -> int | None:
+    """Lowest firmware with Fast Sync Read for this Model Number, None if unknown."""
+    name = MODEL_NAMES.get(number)
+    return None if name is None else FAST_READ_MIN_FIRMWARE.get(series(name))
+
+
+def supports_fast_read(number: int, firmware: int) -> bool:
+    """True when a servo of this Model Number and firmware answers Fast Sync Read."""
+    least = fast_read_min_firmware(number)
+    return least is not None and firmware >= least
