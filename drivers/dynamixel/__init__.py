@@ -1,4 +1,48 @@
 """The Dynamixel driver: dynamixel-sdk behind snake_case, on any pyserial port and injected clock.
 
 This package is the only place that imports ``dynamixel_sdk``.
+
+The names below are imported on first use (PEP 562), so ``drivers.dynamixel.units`` or
+``control_table`` can be used without loading the SDK. Bus scanning:
+``from drivers.dynamixel.scan import scan`` (the module and the function share a name).
 """
+
+from __future__ import annotations
+
+import importlib
+from typing import Any
+
+_EXPORTS = {
+    "DynamixelBus": "drivers.dynamixel.bus",
+    "Expectation": "drivers.dynamixel.bus",
+    "LatencyTimerWarning": "drivers.dynamixel.bus",
+    "Link": "drivers.dynamixel.bus",
+    "ReadMode": "drivers.dynamixel.bus",
+    "ServoState": "drivers.dynamixel.bus",
+    "StartupReport": "drivers.dynamixel.bus",
+    "CommError": "drivers.dynamixel.errors",
+    "CommTimeout": "drivers.dynamixel.errors",
+    "CorruptPacket": "drivers.dynamixel.errors",
+    "DynamixelError": "drivers.dynamixel.errors",
+    "ExitNotConfirmed": "drivers.dynamixel.errors",
+    "Mismatch": "drivers.dynamixel.errors",
+    "PortBusy": "drivers.dynamixel.errors",
+    "PortGone": "drivers.dynamixel.errors",
+    "ServoError": "drivers.dynamixel.errors",
+    "StartupMismatch": "drivers.dynamixel.errors",
+}
+
+__all__ = sorted(_EXPORTS)
+
+
+def __getattr__(name: str) -> Any:
+    module = _EXPORTS.get(name)
+    if module is None:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    value = getattr(importlib.import_module(module), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(_EXPORTS))
