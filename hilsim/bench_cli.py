@@ -119,8 +119,8 @@ def build_plan(args: argparse.Namespace, argv_text: str = "hilsim bench"):
 
 
 def run(args: argparse.Namespace) -> int:
+    from drivers.dynamixel.bench_session import BenchError
     from hilsim.bench.runner import run_bench
-    from hilsim.bench.session import BenchError
     from hilsim.rig import RigError
 
     t_start = time.perf_counter()

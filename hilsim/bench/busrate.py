@@ -22,9 +22,9 @@ import time
 from collections.abc import Sequence
 from dataclasses import dataclass
 
+from drivers.dynamixel.bench_session import ADDR_RETURN_DELAY, BenchBus, BenchError
 from hilsim.bench.model import DEFAULT_TURNAROUND_S, cycle_time_s
 from hilsim.bench.sched import DEFAULT_PRIORITY, SCHED_OTHER, realtime
-from hilsim.bench.session import ADDR_RETURN_DELAY, BenchBus, BenchError
 
 
 @dataclass(frozen=True)

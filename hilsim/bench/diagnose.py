@@ -25,8 +25,13 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 
 from drivers.dxlsim.models import get_model
+from drivers.dynamixel.bench_session import (
+    ADDR_FIRMWARE,
+    ADDR_PRESENT_POSITION,
+    ADDR_RETURN_DELAY,
+    BenchBus,
+)
 from hilsim.bench.model import DEFAULT_TURNAROUND_S, cycle_rate_hz
-from hilsim.bench.session import ADDR_FIRMWARE, ADDR_PRESENT_POSITION, ADDR_RETURN_DELAY, BenchBus
 
 #: A latency timer at or above this (ms) is reported; FTDI's default is 16, tuned is 1.
 LATENCY_FLAG_MS = 2.0

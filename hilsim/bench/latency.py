@@ -25,15 +25,15 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from hilsim.bench.model import DEFAULT_TURNAROUND_S, read_request_bytes, sync_write_bytes
-from hilsim.bench.sched import DEFAULT_PRIORITY, percentile, realtime
-from hilsim.bench.session import (
+from drivers.dynamixel.bench_session import (
     ADDR_RETURN_DELAY,
     ADDR_TORQUE,
     BenchBus,
     goal_bytes,
     position,
 )
+from hilsim.bench.model import DEFAULT_TURNAROUND_S, read_request_bytes, sync_write_bytes
+from hilsim.bench.sched import DEFAULT_PRIORITY, percentile, realtime
 
 INST_SYNC_WRITE = 0x83
 FRACTION_63 = 1.0 - math.exp(-1.0)  # 63.2 %: one time constant of a first-order lag

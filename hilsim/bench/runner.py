@@ -11,13 +11,13 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 from drivers.clock import MonotonicClock
+from drivers.dynamixel.bench_session import BenchError, emulator_url, open_bus
 from hilsim.bench import cyclictest
 from hilsim.bench.busrate import measure_bus_rate
 from hilsim.bench.diagnose import diagnose, gather_facts
 from hilsim.bench.latency import measure_latency
 from hilsim.bench.report import BenchReport, LoopResult
 from hilsim.bench.sched import DEFAULT_PRIORITY, SCHED_FIFO, measure_scheduler
-from hilsim.bench.session import BenchError, emulator_url, open_bus
 
 DEFAULT_SERVO_COUNTS = (1, 4, 8, 16)
 DEFAULT_EMULATOR_BAUDS = (1_000_000, 4_000_000)

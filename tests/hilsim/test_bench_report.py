@@ -9,6 +9,7 @@ import sys
 import numpy as np
 import pytest
 
+from drivers.dynamixel.bench_session import emulator_url, open_bus
 from hilsim import bench_cli
 from hilsim.bench import cyclictest
 from hilsim.bench.busrate import measure_bus_rate
@@ -16,7 +17,6 @@ from hilsim.bench.diagnose import diagnose, gather_facts
 from hilsim.bench.latency import measure_latency
 from hilsim.bench.report import BenchReport, LoopResult
 from hilsim.bench.sched import SCHED_FIFO, SchedulerRun, lateness_stats
-from hilsim.bench.session import emulator_url, open_bus
 from tests.hilsim.test_bench_sched import FIFO_SAMPLE
 
 SLOW_URL = "dxlsim://?ids=1-4&baud=57600&rdt_us=500&latency_ms=16&firmware=44"

@@ -1,6 +1,6 @@
 """A bus opened for measurement: our PortHandler, the unmodified dynamixel-sdk, a few reads.
 
-The bench is the one place in ``hilsim`` that calls dynamixel-sdk's group objects itself
+The bench (hilsim/bench) times dynamixel-sdk's group objects through this module
 (``GroupSyncWrite.txPacket``, ``GroupSyncRead.txRxPacket`` / ``fastSyncRead``): the point is
 to time exactly what the SDK does. Everything SDK-shaped stays in this module; the others
 get bound methods and plain numbers.
