@@ -143,6 +143,7 @@ class DxlBus:
 
     def unplugged(self, t: float | None = None) -> bool:
         t = self.clock.now() if t is None else t
+        self._apply_events(t)  # an unplug is due even if the host has not written since
         return self.unplugged_at is not None and t >= self.unplugged_at
 
     def write(self, data: bytes) -> float:

@@ -21,7 +21,6 @@ from __future__ import annotations
 import dynamixel_sdk
 import serial
 
-import drivers.dxlsim  # noqa: F401  (registers dxlsim:// with pyserial)
 from drivers.clock import Clock, MonotonicClock
 
 #: The SDK's default latency-timer allowance (ms), matching an untuned FTDI adapter.
@@ -67,6 +66,8 @@ class PortHandler(dynamixel_sdk.PortHandler):
     def setupPort(self, cflag_baud):
         if self.is_open:
             self.closePort()
+        if self.port_name.lower().startswith("dxlsim://"):
+            import drivers.dxlsim  # noqa: F401  (registers dxlsim:// with pyserial, on demand)
         self.ser = serial.serial_for_url(
             self.port_name, baudrate=self.baudrate, bytesize=serial.EIGHTBITS, timeout=0
         )
