@@ -257,6 +257,7 @@ class HilLoop:
         nan = math.nan
         recent = np.zeros(512)  # lateness ring for the live status line
         t0 = clock.now()
+        self.stats["clock_t0"] = t0  # the clock time of tick 0 (fault plans use the bus clock)
         last_ok = [t0] * n
         comm_errors = 0
         next_status = perf() + 0.5

@@ -8,6 +8,7 @@ do not fit (nothing moved), 3 a fault stopped the show (servo and cause printed)
 from __future__ import annotations
 
 import argparse
+import contextlib
 import signal
 import sys
 import time
@@ -75,7 +76,6 @@ def _status_printer(rate_hz: float):
 
 
 def run(args: argparse.Namespace) -> int:
-    import numpy as np
 
     from drivers.dynamixel.bus import DynamixelBus
     from drivers.dynamixel.errors import DynamixelError, StartupMismatch
@@ -127,7 +127,8 @@ def run(args: argparse.Namespace) -> int:
         try:
             # A previous run's "hold" exit leaves the Bus Watchdog to trip once the host is
             # gone; we are the host again, so clear it (writing 0) before checking the rest.
-            bus.disarm_watchdog()
+            with contextlib.suppress(DynamixelError):  # an absent servo: check() names it
+                bus.disarm_watchdog()
             report = bus.check(expectations(rig, latency_ms))
         except StartupMismatch as exc:
             print(
@@ -192,14 +193,18 @@ def run(args: argparse.Namespace) -> int:
         f"exit policy: {result.summary.get('exit_policy', '?')}",
         file=sys.stderr,
     )
-    lat = summary.get("lateness_us", {}) if isinstance(summary, dict) else {}
-    if lat:
-        print(
-            f"  lateness p50 {lat.get('p50', np.nan):.0f} us, p99 {lat.get('p99', np.nan):.0f} us, "
-            f"max {lat.get('max', np.nan):.0f} us; overruns {result.summary.get('overruns', 0)}; "
-            f"comm errors {result.summary.get('comm_errors', 0)}",
-            file=sys.stderr,
-        )
+    lat = summary.get("lateness_us") or {}
+
+    def us(key: str) -> str:
+        value = lat.get(key)
+        return "n/a" if value is None else f"{value:.0f} us"
+
+    print(
+        f"  lateness p50 {us('p50')}, p99 {us('p99')}, max {us('max')}; "
+        f"overruns {result.summary.get('overruns', 0)}; "
+        f"comm errors {sum((summary.get('comm_errors') or {}).values())}",
+        file=sys.stderr,
+    )
     print(f"  telemetry: {run_dir}", file=sys.stderr)
     if not args.no_plots:
         from hilsim.plots import plot_run

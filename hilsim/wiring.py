@@ -4,7 +4,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from drivers.dynamixel.bus import Expectation, ReadMode as BusReadMode, StartupReport
+from drivers.dynamixel.bus import Expectation, StartupReport
+from drivers.dynamixel.bus import ReadMode as BusReadMode
 from hilsim.rig import ReadMode, Rig, RigError
 from hilsim.targets import CsvAnimation, TargetSet, track_from_spec
 

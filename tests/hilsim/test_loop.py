@@ -1,0 +1,403 @@
+"""The HIL loop end to end on the emulator (virtual clock): what reaches the wire, and how it stops.
+
+Most tests go through ``hilsim run`` itself with a named emulated bus, so the bus trace can be
+read afterwards: every Sync Write is decoded from the bytes that were on the wire.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import signal
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from drivers.clock import VirtualClock
+from drivers.dxlsim import DxlBus, VirtualServo, register_bus, unregister_bus
+from drivers.dxlsim.protocol import Instruction, StreamParser
+from drivers.dynamixel.bus import DynamixelBus
+from drivers.dynamixel.units import rad_to_ticks
+from hilsim.cli import main
+from hilsim.loop import EXIT_FAULT, HilLoop
+from hilsim.rig import load_rig
+from hilsim.springs import Spring
+from hilsim.targets import TargetSet, Track
+from hilsim.telemetry import TelemetryWriter, read_run
+from hilsim.wiring import build_targets
+
+REPO = Path(__file__).resolve().parents[2]
+TICK_RAD = 2 * math.pi / 4096
+
+RIG = """
+name = "t"
+[bus]
+port = "dxlsim://unused"
+baud = 1000000
+[loop]
+rate_hz = 250
+[safety]
+comm_failure_budget_ms = 40
+soft_start_s = 0.2
+[[joints]]
+name = "pan"
+servo_id = 1
+min_deg = -50
+max_deg = 50
+max_speed_deg_s = 200
+max_accel_deg_s2 = 3000
+spring = { frequency_hz = 3.0, damping_ratio = 0.7 }
+target = { type = "keyframes", keys = [[0, 0], [0.5, 30], [1.0, -30], [1.5, 0]], easing = "ease_in_out" }
+[[joints]]
+name = "tail"
+servo_id = 2
+min_deg = -60
+max_deg = 60
+max_speed_deg_s = 240
+max_accel_deg_s2 = 3000
+spring = { m = 1.0, c = 0.8, k = 25.0 }
+initial_deg = 35
+target = { type = "hold", value_deg = 0 }
+[[joints]]
+name = "jaw"
+servo_id = 3
+direction = -1
+min_deg = -5
+max_deg = 30
+spring = { frequency_hz = 5.0, damping_ratio = 0.9, response = 0.5 }
+target = { type = "sine", amplitude_deg = 15, frequency_hz = 1.0, offset_deg = 12 }
+"""
+
+
+@pytest.fixture
+def emulated(tmp_path):
+    """Build a named emulated bus (trace on) and a rig file pointing at it."""
+    names = []
+
+    def _make(rig_text=RIG, *, ids=(1, 2, 3), faults=None, name="loopbus", **servo_kw):
+        bus = DxlBus(
+            [
+                VirtualServo("XM430-W350", i, baud=1_000_000, return_delay_us=0, t=0.0, **servo_kw)
+                for i in ids
+            ],
+            baud=1_000_000,
+            clock=VirtualClock(),
+            latency_timer_ms=1.0,
+            faults=faults,
+            trace=True,
+        )
+        register_bus(name, bus)
+        names.append(name)
+        path = tmp_path / "rig.toml"
+        path.write_text(rig_text.replace("dxlsim://unused", f"dxlsim://{name}"))
+        return bus, path
+
+    yield _make
+    for n in names:
+        unregister_bus(n)
+
+
+def run_cli(path: Path, out: Path, *extra: str) -> int:
+    return main(["run", str(path), "--virtual-time", "--no-plots", "--out", str(out), *extra])
+
+
+def wire_goals(bus: DxlBus) -> dict[int, np.ndarray]:
+    """Goal Position ticks per servo, from every Sync Write the host put on the wire."""
+    parser = StreamParser()
+    goals: dict[int, list[int]] = {}
+    for rec in bus.trace:
+        if rec.direction != "tx":
+            continue
+        for frame in parser.feed(rec.data):
+            p = frame.packet
+            if p is None or p.instruction != Instruction.SYNC_WRITE:
+                continue
+            addr, size = p.params[0] | p.params[1] << 8, p.params[2] | p.params[3] << 8
+            if addr != 116 or size != 4:
+                continue
+            body = p.params[4:]
+            for k in range(0, len(body), 5):
+                value = int.from_bytes(body[k + 1 : k + 5], "little", signed=True)
+                goals.setdefault(body[k], []).append(value)
+    return {sid: np.array(v) for sid, v in goals.items()}
+
+
+def limits_in_ticks(rig):
+    out = {}
+    for j in rig.joints:
+        ends = sorted((j.home_rad + j.direction * j.min_rad, j.home_rad + j.direction * j.max_rad))
+        out[j.servo_id] = (rad_to_ticks(ends[0]), rad_to_ticks(ends[1]))
+    return out
+
+
+# ------------------------------------------------------------------ a clean show
+def test_show_runs_and_commands_the_free_spring_along_the_exact_solution(emulated, tmp_path):
+    bus, path = emulated()
+    assert run_cli(path, tmp_path / "run", "--duration", "3") == 0
+    run = read_run(tmp_path / "run")
+    assert run.n_ticks == 751 and run.summary["exit_code"] == 0
+    t = run.columns["t_sched"]
+    tail = run.joint_names.index("tail")
+    x_exact = np.asarray(Spring(m=1.0, c=0.8, k=25.0).exact(t, math.radians(35), 0.0)[0])
+    cmd, sim = run.joint("cmd")[:, tail], run.joint("sim_x")[:, tail]
+    # Released at 35° while the servo sits at 0°: soft start (0.2 s) blends it in and the speed
+    # and acceleration limits let the command catch up. Wherever no limit acts the command IS the
+    # spring's state, bit for bit, and from 0.6 s on that is every tick.
+    free = cmd == sim
+    assert np.all(free[t >= 0.6]) and free.sum() > 0.8 * len(t)
+    assert np.max(np.abs(sim - x_exact)) < 1e-6  # RK4 at 4 ms against the closed form
+    assert np.max(np.abs(cmd[free] - x_exact[free])) < 1e-6
+    # ... and exactly that reaches the wire, as ticks.
+    goals = wire_goals(bus)[2]
+    assert len(goals) == run.n_ticks + 1  # every tick, plus the hold-at-start write
+    assert np.array_equal(goals[1:], np.round(2048 + cmd / TICK_RAD).astype(int))
+    # Present positions follow within the emulated servo's lag.
+    err = np.abs(run.joint("present") - run.joint("cmd"))
+    assert np.all(run.joint("status") == 0)
+    assert np.degrees(np.percentile(err[t > 0.3], 99)) < 3.0
+    events = [e["kind"] for e in run.events]
+    assert events[0] == "start" and "exit_policy" in events
+
+
+def test_soft_start_begins_at_the_present_pose(emulated, tmp_path):
+    bus, path = emulated(present_position=2048 - 50)  # every servo starts 50 ticks off centre
+    assert run_cli(path, tmp_path / "run", "--duration", "1") == 0
+    run = read_run(tmp_path / "run")
+    first = run.joint("cmd")[0]
+    rig = load_rig(path)
+    for j, value in zip(rig.joints, first, strict=True):
+        assert value == pytest.approx(-j.direction * 50 * TICK_RAD, abs=1e-12)
+    for _sid, goals in wire_goals(bus).items():
+        assert goals[0] == goals[1] == 2048 - 50  # held at start, then ramps from there
+
+
+# ------------------------------------------------------------------ nothing unsafe on the wire
+class NanAfter(Track):
+    """A target that turns NaN (or inf) at ``t_bad``."""
+
+    def __init__(self, t_bad: float, bad: float = math.nan) -> None:
+        self.t_bad, self.bad = t_bad, bad
+
+    def sample(self, t: float) -> tuple[float, float]:
+        return (self.bad, 0.0) if t >= self.t_bad else (0.3 * math.sin(t), 0.3 * math.cos(t))
+
+    @property
+    def duration(self) -> None:
+        return None
+
+
+def run_loop(
+    bus: DxlBus,
+    path: Path,
+    out: Path,
+    targets: TargetSet | None = None,
+    duration: float = 2.0,
+    patch=None,
+):
+    rig = load_rig(path)
+    dbus = DynamixelBus.open(rig.bus.port, baud=rig.bus.baud, ids=rig.servo_ids)
+    tel = TelemetryWriter(out, rig.joint_names, servo_ids=rig.servo_ids, overflow="block")
+    loop = HilLoop(rig, dbus, targets or build_targets(rig), tel, duration_s=duration)
+    if patch:
+        patch(loop)
+    result = loop.run()
+    tel.close({"exit_code": result.exit_code, "exit_reason": result.reason})
+    dbus.close()
+    return rig, result, read_run(out)
+
+
+@pytest.mark.parametrize("bad", [math.nan, math.inf, -math.inf])
+def test_non_finite_target_never_reaches_the_wire(emulated, tmp_path, bad):
+    bus, path = emulated()
+    rig = load_rig(path)
+    base = build_targets(rig)
+    targets = TargetSet([NanAfter(0.6, bad), *base.tracks[1:]], rig.joint_names)
+    rig, result, run = run_loop(bus, path, tmp_path / "run", targets)
+    assert result.exit_code == EXIT_FAULT and "safety" in result.reason and "pan" in result.reason
+    assert np.all(np.isfinite(run.joint("cmd")))
+    for sid, goals in wire_goals(bus).items():
+        lo, hi = limits_in_ticks(rig)[sid]
+        assert np.all((goals >= lo) & (goals <= hi))
+    assert run.summary["faults"]
+
+
+def test_non_finite_from_the_integrator_never_reaches_the_wire(emulated, tmp_path):
+    bus, path = emulated()
+
+    def poison(loop):
+        step = loop.integrator.step
+        calls = {"n": 0}
+
+        def bad_step(x, v, h, t, target):
+            step(x, v, h, t, target)
+            calls["n"] += 1
+            if calls["n"] == 100:
+                v[1] = math.nan
+                x[1] = math.nan
+
+        loop.integrator.step = bad_step
+
+    rig, result, run = run_loop(bus, path, tmp_path / "run", patch=poison)
+    assert result.exit_code == EXIT_FAULT and "tail" in result.reason
+    assert run.n_ticks == 100  # the poisoned tick stops before its row: it is in the events
+    assert np.all(np.isfinite(run.joint("cmd")))
+    for sid, goals in wire_goals(bus).items():
+        lo, hi = limits_in_ticks(rig)[sid]
+        assert np.all((goals >= lo) & (goals <= hi))
+
+
+def test_non_finite_spring_parameter_is_refused_at_load(tmp_path):
+    path = tmp_path / "rig.toml"
+    path.write_text(
+        RIG.replace(
+            "spring = { m = 1.0, c = 0.8, k = 25.0 }", "spring = { m = 1.0, c = 0.8, k = nan }"
+        )
+    )
+    assert main(["run", str(path), "--virtual-time", "--out", str(tmp_path / "r")]) == 2
+    assert not (tmp_path / "r").exists()  # nothing was opened, nothing moved
+
+
+@settings(
+    max_examples=12, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture]
+)
+@given(keys=st.lists(st.tuples(st.floats(0.01, 0.4), st.floats(-400, 400)), min_size=1, max_size=6))
+def test_limits_hold_on_the_wire_for_any_keyframes(emulated, tmp_path_factory, keys):
+    t, rows = 0.0, [[0.0, 0.0]]
+    for dt, deg in keys:
+        t += dt
+        rows.append([round(t, 4), deg])
+    text = RIG.replace(
+        'target = { type = "keyframes", keys = [[0, 0], [0.5, 30], [1.0, -30], [1.5, 0]], '
+        'easing = "ease_in_out" }',
+        f'target = {{ type = "keyframes", keys = {rows}, easing = "linear" }}',
+    )
+    bus, path = emulated(text, name=f"hyp{os.getpid()}")
+    out = tmp_path_factory.mktemp("run")
+    rig, result, run = run_loop(bus, path, out, duration=t + 0.3)
+    assert result.exit_code == 0
+    pan = rig.joints[0]
+    cmd = run.joint("cmd")[:, 0]
+    assert np.all(cmd >= pan.min_rad) and np.all(cmd <= pan.max_rad)
+    step = np.abs(np.diff(cmd))
+    assert np.all(step <= pan.max_speed_rad_s * rig.loop.period_s * (1 + 1e-9))
+    goals = wire_goals(bus)[1]
+    lo, hi = limits_in_ticks(rig)[1]
+    assert np.all((goals >= lo) & (goals <= hi))
+    assert np.all(np.abs(np.diff(goals)) <= math.ceil(pan.max_speed_rad_s * 0.004 / TICK_RAD) + 1)
+    unregister_bus(f"hyp{os.getpid()}")
+
+
+# ------------------------------------------------------------------ the bus fails
+def test_stale_reads_never_become_positions(emulated, tmp_path):
+    _bus, path = emulated(faults="drop:id=2,rate=0.2")
+    assert run_cli(path, tmp_path / "run", "--duration", "2") == 0
+    run = read_run(tmp_path / "run")
+    status, present = run.joint("status"), run.joint("present")
+    stale = status != 0
+    assert stale[:, 1].sum() > 20  # the fault did strike
+    assert np.all(np.isnan(present[stale]))
+    assert np.all(np.isfinite(present[~stale]))
+    assert run.summary["exit_code"] == 0
+
+
+def fault_time(run, bus, t_bus: float) -> float:
+    """A fault plan's time (bus clock) on the run's time axis (0 = tick 0)."""
+    return t_bus - (run.summary["loop"]["clock_t0"] - bus.t0)
+
+
+def test_sustained_timeouts_stop_within_the_budget(emulated, tmp_path):
+    bus, path = emulated(faults="drop:id=2,at=1.0")
+    assert run_cli(path, tmp_path / "run", "--duration", "5") == EXIT_FAULT
+    run = read_run(tmp_path / "run")
+    reason = run.summary["exit_reason"]
+    assert "servo 2 (tail)" in reason and "budget 40 ms" in reason
+    last = run.columns["t_actual"][-1] + 1.0 - fault_time(run, bus, 1.0)
+    # Silence starts at 1.0 s. The budget runs from the last good reading to the end of the
+    # failing read, so the stopping tick starts within a tick (4 ms) plus one read timeout
+    # (~4 ms) of 1.0 + 0.040 s, and never later than that.
+    assert 1.0 + 0.040 - 0.010 <= last <= 1.0 + 0.040 + 0.004
+    policy = [e for e in run.events if e["kind"] == "exit_policy"]
+    assert policy and "servo 2" in policy[0]["message"]  # the silent servo is named as unconfirmed
+
+
+def test_hardware_error_stops_naming_the_servo(emulated, tmp_path):
+    bus, path = emulated(faults="hardware_error:id=3,at=0.5,bits=overheating")
+    assert run_cli(path, tmp_path / "run", "--duration", "5") == EXIT_FAULT
+    run = read_run(tmp_path / "run")
+    assert "servo 3 (jaw): hardware error" in run.summary["exit_reason"]
+    assert run.columns["t_actual"][-1] == pytest.approx(fault_time(run, bus, 0.5), abs=0.005)
+
+
+def test_unplug_stops_safely(emulated, tmp_path):
+    bus, path = emulated(faults="unplug:at=0.7")
+    assert run_cli(path, tmp_path / "run", "--duration", "5") == EXIT_FAULT
+    run = read_run(tmp_path / "run")
+    assert run.summary["exit_reason"].startswith("bus:")
+    assert run.columns["t_actual"][-1] == pytest.approx(fault_time(run, bus, 0.7), abs=0.005)
+    assert any("NOT confirmed" in e["message"] for e in run.events if e["kind"] == "exit_policy")
+
+
+def test_overrun_policy_stop(emulated, tmp_path):
+    text = RIG.replace("rate_hz = 250", 'rate_hz = 250\noverrun_policy = "stop"')
+    bus, path = emulated(text, faults="late:id=1,at=0.5,count=1,delay=0.003")
+    _rig, result, _run = run_loop(bus, path, tmp_path / "run")
+    assert result.exit_code == EXIT_FAULT and "overrun" in result.reason
+
+
+# ------------------------------------------------------------------ refusals before anything moves
+@pytest.mark.parametrize(
+    ("port", "message"),
+    [
+        ("dxlsim://?ids=1-2&rdt_us=0&latency_ms=1", "answers Ping  yes       no (timeout)"),
+        ("dxlsim://?ids=1-3&model=XL430-W250&rdt_us=0&latency_ms=1", "XL430-W250"),
+        ("dxlsim://?ids=1-3&rdt_us=0&latency_ms=16", "the bus cannot carry 250 Hz"),
+    ],
+)
+def test_startup_refusals(tmp_path, capsys, port, message):
+    path = tmp_path / "rig.toml"
+    path.write_text(RIG)
+    code = main(["run", str(path), "--port", port, "--virtual-time", "--out", str(tmp_path / "r")])
+    assert code == 2
+    assert message in capsys.readouterr().err
+
+
+# ------------------------------------------------------------------ signals
+@pytest.mark.parametrize(("signum", "code"), [(signal.SIGINT, 130), (signal.SIGTERM, 143)])
+def test_signals_apply_the_exit_policy_and_keep_telemetry(tmp_path, signum, code):
+    out = tmp_path / "run"
+    proc = subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "hilsim",
+            "run",
+            str(REPO / "configs" / "demo.toml"),
+            "--virtual-time",
+            "--duration",
+            "3600",
+            "--out",
+            str(out),
+            "--no-plots",
+        ],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        line = proc.stderr.readline()  # "hilsim run: demo: ... -> DIR": the loop is starting
+        assert "hilsim run: demo" in line
+        proc.send_signal(signum)
+        assert proc.wait(timeout=30) == code
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    run = read_run(out)
+    assert run.summary["exit_code"] == code
+    assert not run.truncated  # the signal may land before the first tick: 0 rows is fine
+    policy = [e for e in run.events if e["kind"] == "exit_policy"]
+    assert policy and "4 servo(s) confirmed" in policy[0]["message"]
