@@ -7,6 +7,7 @@ forward, so a ten-minute show runs in seconds and tests never sleep in real time
 
 from __future__ import annotations
 
+import threading
 import time
 from typing import Protocol, runtime_checkable
 
@@ -19,8 +20,29 @@ class Clock(Protocol):
     def now(self) -> float:
         """Current time in seconds."""
 
-    def wait_until(self, t: float) -> float:
-        """Return once ``now() >= t``; returns ``now()``. Never returns early."""
+    def wait_until(self, t: float, idle: threading.Event | None = None) -> float:
+        """Return once ``now() >= t``; returns ``now()``. Never returns early.
+
+        ``idle``, if given, is set while the caller is asleep (free time other threads may
+        use) and cleared before this returns.
+        """
+
+
+class Slack(threading.Event):
+    """Free time a real-time loop offers other threads: set while the loop sleeps.
+
+    ``until`` is when that free time ends (the loop's clock, ``time.perf_counter`` for
+    :class:`MonotonicClock`). A worker thread checks it before each piece of work, so it
+    stops in time without the loop having to get the interpreter back first.
+    """
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.until = float("inf")
+
+    def remaining(self) -> float:
+        """Seconds of the current free time left (negative once it is over)."""
+        return self.until - time.perf_counter()
 
 
 class MonotonicClock:
@@ -41,11 +63,18 @@ class MonotonicClock:
     def now(self) -> float:
         return self._now()
 
-    def wait_until(self, t: float) -> float:
+    def wait_until(self, t: float, idle: threading.Event | None = None) -> float:
         now = self._now()
         remaining = t - now - self.spin_s
         if remaining > 0.0:
-            time.sleep(remaining)
+            if idle is None:
+                time.sleep(remaining)
+            else:  # other threads may work while we sleep, not while we spin or run
+                if isinstance(idle, Slack):
+                    idle.until = t - self.spin_s
+                idle.set()
+                time.sleep(remaining)
+                idle.clear()
         while (now := self._now()) < t:
             pass
         return now
@@ -62,7 +91,7 @@ class VirtualClock:
     def now(self) -> float:
         return self._t
 
-    def wait_until(self, t: float) -> float:
+    def wait_until(self, t: float, idle: threading.Event | None = None) -> float:
         if t > self._t:
             self._t = float(t)
         return self._t

@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import math
 import os
+import sys
 import time
 import warnings
 from collections.abc import Callable
@@ -40,6 +41,9 @@ from hilsim.rig import OverrunPolicy, Rig
 from hilsim.safety import SafetyFilter
 from hilsim.targets import TargetSet
 from hilsim.telemetry import TelemetryWriter
+
+#: GIL switch interval while a show runs on the real clock (see HilLoop.run)
+REALTIME_SWITCH_INTERVAL_S = 100e-6
 
 EXIT_OK = 0
 EXIT_FAULT = 3
@@ -219,6 +223,12 @@ class HilLoop:
             fsync=False,
         )
         self._k = 0
+        # The telemetry writer is a Python thread: when the loop wakes from its sleep it may
+        # wait for the GIL up to the interpreter's switch interval (5 ms by default). Ask the
+        # holder to let go within 100 µs while the show runs on the real clock.
+        switch = sys.getswitchinterval()
+        if not self.clock.virtual:
+            sys.setswitchinterval(min(switch, REALTIME_SWITCH_INTERVAL_S))
         try:
             self._start()
             k = self._ticks()
@@ -231,6 +241,8 @@ class HilLoop:
         except LoopFaultError as exc:
             exit_code, reason, k = EXIT_FAULT, str(exc), self._k
             tel.event("fault", reason, tick=k, t=k * rig.loop.period_s)
+        finally:
+            sys.setswitchinterval(switch)
         self.stats["exit_policy"] = self._apply_exit_policy()
         self.stats["safety"] = self.safety.counters.as_dict()
         return RunResult(exit_code, reason, k, self.stats)
@@ -252,6 +264,8 @@ class HilLoop:
         names, ids = rig.joint_names, rig.servo_ids
         n_ticks = None if self.duration_s is None else round(self.duration_s / period) + 1
         perf = time.perf_counter
+        # the telemetry writer formats rows only while we sleep (never during a tick)
+        slack = getattr(tel, "slack", None) if not clock.virtual else None
         ok = int(ReadStatus.OK)
         alert = int(ReadStatus.ALERT)
         nan = math.nan
@@ -266,7 +280,7 @@ class HilLoop:
             if self.stop.signum is not None:
                 break
             t_sched = t0 + k * period
-            t_actual = clock.wait_until(t_sched)
+            t_actual = clock.wait_until(t_sched, slack)
             t_sim = k * period
             self._k = k
             c0 = perf()

@@ -86,6 +86,8 @@ from typing import Any, Literal, TextIO
 import numpy as np
 import numpy.typing as npt
 
+from drivers.clock import Slack
+
 TELEMETRY_CSV = "telemetry.csv"
 EVENTS_JSONL = "events.jsonl"
 SUMMARY_JSON = "summary.json"
@@ -108,6 +110,8 @@ _EXACT = "%.17g"  # round-trips every float64; also prints integral floats as in
 _MICROS = "%.3f"
 _CHUNK_FLOATS = 128  # floats formatted between GIL yields: ~50 µs of work
 _yield_gil = getattr(os, "sched_yield", lambda: time.sleep(0))
+#: a chunk is started only with at least this much of the loop's free time left
+_CHUNK_BUDGET_S = 150e-6
 _monotonic = time.monotonic
 
 
@@ -301,6 +305,11 @@ class TelemetryWriter:
         self._failure_handled = False
         self._inbox: queue.SimpleQueue[Any] = queue.SimpleQueue()
         self._space = threading.Event()
+        #: Rows are formatted only while this is set. A real-time loop passes it to
+        #: ``MonotonicClock.wait_until(t, idle=...)``: set while the loop sleeps, clear while a
+        #: tick runs, so the writer never holds the GIL in the middle of a tick.
+        self.slack = Slack()
+        self.slack.set()
 
         self.run_dir.mkdir(parents=True, exist_ok=True)
         self._csv: TextIO | None = None
@@ -512,6 +521,8 @@ class TelemetryWriter:
             self._summary = dict(summary) if summary is not None else {}
             self._publish_pending()
             self._close_requested = True
+            self.slack.until = float("inf")  # the loop is done: drain at full speed
+            self.slack.set()
             self._inbox.put(_STOP)
         self._thread.join(timeout_s)
         if self._thread.is_alive():
@@ -632,7 +643,15 @@ class TelemetryWriter:
         assert self._csv is not None
         cap = self.queue_size
         fmt = self._fmt
+        slack = self.slack
         while (pending := (self._cursor >> 1) - self._tail) > 0:
+            # Format only in the loop's free time (see ``slack``), and never start a chunk that
+            # could still be running when the loop wakes: nap past its deadline instead.
+            if not slack.wait(self._poll_s):
+                pass  # the loop has not slept for a while (overrunning?): do a chunk anyway
+            elif (left := slack.remaining()) < _CHUNK_BUDGET_S:
+                time.sleep(max(left, 0.0) + _CHUNK_BUDGET_S)
+                continue
             start = self._tail % cap
             count = min(pending, self._chunk_rows, cap - start)
             rows = self._ring[start : start + count].tolist()
