@@ -57,8 +57,18 @@ def run_one(rate: int, n: int, seconds: float, fifo: bool, out: Path) -> dict:
     rig = out / f"rig-{rate}-{n}.toml"
     rig.write_text(text)
     run_dir = out / f"run-{rate}-{n}"
-    cmd = [sys.executable, "-m", "hilsim", "run", str(rig), "--duration", str(seconds),
-           "--out", str(run_dir), "--no-plots"]
+    cmd = [
+        sys.executable,
+        "-m",
+        "hilsim",
+        "run",
+        str(rig),
+        "--duration",
+        str(seconds),
+        "--out",
+        str(run_dir),
+        "--no-plots",
+    ]
     t0 = time.perf_counter()
     proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
     _, status, usage = os.wait4(proc.pid, 0)
@@ -70,13 +80,18 @@ def run_one(rate: int, n: int, seconds: float, fifo: bool, out: Path) -> dict:
     s = json.loads((run_dir / "summary.json").read_text())
     stages = s.get("stage_us", {})
     return {
-        "rate_hz": rate, "joints": n, "sched": s.get("loop", {}).get("sched"),
-        "ticks": s.get("ticks"), "achieved_hz": s.get("rate_hz"),
+        "rate_hz": rate,
+        "joints": n,
+        "sched": s.get("loop", {}).get("sched"),
+        "ticks": s.get("ticks"),
+        "achieved_hz": s.get("rate_hz"),
         "lateness_us": {k: s["lateness_us"][k] for k in ("p50", "p99", "max")},
         "overruns": s.get("overruns"),
         "cpu_percent": 100.0 * (usage.ru_utime + usage.ru_stime) / wall,
-        "stage_us": {st: {k: stages.get(st, {}).get(k) for k in ("p50", "p99")}
-                     for st in ("sim", "safety", "bus", "telemetry")},
+        "stage_us": {
+            st: {k: stages.get(st, {}).get(k) for k in ("p50", "p99")}
+            for st in ("sim", "safety", "bus", "telemetry")
+        },
     }
 
 

@@ -14,8 +14,9 @@ def test_scan_finds_every_servo(capsys):
 
 def test_scan_says_when_nobody_answers(capsys):
     # The servos sit at 57600 (the port's first rate); at 1 Mbps nobody answers.
-    code = main(["scan", "--port", "dxlsim://?ids=5&baud=57600", "--baud", "1000000",
-                 "--ids", "1-10"])
+    code = main(
+        ["scan", "--port", "dxlsim://?ids=5&baud=57600", "--baud", "1000000", "--ids", "1-10"]
+    )
     assert code == 1
     assert "no servo answered" in capsys.readouterr().err
 
