@@ -34,6 +34,7 @@ from enum import StrEnum
 from pathlib import Path
 from typing import Any
 
+from drivers.servo_bus import ExitPolicy  # hold | relax: the bus carries it out
 from hilsim.integrators import INTEGRATORS
 from hilsim.springs import Spring
 from hilsim.stability import check_stability
@@ -47,11 +48,6 @@ class ReadMode(StrEnum):
     AUTO = "auto"
     FAST = "fast"
     PLAIN = "plain"
-
-
-class ExitPolicy(StrEnum):
-    HOLD = "hold"  # goal := present position, Bus Watchdog armed: the figure stays put
-    RELAX = "relax"  # torque off: the figure goes limp
 
 
 class OverrunPolicy(StrEnum):

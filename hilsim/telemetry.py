@@ -78,7 +78,6 @@ import threading
 import time
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
-from enum import IntEnum
 from functools import cached_property
 from pathlib import Path
 from typing import Any, Literal, TextIO
@@ -87,6 +86,7 @@ import numpy as np
 import numpy.typing as npt
 
 from drivers.clock import Slack
+from drivers.servo_bus import ReadStatus  # the status_<j> columns hold these values
 
 TELEMETRY_CSV = "telemetry.csv"
 EVENTS_JSONL = "events.jsonl"
@@ -113,18 +113,6 @@ _yield_gil = getattr(os, "sched_yield", lambda: time.sleep(0))
 #: a chunk is started only with at least this much of the loop's free time left
 _CHUNK_BUDGET_S = 150e-6
 _monotonic = time.monotonic
-
-
-class ReadStatus(IntEnum):
-    """Per-servo result of the present-position read, as written in the ``status_<j>`` columns."""
-
-    OK = 0
-    #: no fresh reply this tick (timeout, dropped or corrupt packet): present position is unknown
-    STALE = 1
-    #: the servo replied with an error in its status packet
-    ERROR = 2
-    #: the servo replied with the Alert bit set (hardware error latched)
-    ALERT = 3
 
 
 class TelemetryError(Exception):

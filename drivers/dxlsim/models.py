@@ -23,8 +23,10 @@ Units used throughout the emulator (e-Manual):
 from __future__ import annotations
 
 from dataclasses import dataclass
-from enum import IntEnum, IntFlag
 from functools import cached_property
+
+# Protocol and control-table facts shared with the host-side driver live in one place.
+import drivers.dynamixel.control_table as _ct
 
 PULSES_PER_REV = 4096
 #: Present/Goal/Profile Velocity unit, rev/min.
@@ -36,40 +38,10 @@ PULSE_PER_S_PER_VELOCITY_UNIT = VELOCITY_UNIT_RPM * PULSES_PER_REV / 60.0
 #: One acceleration unit in pulse/s² (214.577 rev/min² × 4096 / 3600 ≈ 244.14).
 PULSE_PER_S2_PER_ACCEL_UNIT = ACCEL_UNIT_RPM2 * PULSES_PER_REV / 3600.0
 #: Addresses below this are EEPROM: write-locked while Torque Enable is 1.
-EEPROM_END = 64
+EEPROM_END = _ct.EEPROM_END
 #: Baud Rate (addr 8) index -> bits per second. A model accepts indices 0..field.hi.
-BAUD_RATES: tuple[int, ...] = (
-    9_600,
-    57_600,
-    115_200,
-    1_000_000,
-    2_000_000,
-    3_000_000,
-    4_000_000,
-    4_500_000,
-)
+BAUD_RATES: tuple[int, ...] = tuple(_ct.BAUD_RATES[i] for i in sorted(_ct.BAUD_RATES))
 PWM_FULL_SCALE = 885  # Goal/Present PWM unit is 0.113 %, so 885 is 100 % duty
-
-
-class OperatingMode(IntEnum):
-    """Operating Mode (addr 11)."""
-
-    CURRENT = 0
-    VELOCITY = 1
-    POSITION = 3
-    EXTENDED_POSITION = 4
-    CURRENT_BASED_POSITION = 5
-    PWM = 16
-
-
-class HardwareError(IntFlag):
-    """Bits of Hardware Error Status (addr 70) and of the Shutdown mask (addr 63)."""
-
-    INPUT_VOLTAGE = 0x01
-    OVERHEATING = 0x04
-    MOTOR_ENCODER = 0x08
-    ELECTRICAL_SHOCK = 0x10
-    OVERLOAD = 0x20
 
 
 @dataclass(frozen=True)

@@ -20,6 +20,12 @@ from __future__ import annotations
 from dataclasses import dataclass
 from enum import IntEnum
 
+from drivers.dynamixel import control_table as _ct
+
+# The error numbers are the same at both ends of the wire: one definition, in the driver's data.
+ErrorCode = _ct.StatusError
+ALERT_BIT = _ct.ALERT_BIT
+
 HEADER = b"\xff\xff\xfd\x00"
 BROADCAST_ID = 0xFE
 MAX_ID = 0xFC
@@ -47,22 +53,6 @@ class Instruction(IntEnum):
     BULK_READ = 0x92
     BULK_WRITE = 0x93
     FAST_BULK_READ = 0x9A
-
-
-class ErrorCode(IntEnum):
-    """The number in bits 0-6 of a status packet's ERR byte."""
-
-    NONE = 0
-    RESULT_FAIL = 1
-    INSTRUCTION = 2
-    CRC = 3
-    DATA_RANGE = 4
-    DATA_LENGTH = 5
-    DATA_LIMIT = 6
-    ACCESS = 7
-
-
-ALERT_BIT = 0x80
 
 
 def _make_crc_table() -> tuple[int, ...]:

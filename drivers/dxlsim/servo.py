@@ -62,6 +62,8 @@ import math
 from enum import IntEnum
 from typing import NamedTuple
 
+from drivers.dynamixel.control_table import ALERT_BIT, OperatingMode, StatusError
+
 from .models import (
     EEPROM_END,
     PULSE_PER_S2_PER_ACCEL_UNIT,
@@ -69,25 +71,11 @@ from .models import (
     PULSES_PER_REV,
     PWM_FULL_SCALE,
     Field,
-    OperatingMode,
     ServoModel,
     get_model,
 )
 
-ALERT = 0x80
-
-
-class StatusError(IntEnum):
-    """Error number in bits 0-6 of a status packet's ERR byte."""
-
-    NONE = 0
-    RESULT_FAIL = 1
-    INSTRUCTION = 2
-    CRC = 3
-    DATA_RANGE = 4
-    DATA_LENGTH = 5
-    DATA_LIMIT = 6
-    ACCESS = 7
+ALERT = ALERT_BIT  # bit 7 of the ERR byte: Hardware Error Status is not 0
 
 
 class ProfileType(IntEnum):

@@ -15,7 +15,6 @@ from hypothesis import strategies as st
 from drivers.dxlsim.models import (
     PULSE_PER_S2_PER_ACCEL_UNIT,
     PULSE_PER_S_PER_VELOCITY_UNIT,
-    HardwareError,
 )
 from drivers.dxlsim.servo import (
     ALERT,
@@ -25,6 +24,7 @@ from drivers.dxlsim.servo import (
     VirtualServo,
     plan_profile,
 )
+from drivers.dynamixel.control_table import HardwareError
 
 DT = 0.001
 OK = 0
