@@ -154,7 +154,6 @@ class HilLoop:
         self.v = np.zeros(n)
         self.u = np.zeros(n)
         self.du = np.zeros(n)
-        self.target_now = np.zeros(n)
         self.cmd = np.zeros(n)
         self.servo_goal = np.zeros(n)
         self.present = np.zeros(n)
@@ -257,7 +256,6 @@ class HilLoop:
         stop_on_overrun = rig.loop.overrun_policy is OverrunPolicy.STOP
         n = len(rig.joints)
         x, v, u, du = self.x, self.v, self.u, self.du
-        target_now = self.target_now
         cmd, goal, present = self.cmd, self.servo_goal, self.present
         home, direction = self.home, self.direction
         targets, safety, integ = self.targets, self.safety, self.integrator
@@ -323,14 +321,15 @@ class HilLoop:
                         f"{rig.safety.comm_failure_budget_ms:g} ms); last read "
                         f"{ReadStatus(s).name}"
                     )
-            # -- record this tick; stage times known later are amended below
-            targets.sample(t_sim, target_now, None)
+            # -- record this tick (its target u(t_k) also drives the first substep below);
+            # stage times known only later are amended
+            targets.sample(t_sim, u, du)
             c3 = perf()
             tel.record(
                 k,
                 t_sim,
                 t_actual - t0,
-                target_now,
+                u,
                 x,
                 v,
                 cmd,
@@ -345,7 +344,8 @@ class HilLoop:
             )
             c4 = perf()
             # -- advance the springs to the next tick (target held over each step)
-            for j in range(substeps):
+            integ.step(x, v, h, t_sim, (u, du))
+            for j in range(1, substeps):
                 ts = t_sim + j * h
                 targets.sample(ts, u, du)
                 integ.step(x, v, h, ts, (u, du))
