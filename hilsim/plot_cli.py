@@ -25,7 +25,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from hilsim.telemetry import NotARunError, RunFormatError, read_run
+    from hilsim.runs import NotARunError, RunFormatError, read_run
 
     try:
         loaded = read_run(args.run_dir)

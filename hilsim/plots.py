@@ -23,7 +23,9 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from hilsim.telemetry import STAGES, ReadStatus, Run, read_run
+from drivers.servo_bus import ReadStatus
+from hilsim.runs import Run, read_run
+from hilsim.telemetry_format import STAGES
 
 if TYPE_CHECKING:
     from matplotlib.figure import Figure

@@ -1,57 +1,36 @@
-"""Run telemetry: a per-tick CSV written by a background thread, events, a summary, and a reader.
+"""Run telemetry writer: a per-tick CSV, events and a summary, written by a background thread.
 
-A run directory holds::
-
-    telemetry.csv    one row per tick (columns below), header on the first line
-    events.jsonl     one JSON object per line: start/stop, faults, warnings, signals, dropped rows
-    summary.json     written once by :meth:`TelemetryWriter.close` (absent if the process died)
-    rig.toml         a verbatim copy of the rig config text the loop passed (``config_text``)
-
-**CSV columns** (:func:`csv_columns`), grouped by quantity, joints in the order given::
-
-    tick                       tick number (int, from 0)
-    t_sched                    scheduled tick time, s since run start
-    t_actual                   time the tick started, s since run start
-    lateness_us                (t_actual - t_sched) * 1e6, µs
-    target_<j>  ...            animation target, rad              (one column per joint j, then the
-    sim_x_<j>   ...            spring position, rad                next quantity for every joint)
-    sim_v_<j>   ...            spring velocity, rad/s
-    cmd_<j>     ...            commanded position after safety, rad
-    present_<j> ...            present position read back, rad; ``nan`` when there was no valid read
-    status_<j>  ...            read status (:class:`ReadStatus`: 0 OK, 1 STALE, 2 ERROR, 3 ALERT)
-    t_sim_us  t_safety_us  t_bus_us  t_telemetry_us    per-stage wall time of this tick, µs
-    overrun                    1 if the tick missed its deadline, else 0
-    comm_errors                cumulative communication errors on the bus
-
-Times, targets, spring state, commands and present positions are written with ``%.17g`` (every
-float64 round-trips exactly); µs columns with ``%.3f`` (ns resolution); integer columns as integers;
-a value never given is ``nan``.
+The run directory's files, CSV columns and number formats are described in
+:mod:`hilsim.telemetry_format`; the statistics behind the summary are in :mod:`hilsim.run_stats`;
+:func:`hilsim.runs.read_run` reads a run back.
 
 **Real-time contract.** :meth:`TelemetryWriter.record` copies the tick's numbers into a slot of a
 preallocated ring (a float64 array, one row per slot) and into the run statistics
-(:class:`RunStats`, preallocated chunks), and returns; it never touches the disk, takes no lock and
-allocates nothing but a row view. A row is handed to the writer thread when the *next* row is
-recorded (or at :meth:`~TelemetryWriter.flush`/:meth:`~TelemetryWriter.close`), so values known
-only at the end of the tick (overrun, the telemetry stage's own time) can still be filled in with
-:meth:`~TelemetryWriter.amend`. The writer thread drains the ring every few tens of ms, formats rows
-in small chunks (yielding the GIL between chunks of ~50 µs, so the loop thread is not held off),
-writes them, flushes every ``flush_interval_s`` and ``os.fsync``-s on fault events and at close.
-The ring is single-producer/single-consumer: the loop only advances the head, the writer only the
-tail; CPython's GIL orders the row stores before the head store. When the ring is full (disk
-stalled) the row is dropped and counted (``overflow="drop"``, the real-time default) or record waits
-for space (``overflow="block"``, for virtual-time runs that must be lossless). Dropped rows are
-reported as an event, in the summary and by :func:`read_run`; the statistics still cover them.
+(:class:`~hilsim.run_stats.RunStats`, preallocated chunks), and returns; it never touches the disk,
+takes no lock and allocates nothing but a row view. A row is handed to the writer thread when the
+*next* row is recorded (or at :meth:`~TelemetryWriter.flush`/:meth:`~TelemetryWriter.close`), so
+values known only at the end of the tick (overrun, the telemetry stage's own time) can still be
+filled in with :meth:`~TelemetryWriter.amend`. The writer thread drains the ring every few tens of
+ms, formats rows in small chunks (yielding the GIL between chunks of ~50 µs, so the loop thread is
+not held off), writes them, flushes every ``flush_interval_s`` and ``os.fsync``-s on fault events
+and at close. The ring is single-producer/single-consumer: the loop only advances the head, the
+writer only the tail; CPython's GIL orders the row stores before the head store. When the ring is
+full (disk stalled) the row is dropped and counted (``overflow="drop"``, the real-time default) or
+record waits for space (``overflow="block"``, for virtual-time runs that must be lossless). Dropped
+rows are reported as an event, in the summary and by :func:`~hilsim.runs.read_run`; the statistics
+still cover them.
 
 Exceptions::
 
-    TelemetryError                  base of everything raised here
+    TelemetryError                  (hilsim.telemetry_format) base of the writer's and reader's
+     │                              errors
      ├── WriterFailedError          the writer thread died (disk full, I/O error) or stalled at
      │                              close; raised by the next record()/flush()/close(); __cause__
      │                              holds the original error
-     ├── NotARunError               read_run: no telemetry.csv in the directory
+     ├── NotARunError               (hilsim.runs) read_run: no telemetry.csv in the directory
      │                              (also a FileNotFoundError)
-     └── RunFormatError             read_run: the CSV header is not a telemetry header
-                                    (also a ValueError)
+     └── RunFormatError             (hilsim.runs) read_run: the CSV header is not a telemetry
+                                    header (also a ValueError)
 
 Loop usage::
 
@@ -71,14 +50,11 @@ from __future__ import annotations
 
 import contextlib
 import json
-import math
 import os
 import queue
 import threading
 import time
-from collections.abc import Iterable, Mapping, Sequence
-from dataclasses import dataclass, field
-from functools import cached_property
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any, Literal, TextIO
 
@@ -86,25 +62,22 @@ import numpy as np
 import numpy.typing as npt
 
 from drivers.clock import Slack
-from drivers.servo_bus import ReadStatus  # the status_<j> columns hold these values
+from hilsim.run_stats import RunStats
+from hilsim.telemetry_format import (
+    CONFIG_NAME,
+    EVENTS_JSONL,
+    HEAD_COLUMNS,
+    JOINT_FIELDS,
+    STAGES,
+    SUMMARY_JSON,
+    TELEMETRY_CSV,
+    TelemetryError,
+    check_joint_names,
+    csv_columns,
+)
 
-TELEMETRY_CSV = "telemetry.csv"
-EVENTS_JSONL = "events.jsonl"
-SUMMARY_JSON = "summary.json"
-CONFIG_NAME = "rig.toml"
-
-#: columns before the per-joint blocks
-HEAD_COLUMNS: tuple[str, ...] = ("tick", "t_sched", "t_actual", "lateness_us")
-#: per-joint quantities; the CSV has one block of columns ``<field>_<joint>`` per field, in order
-JOINT_FIELDS: tuple[str, ...] = ("target", "sim_x", "sim_v", "cmd", "present", "status")
-#: loop stages timed every tick; column ``t_<stage>_us``
-STAGES: tuple[str, ...] = ("sim", "safety", "bus", "telemetry")
-#: columns after the per-joint blocks
-TAIL_COLUMNS: tuple[str, ...] = (*(f"t_{s}_us" for s in STAGES), "overrun", "comm_errors")
 #: event kinds that are fsync-ed by default (``event(..., fsync=None)``)
 FSYNC_KINDS: frozenset[str] = frozenset({"fault", "signal", "stop"})
-#: percentiles reported in the summary, as (key, q)
-PERCENTILES: tuple[tuple[str, float], ...] = (("p50", 50.0), ("p99", 99.0), ("p99.9", 99.9))
 
 _EXACT = "%.17g"  # round-trips every float64; also prints integral floats as integers
 _MICROS = "%.3f"
@@ -115,42 +88,8 @@ _CHUNK_BUDGET_S = 150e-6
 _monotonic = time.monotonic
 
 
-class TelemetryError(Exception):
-    """Base class of the errors raised by :mod:`hilsim.telemetry`."""
-
-
 class WriterFailedError(TelemetryError):
     """The writer thread died or could not finish; rows may be lost (see ``__cause__``)."""
-
-
-class NotARunError(TelemetryError, FileNotFoundError):
-    """The directory holds no ``telemetry.csv``."""
-
-
-class RunFormatError(TelemetryError, ValueError):
-    """``telemetry.csv`` does not start with a telemetry header."""
-
-
-def csv_columns(joint_names: Sequence[str]) -> list[str]:
-    """The CSV header for these joints: head, one block per :data:`JOINT_FIELDS` entry, tail."""
-    names = list(joint_names)
-    return [
-        *HEAD_COLUMNS,
-        *(f"{f}_{j}" for f in JOINT_FIELDS for j in names),
-        *TAIL_COLUMNS,
-    ]
-
-
-def _check_joint_names(joint_names: Iterable[str]) -> tuple[str, ...]:
-    names = tuple(str(j) for j in joint_names)
-    if not names:
-        raise ValueError("at least one joint is needed")
-    if len(set(names)) != len(names):
-        raise ValueError(f"joint names must be unique: {names!r}")
-    for j in names:
-        if not j or any(c in j for c in ',"\r\n') or j != j.strip():
-            raise ValueError(f"joint name {j!r} cannot be a CSV column suffix")
-    return names
 
 
 def _row_format(n: int) -> str:
@@ -235,7 +174,7 @@ class TelemetryWriter:
         config_name: str = CONFIG_NAME,
         max_pending_events: int = 10_000,
     ) -> None:
-        names = _check_joint_names(joint_names)
+        names = check_joint_names(joint_names)
         if not flush_interval_s >= 0.0:
             raise ValueError(f"flush_interval_s must be >= 0, got {flush_interval_s!r}")
         if int(queue_size) < 2:
@@ -739,431 +678,3 @@ class TelemetryWriter:
         self._close_files()
         with contextlib.suppress(Exception):
             self._write_summary()
-
-
-# --------------------------------------------------------------------------- run statistics
-
-
-def _percentiles(values: np.ndarray) -> dict[str, float | None]:
-    """p50/p99/p99.9/max/mean of the finite values (numpy's linear interpolation); None if none."""
-    v = np.asarray(values, dtype=np.float64)
-    v = v[np.isfinite(v)]
-    if v.size == 0:
-        return {**{k: None for k, _ in PERCENTILES}, "max": None, "mean": None}
-    qs = np.percentile(v, [q for _, q in PERCENTILES])
-    out: dict[str, float | None] = {k: float(x) for (k, _), x in zip(PERCENTILES, qs, strict=True)}
-    out["max"] = float(v.max())
-    out["mean"] = float(v.mean())
-    return out
-
-
-def summarize(
-    *,
-    joint_names: Sequence[str],
-    t_actual: npt.ArrayLike,
-    lateness_us: npt.ArrayLike,
-    overrun: npt.ArrayLike,
-    stage_us: Mapping[str, npt.ArrayLike],
-    status: npt.ArrayLike,
-    servo_ids: Sequence[Any] | None = None,
-    comm_errors: Mapping[Any, int] | None = None,
-    safety_limits: Mapping[str, Mapping[str, int]] | None = None,
-    faults: Sequence[Mapping[str, Any]] = (),
-    exit_code: int | None = None,
-    exit_reason: str | None = None,
-    **extra: Any,
-) -> dict[str, Any]:
-    """Build the summary dict (JSON-ready) from whole-run arrays.
-
-    ``t_actual`` (s), ``lateness_us``, ``overrun`` and each ``stage_us[stage]`` (µs) are shaped
-    ``(ticks,)``; ``status`` is ``(ticks, n_joints)`` of :class:`ReadStatus` codes.
-
-    Keys: ``ticks``; ``duration_s`` (first to last tick start) and ``rate_hz`` (achieved:
-    (ticks - 1) / duration); ``lateness_us`` and ``stage_us[stage]`` as p50/p99/p99.9/max/mean
-    (numpy's linear interpolation over finite values; None when there are none); ``overruns``;
-    ``stale_reads``/``error_reads``/``alert_reads`` per joint; ``comm_errors`` per servo (reads that
-    were not OK, plus ``comm_errors`` given here) and ``comm_errors_total``; ``safety_limits``
-    (kind -> joint -> count); ``faults``; ``exit_code``, ``exit_reason``; then ``extra`` verbatim.
-    """
-    names = list(joint_names)
-    ids = [str(s) for s in (servo_ids if servo_ids is not None else names)]
-    if len(ids) != len(names):
-        raise ValueError(f"{len(ids)} servo ids for {len(names)} joints")
-    lat = np.asarray(lateness_us, dtype=np.float64).reshape(-1)
-    ticks = int(lat.size)
-    st = np.asarray(status).reshape(ticks, len(names))
-    t = np.asarray(t_actual, dtype=np.float64).reshape(-1)
-    span = float(t[-1] - t[0]) if ticks else 0.0
-
-    def per_joint(code: ReadStatus) -> list[int]:
-        return [int(c) for c in (st == code).sum(axis=0)]
-
-    not_ok = [int(c) for c in (st != ReadStatus.OK).sum(axis=0)]
-    comm = dict(zip(ids, not_ok, strict=True))
-    for sid, count in (comm_errors or {}).items():
-        comm[str(sid)] = comm.get(str(sid), 0) + int(count)
-    return {
-        "ticks": ticks,
-        "duration_s": span,
-        "rate_hz": (ticks - 1) / span if span > 0 else None,
-        "lateness_us": _percentiles(lat),
-        "overruns": int(np.count_nonzero(np.nan_to_num(np.asarray(overrun, dtype=np.float64)))),
-        "stage_us": {s: _percentiles(np.asarray(v, dtype=np.float64)) for s, v in stage_us.items()},
-        "stale_reads": dict(zip(names, per_joint(ReadStatus.STALE), strict=True)),
-        "error_reads": dict(zip(names, per_joint(ReadStatus.ERROR), strict=True)),
-        "alert_reads": dict(zip(names, per_joint(ReadStatus.ALERT), strict=True)),
-        "comm_errors": comm,
-        "comm_errors_total": sum(comm.values()),
-        "safety_limits": {
-            k: {str(j): int(n) for j, n in v.items()} for k, v in (safety_limits or {}).items()
-        },
-        "faults": [dict(f) for f in faults],
-        "exit_code": exit_code,
-        "exit_reason": exit_reason,
-        **extra,
-    }
-
-
-class RunStats:
-    """Accumulates what the summary needs, cheaply, on the loop thread; percentiles at the end.
-
-    Per tick, :meth:`add` stores the tick's start time, lateness, overrun flag, the four stage
-    times and the read status into preallocated chunks of ``chunk_ticks`` rows (when one fills a
-    new one is allocated, never copied: no tick pays for a large copy). Rare things are counted
-    when they happen: :meth:`comm_error`, :meth:`safety_limit`, :meth:`fault`. :meth:`summary`
-    computes everything with numpy (:func:`summarize`). A :class:`TelemetryWriter` owns one and
-    feeds it; use one directly only without a writer.
-    """
-
-    #: columns of the per-tick float chunk
-    _COLS = ("t_actual", "lateness_us", "overrun", *(f"t_{s}_us" for s in STAGES))
-
-    def __init__(
-        self,
-        joint_names: Sequence[str],
-        *,
-        servo_ids: Sequence[Any] | None = None,
-        chunk_ticks: int = 1 << 16,
-    ) -> None:
-        self.joint_names = _check_joint_names(joint_names)
-        if servo_ids is not None and len(servo_ids) != len(self.joint_names):
-            raise ValueError(f"{len(servo_ids)} servo ids for {len(self.joint_names)} joints")
-        self.servo_ids = None if servo_ids is None else tuple(servo_ids)
-        self._n = len(self.joint_names)
-        self._chunk_ticks = int(chunk_ticks)
-        self._done: list[tuple[np.ndarray, np.ndarray]] = []
-        self._new_chunk()
-        self._last_tick: int | None = None
-        self.comm_errors: dict[Any, int] = {}
-        self.safety_limits: dict[str, dict[str, int]] = {}
-        self.faults: list[dict[str, Any]] = []
-
-    def _new_chunk(self) -> None:
-        self._f = np.full((self._chunk_ticks, len(self._COLS)), np.nan)
-        self._s = np.zeros((self._chunk_ticks, self._n), dtype=np.int8)
-        self._i = 0
-
-    def add(
-        self,
-        t_actual: float,
-        lateness_us: float,
-        overrun: bool,
-        t_sim_us: float,
-        t_safety_us: float,
-        t_bus_us: float,
-        t_telemetry_us: float,
-        status: npt.ArrayLike,
-        tick: int | None = None,
-    ) -> None:
-        """Store one tick: start time (s), lateness and stage times (µs), overrun, status (n,)."""
-        i = self._i
-        if i == self._chunk_ticks:
-            self._done.append((self._f, self._s))
-            self._new_chunk()
-            i = 0
-        row = self._f[i]
-        row[0] = t_actual
-        row[1] = lateness_us
-        row[2] = overrun
-        row[3] = t_sim_us
-        row[4] = t_safety_us
-        row[5] = t_bus_us
-        row[6] = t_telemetry_us
-        self._s[i] = status
-        self._i = i + 1
-        self._last_tick = tick
-
-    def amend(
-        self,
-        tick: int | None,
-        *,
-        overrun: bool | None = None,
-        t_sim_us: float | None = None,
-        t_safety_us: float | None = None,
-        t_bus_us: float | None = None,
-        t_telemetry_us: float | None = None,
-    ) -> None:
-        """Change values of the last tick added (``tick`` must be the one given to :meth:`add`)."""
-        if self._i == 0 or tick != self._last_tick:
-            raise ValueError(f"can only amend the last tick ({self._last_tick}), not {tick}")
-        row = self._f[self._i - 1]
-        if overrun is not None:
-            row[2] = overrun
-        if t_sim_us is not None:
-            row[3] = t_sim_us
-        if t_safety_us is not None:
-            row[4] = t_safety_us
-        if t_bus_us is not None:
-            row[5] = t_bus_us
-        if t_telemetry_us is not None:
-            row[6] = t_telemetry_us
-
-    def comm_error(self, servo: Any, n: int = 1) -> None:
-        """Count ``n`` communication errors on one servo that no read status shows (a failed
-        write, a retry); reads that were not OK are counted from the status already."""
-        self.comm_errors[servo] = self.comm_errors.get(servo, 0) + n
-
-    def safety_limit(self, kind: str, joint: str | int, n: int = 1) -> None:
-        """Count a safety intervention of ``kind`` (e.g. "position", "speed") on a joint."""
-        name = self.joint_names[joint] if isinstance(joint, int) else str(joint)
-        per_kind = self.safety_limits.setdefault(kind, {})
-        per_kind[name] = per_kind.get(name, 0) + n
-
-    def fault(
-        self, kind: str, message: str, tick: int | None, t: float | None, **fields: Any
-    ) -> None:
-        """Remember a fault for the summary's ``faults`` list."""
-        self.faults.append({"kind": kind, "message": message, "tick": tick, "t": t, **fields})
-
-    @property
-    def ticks(self) -> int:
-        return len(self._done) * self._chunk_ticks + self._i
-
-    def arrays(self) -> tuple[np.ndarray, np.ndarray]:
-        """``(ticks, 7)`` float array (columns ``_COLS``) and ``(ticks, n)`` int8 status, copied
-        together from the chunks."""
-        fs = [f for f, _ in self._done] + [self._f[: self._i]]
-        ss = [s for _, s in self._done] + [self._s[: self._i]]
-        return np.concatenate(fs), np.concatenate(ss)
-
-    def summary(self, **extra: Any) -> dict[str, Any]:
-        """The run summary (:func:`summarize`); ``extra`` (``exit_code``, ``exit_reason``, ...)
-        is passed on."""
-        f, s = self.arrays()
-        return summarize(
-            joint_names=self.joint_names,
-            t_actual=f[:, 0],
-            lateness_us=f[:, 1],
-            overrun=f[:, 2],
-            stage_us={stage: f[:, 3 + k] for k, stage in enumerate(STAGES)},
-            status=s,
-            servo_ids=self.servo_ids,
-            comm_errors=self.comm_errors,
-            safety_limits=self.safety_limits,
-            faults=self.faults,
-            **extra,
-        )
-
-
-# --------------------------------------------------------------------------- reading a run
-
-
-@dataclass(eq=False)
-class Run:
-    """One run directory, loaded. Columns are float64 arrays shaped ``(ticks,)`` by CSV name.
-
-    ``warnings`` lists what was tolerated: a truncated last line (crash mid-write), unparsable
-    lines, tick gaps (dropped rows), a missing or corrupt summary. ``truncated`` is True when the
-    CSV's last line was cut off.
-    """
-
-    path: Path
-    joint_names: tuple[str, ...]
-    columns: dict[str, np.ndarray]
-    events: list[dict[str, Any]] = field(default_factory=list)
-    summary: dict[str, Any] | None = None
-    config_text: str | None = None
-    warnings: list[str] = field(default_factory=list)
-    truncated: bool = False
-
-    @property
-    def n_ticks(self) -> int:
-        return int(self.columns["tick"].size)
-
-    @cached_property
-    def tick(self) -> np.ndarray:
-        return self.columns["tick"].astype(np.int64)
-
-    @property
-    def t_sched(self) -> np.ndarray:
-        return self.columns["t_sched"]
-
-    @property
-    def t_actual(self) -> np.ndarray:
-        return self.columns["t_actual"]
-
-    @property
-    def lateness_us(self) -> np.ndarray:
-        return self.columns["lateness_us"]
-
-    @property
-    def overrun(self) -> np.ndarray:
-        return self.columns["overrun"] != 0
-
-    @property
-    def comm_errors(self) -> np.ndarray:
-        return self.columns["comm_errors"].astype(np.int64)
-
-    def joint(self, quantity: str) -> np.ndarray:
-        """``(ticks, n_joints)`` array of one :data:`JOINT_FIELDS` quantity (``status``: int8)."""
-        if quantity not in JOINT_FIELDS:
-            raise KeyError(f"{quantity!r} is not one of {JOINT_FIELDS}")
-        out = np.column_stack([self.columns[f"{quantity}_{j}"] for j in self.joint_names])
-        out = out.reshape(self.n_ticks, len(self.joint_names))
-        return out.astype(np.int8) if quantity == "status" else out
-
-    def stage_us(self, stage: str) -> np.ndarray:
-        """``(ticks,)`` wall time of one :data:`STAGES` entry, µs."""
-        return self.columns[f"t_{stage}_us"]
-
-
-def _parse_header(line: str) -> tuple[list[str], tuple[str, ...]]:
-    names = line.rstrip("\r\n").split(",")
-    head, tail = len(HEAD_COLUMNS), len(TAIL_COLUMNS)
-    middle = names[head : len(names) - tail]
-    ok = (
-        len(names) >= head + tail + len(JOINT_FIELDS)
-        and tuple(names[:head]) == HEAD_COLUMNS
-        and tuple(names[len(names) - tail :]) == TAIL_COLUMNS
-        and len(middle) % len(JOINT_FIELDS) == 0
-    )
-    if ok:
-        n = len(middle) // len(JOINT_FIELDS)
-        prefix = JOINT_FIELDS[0] + "_"
-        joints = tuple(c[len(prefix) :] for c in middle[:n])
-        ok = (
-            all(c.startswith(prefix) for c in middle[:n])
-            and middle == csv_columns(joints)[head : len(names) - tail]
-        )
-        if ok:
-            return names, joints
-    raise RunFormatError(f"not a telemetry header: {line[:120]!r}")
-
-
-def _parse_rows(lines: list[str], ncols: int, warnings: list[str]) -> np.ndarray:
-    if not lines:
-        return np.empty((0, ncols))
-    try:
-        data = np.loadtxt(lines, delimiter=",", dtype=np.float64, ndmin=2, comments=None)
-        if data.shape[1] == ncols:
-            return data
-    except ValueError:
-        pass
-    # slow path: skip what does not parse, accept empty fields as NaN
-    rows: list[list[float]] = []
-    bad: list[int] = []
-    for i, line in enumerate(lines):
-        parts = line.rstrip("\r").split(",")
-        try:
-            if len(parts) != ncols:
-                raise ValueError
-            rows.append([float(p) if p else math.nan for p in parts])
-        except ValueError:
-            bad.append(i + 2)  # 1-based file line, after the header
-    if bad:
-        shown = ", ".join(map(str, bad[:10])) + (" ..." if len(bad) > 10 else "")
-        warnings.append(f"{TELEMETRY_CSV}: skipped {len(bad)} unparsable line(s): {shown}")
-    return np.array(rows, dtype=np.float64).reshape(-1, ncols)
-
-
-def _read_lines(path: Path, warnings: list[str]) -> tuple[list[str], bool]:
-    """Complete lines of a text file; a cut-off last line (or NUL tail) is dropped and reported."""
-    data = path.read_bytes().rstrip(b"\x00")
-    text = data.decode("utf-8", errors="replace")
-    lines = text.split("\n")
-    partial = lines.pop()  # "" when the file ends with a newline
-    if partial:
-        warnings.append(
-            f"{path.name}: last line is incomplete ({len(partial)} chars, "
-            "the run probably ended abruptly); ignored"
-        )
-    return [ln for ln in lines if ln.strip()], bool(partial)
-
-
-def read_run(run_dir: str | os.PathLike[str]) -> Run:
-    """Load a run directory written by :class:`TelemetryWriter` (possibly while it is written,
-    or after a crash). Raises :class:`NotARunError` if there is no ``telemetry.csv`` and
-    :class:`RunFormatError` if its header is not a telemetry header; everything else that is
-    wrong is tolerated and listed in ``Run.warnings``."""
-    path = Path(run_dir)
-    csv_path = path / TELEMETRY_CSV
-    if not csv_path.is_file():
-        raise NotARunError(f"{path} is not a run directory (no {TELEMETRY_CSV})")
-    warnings: list[str] = []
-    lines, truncated = _read_lines(csv_path, warnings)
-    if not lines:
-        raise RunFormatError(f"{csv_path} has no header")
-    names, joints = _parse_header(lines[0])
-    data = _parse_rows(lines[1:], len(names), warnings)
-    columns = {name: data[:, k].copy() for k, name in enumerate(names)}
-
-    tick = columns["tick"]
-    if tick.size > 1:
-        steps = np.diff(tick)
-        missing = int(np.sum(steps[steps > 1] - 1))
-        if missing:
-            warnings.append(f"{TELEMETRY_CSV}: {missing} tick(s) missing (rows dropped?)")
-        if np.any(steps < 1):
-            warnings.append(f"{TELEMETRY_CSV}: tick numbers are not increasing")
-
-    events: list[dict[str, Any]] = []
-    ev_path = path / EVENTS_JSONL
-    if ev_path.is_file():
-        ev_lines, _ = _read_lines(ev_path, warnings)
-        bad = 0
-        for ln in ev_lines:
-            try:
-                obj = json.loads(ln)
-            except ValueError:
-                bad += 1
-                continue
-            if isinstance(obj, dict):
-                events.append(obj)
-            else:
-                bad += 1
-        if bad:
-            warnings.append(f"{EVENTS_JSONL}: skipped {bad} unparsable line(s)")
-    else:
-        warnings.append(f"no {EVENTS_JSONL}")
-
-    summary: dict[str, Any] | None = None
-    sum_path = path / SUMMARY_JSON
-    if sum_path.is_file():
-        try:
-            loaded = json.loads(sum_path.read_text(encoding="utf-8"))
-            summary = loaded if isinstance(loaded, dict) else None
-        except ValueError as exc:
-            warnings.append(f"{SUMMARY_JSON}: unreadable ({exc})")
-    else:
-        warnings.append(f"no {SUMMARY_JSON} (the run did not close cleanly, or is still running)")
-    tel = summary.get("telemetry") if summary else None
-    if isinstance(tel, dict):
-        if tel.get("rows_dropped"):
-            warnings.append(f"{tel['rows_dropped']} row(s) dropped while recording (disk stalled)")
-        if tel.get("rows_lost"):
-            warnings.append(
-                f"{tel['rows_lost']} recorded row(s) never written ({tel.get('error')})"
-            )
-
-    cfg = path / CONFIG_NAME
-    config_text = cfg.read_text(encoding="utf-8") if cfg.is_file() else None
-    return Run(
-        path=path,
-        joint_names=joints,
-        columns=columns,
-        events=events,
-        summary=summary,
-        config_text=config_text,
-        warnings=warnings,
-        truncated=truncated,
-    )

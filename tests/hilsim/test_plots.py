@@ -12,7 +12,9 @@ import numpy as np
 import pytest
 
 from hilsim import plot_cli
-from hilsim.telemetry import TELEMETRY_CSV, TelemetryWriter, read_run
+from hilsim.runs import read_run
+from hilsim.telemetry import TelemetryWriter
+from hilsim.telemetry_format import TELEMETRY_CSV
 from tests.hilsim.test_telemetry import write_synthetic_run
 
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"

@@ -18,21 +18,17 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from drivers.servo_bus import ReadStatus
 from hilsim import telemetry as tm
-from hilsim.telemetry import (
+from hilsim.run_stats import RunStats, summarize
+from hilsim.runs import NotARunError, RunFormatError, read_run
+from hilsim.telemetry import TelemetryWriter, WriterFailedError
+from hilsim.telemetry_format import (
     EVENTS_JSONL,
     SUMMARY_JSON,
     TELEMETRY_CSV,
-    NotARunError,
-    ReadStatus,
-    RunFormatError,
-    RunStats,
     TelemetryError,
-    TelemetryWriter,
-    WriterFailedError,
     csv_columns,
-    read_run,
-    summarize,
 )
 
 JOINTS = ("neck_pan", "neck_tilt", "jaw")

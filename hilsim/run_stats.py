@@ -1,0 +1,241 @@
+"""Run statistics: per-tick numbers accumulated on the loop thread, turned into the run summary.
+
+:class:`RunStats` is fed by :class:`hilsim.telemetry.TelemetryWriter` (or directly, without a
+writer); :func:`summarize` builds the JSON-ready summary (``summary.json``) from whole-run arrays,
+with percentiles (:data:`PERCENTILES`) of lateness and per-stage times.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+from drivers.servo_bus import ReadStatus
+from hilsim.telemetry_format import STAGES, check_joint_names
+
+#: percentiles reported in the summary, as (key, q)
+PERCENTILES: tuple[tuple[str, float], ...] = (("p50", 50.0), ("p99", 99.0), ("p99.9", 99.9))
+
+
+def _percentiles(values: np.ndarray) -> dict[str, float | None]:
+    """p50/p99/p99.9/max/mean of the finite values (numpy's linear interpolation); None if none."""
+    v = np.asarray(values, dtype=np.float64)
+    v = v[np.isfinite(v)]
+    if v.size == 0:
+        return {**{k: None for k, _ in PERCENTILES}, "max": None, "mean": None}
+    qs = np.percentile(v, [q for _, q in PERCENTILES])
+    out: dict[str, float | None] = {k: float(x) for (k, _), x in zip(PERCENTILES, qs, strict=True)}
+    out["max"] = float(v.max())
+    out["mean"] = float(v.mean())
+    return out
+
+
+def summarize(
+    *,
+    joint_names: Sequence[str],
+    t_actual: npt.ArrayLike,
+    lateness_us: npt.ArrayLike,
+    overrun: npt.ArrayLike,
+    stage_us: Mapping[str, npt.ArrayLike],
+    status: npt.ArrayLike,
+    servo_ids: Sequence[Any] | None = None,
+    comm_errors: Mapping[Any, int] | None = None,
+    safety_limits: Mapping[str, Mapping[str, int]] | None = None,
+    faults: Sequence[Mapping[str, Any]] = (),
+    exit_code: int | None = None,
+    exit_reason: str | None = None,
+    **extra: Any,
+) -> dict[str, Any]:
+    """Build the summary dict (JSON-ready) from whole-run arrays.
+
+    ``t_actual`` (s), ``lateness_us``, ``overrun`` and each ``stage_us[stage]`` (µs) are shaped
+    ``(ticks,)``; ``status`` is ``(ticks, n_joints)`` of :class:`ReadStatus` codes.
+
+    Keys: ``ticks``; ``duration_s`` (first to last tick start) and ``rate_hz`` (achieved:
+    (ticks - 1) / duration); ``lateness_us`` and ``stage_us[stage]`` as p50/p99/p99.9/max/mean
+    (numpy's linear interpolation over finite values; None when there are none); ``overruns``;
+    ``stale_reads``/``error_reads``/``alert_reads`` per joint; ``comm_errors`` per servo (reads that
+    were not OK, plus ``comm_errors`` given here) and ``comm_errors_total``; ``safety_limits``
+    (kind -> joint -> count); ``faults``; ``exit_code``, ``exit_reason``; then ``extra`` verbatim.
+    """
+    names = list(joint_names)
+    ids = [str(s) for s in (servo_ids if servo_ids is not None else names)]
+    if len(ids) != len(names):
+        raise ValueError(f"{len(ids)} servo ids for {len(names)} joints")
+    lat = np.asarray(lateness_us, dtype=np.float64).reshape(-1)
+    ticks = int(lat.size)
+    st = np.asarray(status).reshape(ticks, len(names))
+    t = np.asarray(t_actual, dtype=np.float64).reshape(-1)
+    span = float(t[-1] - t[0]) if ticks else 0.0
+
+    def per_joint(code: ReadStatus) -> list[int]:
+        return [int(c) for c in (st == code).sum(axis=0)]
+
+    not_ok = [int(c) for c in (st != ReadStatus.OK).sum(axis=0)]
+    comm = dict(zip(ids, not_ok, strict=True))
+    for sid, count in (comm_errors or {}).items():
+        comm[str(sid)] = comm.get(str(sid), 0) + int(count)
+    return {
+        "ticks": ticks,
+        "duration_s": span,
+        "rate_hz": (ticks - 1) / span if span > 0 else None,
+        "lateness_us": _percentiles(lat),
+        "overruns": int(np.count_nonzero(np.nan_to_num(np.asarray(overrun, dtype=np.float64)))),
+        "stage_us": {s: _percentiles(np.asarray(v, dtype=np.float64)) for s, v in stage_us.items()},
+        "stale_reads": dict(zip(names, per_joint(ReadStatus.STALE), strict=True)),
+        "error_reads": dict(zip(names, per_joint(ReadStatus.ERROR), strict=True)),
+        "alert_reads": dict(zip(names, per_joint(ReadStatus.ALERT), strict=True)),
+        "comm_errors": comm,
+        "comm_errors_total": sum(comm.values()),
+        "safety_limits": {
+            k: {str(j): int(n) for j, n in v.items()} for k, v in (safety_limits or {}).items()
+        },
+        "faults": [dict(f) for f in faults],
+        "exit_code": exit_code,
+        "exit_reason": exit_reason,
+        **extra,
+    }
+
+
+class RunStats:
+    """Accumulates what the summary needs, cheaply, on the loop thread; percentiles at the end.
+
+    Per tick, :meth:`add` stores the tick's start time, lateness, overrun flag, the four stage
+    times and the read status into preallocated chunks of ``chunk_ticks`` rows (when one fills a
+    new one is allocated, never copied: no tick pays for a large copy). Rare things are counted
+    when they happen: :meth:`comm_error`, :meth:`safety_limit`, :meth:`fault`. :meth:`summary`
+    computes everything with numpy (:func:`summarize`). A :class:`TelemetryWriter` owns one and
+    feeds it; use one directly only without a writer.
+    """
+
+    #: columns of the per-tick float chunk
+    _COLS = ("t_actual", "lateness_us", "overrun", *(f"t_{s}_us" for s in STAGES))
+
+    def __init__(
+        self,
+        joint_names: Sequence[str],
+        *,
+        servo_ids: Sequence[Any] | None = None,
+        chunk_ticks: int = 1 << 16,
+    ) -> None:
+        self.joint_names = check_joint_names(joint_names)
+        if servo_ids is not None and len(servo_ids) != len(self.joint_names):
+            raise ValueError(f"{len(servo_ids)} servo ids for {len(self.joint_names)} joints")
+        self.servo_ids = None if servo_ids is None else tuple(servo_ids)
+        self._n = len(self.joint_names)
+        self._chunk_ticks = int(chunk_ticks)
+        self._done: list[tuple[np.ndarray, np.ndarray]] = []
+        self._new_chunk()
+        self._last_tick: int | None = None
+        self.comm_errors: dict[Any, int] = {}
+        self.safety_limits: dict[str, dict[str, int]] = {}
+        self.faults: list[dict[str, Any]] = []
+
+    def _new_chunk(self) -> None:
+        self._f = np.full((self._chunk_ticks, len(self._COLS)), np.nan)
+        self._s = np.zeros((self._chunk_ticks, self._n), dtype=np.int8)
+        self._i = 0
+
+    def add(
+        self,
+        t_actual: float,
+        lateness_us: float,
+        overrun: bool,
+        t_sim_us: float,
+        t_safety_us: float,
+        t_bus_us: float,
+        t_telemetry_us: float,
+        status: npt.ArrayLike,
+        tick: int | None = None,
+    ) -> None:
+        """Store one tick: start time (s), lateness and stage times (µs), overrun, status (n,)."""
+        i = self._i
+        if i == self._chunk_ticks:
+            self._done.append((self._f, self._s))
+            self._new_chunk()
+            i = 0
+        row = self._f[i]
+        row[0] = t_actual
+        row[1] = lateness_us
+        row[2] = overrun
+        row[3] = t_sim_us
+        row[4] = t_safety_us
+        row[5] = t_bus_us
+        row[6] = t_telemetry_us
+        self._s[i] = status
+        self._i = i + 1
+        self._last_tick = tick
+
+    def amend(
+        self,
+        tick: int | None,
+        *,
+        overrun: bool | None = None,
+        t_sim_us: float | None = None,
+        t_safety_us: float | None = None,
+        t_bus_us: float | None = None,
+        t_telemetry_us: float | None = None,
+    ) -> None:
+        """Change values of the last tick added (``tick`` must be the one given to :meth:`add`)."""
+        if self._i == 0 or tick != self._last_tick:
+            raise ValueError(f"can only amend the last tick ({self._last_tick}), not {tick}")
+        row = self._f[self._i - 1]
+        if overrun is not None:
+            row[2] = overrun
+        if t_sim_us is not None:
+            row[3] = t_sim_us
+        if t_safety_us is not None:
+            row[4] = t_safety_us
+        if t_bus_us is not None:
+            row[5] = t_bus_us
+        if t_telemetry_us is not None:
+            row[6] = t_telemetry_us
+
+    def comm_error(self, servo: Any, n: int = 1) -> None:
+        """Count ``n`` communication errors on one servo that no read status shows (a failed
+        write, a retry); reads that were not OK are counted from the status already."""
+        self.comm_errors[servo] = self.comm_errors.get(servo, 0) + n
+
+    def safety_limit(self, kind: str, joint: str | int, n: int = 1) -> None:
+        """Count a safety intervention of ``kind`` (e.g. "position", "speed") on a joint."""
+        name = self.joint_names[joint] if isinstance(joint, int) else str(joint)
+        per_kind = self.safety_limits.setdefault(kind, {})
+        per_kind[name] = per_kind.get(name, 0) + n
+
+    def fault(
+        self, kind: str, message: str, tick: int | None, t: float | None, **fields: Any
+    ) -> None:
+        """Remember a fault for the summary's ``faults`` list."""
+        self.faults.append({"kind": kind, "message": message, "tick": tick, "t": t, **fields})
+
+    @property
+    def ticks(self) -> int:
+        return len(self._done) * self._chunk_ticks + self._i
+
+    def arrays(self) -> tuple[np.ndarray, np.ndarray]:
+        """``(ticks, 7)`` float array (columns ``_COLS``) and ``(ticks, n)`` int8 status, copied
+        together from the chunks."""
+        fs = [f for f, _ in self._done] + [self._f[: self._i]]
+        ss = [s for _, s in self._done] + [self._s[: self._i]]
+        return np.concatenate(fs), np.concatenate(ss)
+
+    def summary(self, **extra: Any) -> dict[str, Any]:
+        """The run summary (:func:`summarize`); ``extra`` (``exit_code``, ``exit_reason``, ...)
+        is passed on."""
+        f, s = self.arrays()
+        return summarize(
+            joint_names=self.joint_names,
+            t_actual=f[:, 0],
+            lateness_us=f[:, 1],
+            overrun=f[:, 2],
+            stage_us={stage: f[:, 3 + k] for k, stage in enumerate(STAGES)},
+            status=s,
+            servo_ids=self.servo_ids,
+            comm_errors=self.comm_errors,
+            safety_limits=self.safety_limits,
+            faults=self.faults,
+            **extra,
+        )

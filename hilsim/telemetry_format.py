@@ -1,0 +1,80 @@
+"""The run directory's format, shared by the writer and the reader: file names, CSV columns.
+
+A run directory (written by :class:`hilsim.telemetry.TelemetryWriter`, read back by
+:func:`hilsim.runs.read_run`) holds::
+
+    telemetry.csv    one row per tick (columns below), header on the first line
+    events.jsonl     one JSON object per line: start/stop, faults, warnings, signals, dropped rows
+    summary.json     written once by :meth:`TelemetryWriter.close` (absent if the process died)
+    rig.toml         a verbatim copy of the rig config text the loop passed (``config_text``)
+
+**CSV columns** (:func:`csv_columns`), grouped by quantity, joints in the order given::
+
+    tick                       tick number (int, from 0)
+    t_sched                    scheduled tick time, s since run start
+    t_actual                   time the tick started, s since run start
+    lateness_us                (t_actual - t_sched) * 1e6, µs
+    target_<j>  ...            animation target, rad              (one column per joint j, then the
+    sim_x_<j>   ...            spring position, rad                next quantity for every joint)
+    sim_v_<j>   ...            spring velocity, rad/s
+    cmd_<j>     ...            commanded position after safety, rad
+    present_<j> ...            present position read back, rad; ``nan`` when there was no valid read
+    status_<j>  ...            read status (:class:`drivers.servo_bus.ReadStatus`: 0 OK, 1 STALE,
+                               2 ERROR, 3 ALERT)
+    t_sim_us  t_safety_us  t_bus_us  t_telemetry_us    per-stage wall time of this tick, µs
+    overrun                    1 if the tick missed its deadline, else 0
+    comm_errors                cumulative communication errors on the bus
+
+Times, targets, spring state, commands and present positions are written with ``%.17g`` (every
+float64 round-trips exactly); µs columns with ``%.3f`` (ns resolution); integer columns as integers;
+a value never given is ``nan``.
+
+:class:`TelemetryError` is the base of the errors raised writing or reading a run directory.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Sequence
+
+TELEMETRY_CSV = "telemetry.csv"
+EVENTS_JSONL = "events.jsonl"
+SUMMARY_JSON = "summary.json"
+CONFIG_NAME = "rig.toml"
+
+#: columns before the per-joint blocks
+HEAD_COLUMNS: tuple[str, ...] = ("tick", "t_sched", "t_actual", "lateness_us")
+#: per-joint quantities; the CSV has one block of columns ``<field>_<joint>`` per field, in order
+JOINT_FIELDS: tuple[str, ...] = ("target", "sim_x", "sim_v", "cmd", "present", "status")
+#: loop stages timed every tick; column ``t_<stage>_us``
+STAGES: tuple[str, ...] = ("sim", "safety", "bus", "telemetry")
+#: columns after the per-joint blocks
+TAIL_COLUMNS: tuple[str, ...] = (*(f"t_{s}_us" for s in STAGES), "overrun", "comm_errors")
+
+
+class TelemetryError(Exception):
+    """Base class of the errors raised writing (:mod:`hilsim.telemetry`) or reading
+    (:mod:`hilsim.runs`) a run directory."""
+
+
+def csv_columns(joint_names: Sequence[str]) -> list[str]:
+    """The CSV header for these joints: head, one block per :data:`JOINT_FIELDS` entry, tail."""
+    names = list(joint_names)
+    return [
+        *HEAD_COLUMNS,
+        *(f"{f}_{j}" for f in JOINT_FIELDS for j in names),
+        *TAIL_COLUMNS,
+    ]
+
+
+def check_joint_names(joint_names: Iterable[str]) -> tuple[str, ...]:
+    """The names as a tuple; ``ValueError`` if there are none, if two are equal, or if one cannot be
+    a CSV column suffix (empty, padded, or holding a comma, quote or newline)."""
+    names = tuple(str(j) for j in joint_names)
+    if not names:
+        raise ValueError("at least one joint is needed")
+    if len(set(names)) != len(names):
+        raise ValueError(f"joint names must be unique: {names!r}")
+    for j in names:
+        if not j or any(c in j for c in ',"\r\n') or j != j.strip():
+            raise ValueError(f"joint name {j!r} cannot be a CSV column suffix")
+    return names
