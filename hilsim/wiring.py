@@ -4,8 +4,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from drivers.dynamixel.bus import Expectation, StartupReport
-from drivers.dynamixel.bus import ReadMode as BusReadMode
+from drivers.dynamixel.startup import Expectation, StartupReport
+from drivers.dynamixel.startup import ReadMode as BusReadMode
 from hilsim.rig import ReadMode, Rig, RigError
 from hilsim.targets import CsvAnimation, TargetSet, track_from_spec
 

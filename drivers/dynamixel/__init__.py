@@ -14,12 +14,12 @@ from typing import Any
 
 _EXPORTS = {
     "DynamixelBus": "drivers.dynamixel.bus",
-    "Expectation": "drivers.dynamixel.bus",
-    "LatencyTimerWarning": "drivers.dynamixel.bus",
-    "Link": "drivers.dynamixel.bus",
-    "ReadMode": "drivers.dynamixel.bus",
-    "ServoState": "drivers.dynamixel.bus",
-    "StartupReport": "drivers.dynamixel.bus",
+    "Expectation": "drivers.dynamixel.startup",
+    "LatencyTimerWarning": "drivers.dynamixel.link",
+    "Link": "drivers.dynamixel.link",
+    "ReadMode": "drivers.dynamixel.startup",
+    "ServoState": "drivers.dynamixel.startup",
+    "StartupReport": "drivers.dynamixel.startup",
     "CommError": "drivers.dynamixel.errors",
     "CommTimeout": "drivers.dynamixel.errors",
     "CorruptPacket": "drivers.dynamixel.errors",

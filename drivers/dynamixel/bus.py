@@ -1,13 +1,10 @@
 """The Dynamixel backend of :class:`~drivers.servo_bus.ServoBus`, over dynamixel-sdk.
 
-This is the one module that speaks the SDK's camelCase. Two layers:
-
-* :class:`Link` - one open port: snake_case unicast/broadcast transactions (ping, read,
-  write, reboot, broadcast ping) that return values or raise; used by start-up checks,
-  exit policy and :func:`drivers.dynamixel.scan.scan`.
-* :class:`DynamixelBus` - the loop's bus: one Sync Write of Goal Position per tick, one
-  Fast Sync Read (or plain Sync Read) of Present Position per tick with a status for
-  every servo, start-up :meth:`~DynamixelBus.check`, watchdog, torque and exit policy.
+:class:`DynamixelBus` - the loop's bus: one Sync Write of Goal Position per tick, one
+Fast Sync Read (or plain Sync Read) of Present Position per tick with a status for
+every servo, start-up :meth:`~DynamixelBus.check`, watchdog, torque and exit policy.
+Non-tick transactions go through a :class:`~drivers.dynamixel.link.Link`; the per-tick
+path calls the SDK's packet handler directly.
 
 Per-servo status on every read. The SDK's ``GroupSyncRead`` drops each servo's ERR byte
 and ``getData`` returns 0 for missing data, and its Fast Sync Read reports one result for
@@ -21,29 +18,14 @@ condemn the rest) and keeps the blocks that verify.
 In a Sync Read chain a silent servo silences those after it (each waits for the previous
 status packet). So after a read with a STALE servo, the first STALE servo moves to the
 back of the read order: one dead servo costs one tick of collateral STALE, not all ticks.
-
-SDK traps avoided: unicast ``action()`` does not wait for the servo's status packet (the
-next request would receive it), so Reg Write/Action is not used; a SerialException inside
-the SDK leaves ``port.is_using`` stuck (our :class:`~drivers.dynamixel.port.PortHandler`
-frees it, and :meth:`Link.recover` frees it after an interrupted call, e.g. Ctrl-C).
 """
 
 from __future__ import annotations
 
-import contextlib
-import math
-import os
-import sys
-import warnings
 from collections.abc import Callable, Iterable, Sequence
-from dataclasses import dataclass
-from enum import StrEnum
-from pathlib import Path
 from typing import TypeVar
 
-import dynamixel_sdk as sdk
 import numpy as np
-import serial
 
 from drivers.clock import Clock
 from drivers.dynamixel import control_table as ct
@@ -55,12 +37,12 @@ from drivers.dynamixel.errors import (
     DynamixelError,
     ExitNotConfirmed,
     Mismatch,
-    PortBusy,
     PortGone,
     ServoError,
     StartupMismatch,
 )
-from drivers.dynamixel.port import SDK_LATENCY_TIMER_MS, PortHandler
+from drivers.dynamixel.link import _CORRUPT, _OK, _SERIAL_ERRORS, _TIMEOUT, Link, _gone, _raise_for
+from drivers.dynamixel.startup import Expectation, ReadMode, ServoState, StartupReport
 from drivers.dynamixel.units import (
     CENTER_TICK,
     RAD_PER_TICK,
@@ -73,22 +55,9 @@ from drivers.servo_bus import ExitPolicy, ExitReport, PresentReading, ReadStatus
 
 T = TypeVar("T")
 
-_OK = sdk.COMM_SUCCESS
-_TIMEOUT = sdk.COMM_RX_TIMEOUT
-_CORRUPT = sdk.COMM_RX_CORRUPT
-_RESULT_TEXT = {
-    sdk.COMM_TX_FAIL: "the instruction packet could not be sent",
-    sdk.COMM_RX_FAIL: "no status packet could be received",
-    sdk.COMM_TX_ERROR: "the instruction packet is malformed",
-    sdk.COMM_RX_WAITING: "a status packet is still arriving",
-    sdk.COMM_NOT_AVAILABLE: "the instruction is not available",
-}
 _STALE, _ERROR, _ALERT, _GOOD = (
     int(s) for s in (ReadStatus.STALE, ReadStatus.ERROR, ReadStatus.ALERT, ReadStatus.OK)
 )
-_SERIAL_ERRORS = (serial.SerialException, OSError)
-#: Sysfs directory of Linux usb-serial devices (FTDI adapters such as the U2D2).
-SYSFS_USB_SERIAL = Path("/sys/bus/usb-serial/devices")
 #: Servo processing time allowed per reply on top of its Return Delay Time (AX ~20 µs,
 #: MX ~50 µs; X series unpublished).
 TURNAROUND_ALLOWANCE_S = 50e-6
@@ -96,250 +65,6 @@ TURNAROUND_ALLOWANCE_S = 50e-6
 FACTORY_RETURN_DELAY_S = 500e-6
 #: Watchdog period a ``hold`` exit arms when :meth:`DynamixelBus.arm_watchdog` never ran.
 DEFAULT_EXIT_WATCHDOG_S = 0.1
-
-
-def _raise_for(result: int, error: int, servo_id: int | None, what: str) -> None:
-    """The one place SDK result codes and status error numbers become exceptions.
-
-    Returns quietly when ``result`` is success and the error number (ERR bits 0-6) is 0;
-    an Alert bit alone is not an error of the instruction.
-    """
-    if result == _OK:
-        if error & ct.ERROR_NUMBER_MASK:
-            raise ServoError(servo_id if servo_id is not None else -1, error, what)
-        return
-    who = "broadcast" if servo_id is None else f"servo {servo_id}"
-    if result == _TIMEOUT:
-        raise CommTimeout(f"{who}: no reply to {what} (timeout)", servo_id=servo_id, what=what)
-    if result == _CORRUPT:
-        raise CorruptPacket(f"{who}: corrupt reply to {what}", servo_id=servo_id, what=what)
-    if result == sdk.COMM_PORT_BUSY:
-        raise PortBusy(
-            f"{who}: port busy during {what} (an earlier transaction never finished)",
-            servo_id=servo_id,
-            what=what,
-        )
-    text = _RESULT_TEXT.get(result, f"communication failed ({result})")
-    raise CommError(f"{who}: {text} ({what})", servo_id=servo_id, what=what)
-
-
-def _gone(exc: BaseException, port_name: str, what: str) -> PortGone:
-    return PortGone(f"{port_name}: adapter gone during {what}: {exc}")
-
-
-# ----------------------------------------------------------------------- latency timer
-class LatencyTimerWarning(RuntimeWarning):
-    """The USB adapter's latency timer is high: every read waits for it."""
-
-
-def _latency_fix(dev: str, ms: int) -> str:
-    return (
-        f"{dev}: USB latency timer is {ms} ms, so every read waits >= {ms} ms. Lower it:\n"
-        f"  echo 1 | sudo tee /sys/bus/usb-serial/devices/{dev}/latency_timer\n"
-        "or for good, a udev rule (/etc/udev/rules.d/99-dynamixel.rules):\n"
-        '  ACTION=="add", SUBSYSTEM=="usb-serial", DRIVER=="ftdi_sio", '
-        'ATTR{latency_timer}="1"'
-    )
-
-
-def tune_latency_timer(
-    ser: serial.SerialBase, device: str, sysfs: Path = SYSFS_USB_SERIAL
-) -> float:
-    """Lower a Linux USB-serial adapter's latency timer to 1 ms where allowed; return the
-    value in force (ms), which the SDK's packet timeout must allow for.
-
-    Tries pyserial's ``set_low_latency_mode(True)`` and writing 1 to
-    ``<sysfs>/<ttyUSBn>/latency_timer``; warns (:class:`LatencyTimerWarning`) with the exact
-    fix when it stays above 1 ms. Devices without a latency timer (ptys, CDC-ACM, other
-    OSes) return the SDK's conservative 16 ms allowance.
-    """
-    if not sys.platform.startswith("linux") or not device.startswith("/dev/"):
-        return SDK_LATENCY_TIMER_MS
-    dev = os.path.basename(os.path.realpath(device))
-    with contextlib.suppress(AttributeError, ValueError, OSError):
-        ser.set_low_latency_mode(True)  # ASYNC_LOW_LATENCY: ftdi_sio then uses 1 ms
-    path = sysfs / dev / "latency_timer"
-    try:
-        ms = int(path.read_text().strip())
-    except (OSError, ValueError):
-        return SDK_LATENCY_TIMER_MS
-    if ms > 1:
-        try:
-            path.write_text("1")
-            ms = int(path.read_text().strip())
-        except (OSError, ValueError):
-            pass
-    if ms > 1:
-        warnings.warn(_latency_fix(dev, ms), LatencyTimerWarning, stacklevel=3)
-    return float(ms)
-
-
-# ----------------------------------------------------------------------- link
-class Link:
-    """One open port and Protocol 2.0: unicast and broadcast transactions, snake_case.
-
-    Every method returns values or raises (:mod:`drivers.dynamixel.errors`): result codes
-    through :func:`_raise_for`, a vanished adapter as :class:`PortGone`. Not for the
-    per-tick path (:class:`DynamixelBus` does that leaner).
-    """
-
-    def __init__(self, port: PortHandler) -> None:
-        self.port = port
-        self.ph = sdk.PacketHandler(2.0)
-
-    @classmethod
-    def open(
-        cls,
-        port: str,
-        *,
-        baud: int,
-        clock: Clock | None = None,
-        latency_timer_ms: float | None = None,
-    ) -> Link:
-        """Open ``port`` (device path, pty or ``dxlsim://`` URL) at ``baud`` bit/s.
-
-        ``latency_timer_ms``: the adapter latency the packet timeouts allow for. None:
-        the emulator's own model for ``dxlsim://``; on a Linux USB adapter the timer is
-        lowered to 1 ms where permitted (:func:`tune_latency_timer`); else 16 ms.
-        """
-        ph = PortHandler(
-            port,
-            clock=clock,
-            latency_timer_ms=SDK_LATENCY_TIMER_MS if latency_timer_ms is None else latency_timer_ms,
-        )
-        _check_baud(ph, baud)
-        try:
-            ph.setBaudRate(baud)
-        except _SERIAL_ERRORS as exc:
-            if isinstance(exc.__cause__, ValueError):  # a dxlsim:// URL it cannot parse
-                raise ValueError(str(exc)) from exc
-            raise PortGone(f"cannot open {port}: {exc}") from exc
-        link = cls(ph)
-        try:
-            if latency_timer_ms is None:
-                emulated = getattr(ph.ser, "bus", None)
-                if emulated is not None and hasattr(emulated, "latency_s"):
-                    ph.latency_timer_ms = emulated.latency_s * 1e3
-                else:
-                    ph.latency_timer_ms = tune_latency_timer(ph.ser, port)
-        except BaseException:
-            link.close()
-            raise
-        return link
-
-    @property
-    def name(self) -> str:
-        return self.port.port_name
-
-    @property
-    def baud(self) -> int:
-        return self.port.baudrate
-
-    @property
-    def clock(self) -> Clock:
-        return self.port.clock
-
-    @property
-    def latency_timer_ms(self) -> float:
-        return self.port.latency_timer_ms
-
-    def set_baud(self, baud: int) -> None:
-        """Change the host's line rate without reopening the port."""
-        _check_baud(self.port, baud)
-        self._call("set baud rate", setattr, self.port.ser, "baudrate", baud)
-        self.port.baudrate = baud
-        self.port.tx_time_per_byte = 10_000.0 / baud  # ms per 10-bit byte, as the SDK has it
-
-    def recover(self) -> None:
-        """Free the port after an interrupted transaction (e.g. KeyboardInterrupt inside
-        the SDK leaves ``is_using`` True and half a reply in the buffer)."""
-        if self.port.is_using:
-            self.port.is_using = False
-            self._call("clear input", self.port.clearPort)
-
-    def close(self) -> None:
-        """Close the port; never raises (the device may already be gone)."""
-        try:
-            if self.port.ser is not None:
-                self.port.closePort()
-        except Exception:  # a vanished device may raise anything here
-            self.port.is_open = False
-
-    def _call(self, what: str, fn: Callable[..., T], *args: object) -> T:
-        try:
-            return fn(*args)
-        except _SERIAL_ERRORS as exc:
-            raise _gone(exc, self.name, what) from exc
-
-    # -- transactions --------------------------------------------------------------
-    def ping(self, servo_id: int) -> tuple[int, int]:
-        """Ping one servo: ``(model number, firmware version)``."""
-        _check_unicast(servo_id)
-        tx = [0] * 10
-        tx[4], tx[5], tx[6], tx[7] = servo_id, 3, 0, sdk.INST_PING
-        rx, result, error = self._call("Ping", self.ph.txRxPacket, self.port, tx)
-        _raise_for(result, error, servo_id, "Ping")
-        if len(rx) < 14:
-            raise CorruptPacket(
-                f"servo {servo_id}: short Ping reply", servo_id=servo_id, what="Ping"
-            )
-        return rx[9] | rx[10] << 8, rx[11]
-
-    def broadcast_ping(self) -> dict[int, tuple[int, int]]:
-        """Ping every ID at once: ``{id: (model number, firmware)}`` of those that
-        answered intact (possibly none)."""
-        found, result = self._call("broadcast Ping", self.ph.broadcastPing, self.port)
-        if result not in (_OK, _TIMEOUT, _CORRUPT):  # silence and noise are answers here
-            _raise_for(result, 0, None, "broadcast Ping")
-        return {int(i): (int(m), int(fw)) for i, (m, fw) in found.items()}
-
-    def read(self, servo_id: int, addr: int, size: int) -> bytes:
-        """Read ``size`` bytes from ``addr``."""
-        _check_unicast(servo_id)
-        what = f"Read {size} B at {addr}"
-        data, result, error = self._call(what, self.ph.readTxRx, self.port, servo_id, addr, size)
-        _raise_for(result, error, servo_id, what)
-        if len(data) != size:
-            raise CorruptPacket(
-                f"servo {servo_id}: {len(data)} of {size} bytes in reply to {what}",
-                servo_id=servo_id,
-                what=what,
-            )
-        return bytes(data)
-
-    def read_item(self, servo_id: int, item: Item) -> int:
-        return item.decode(self.read(servo_id, item.addr, item.size), item.addr)
-
-    def write(self, servo_id: int, addr: int, data: bytes) -> None:
-        """Write ``data`` at ``addr`` and wait for the status packet."""
-        _check_unicast(servo_id)
-        what = f"Write {len(data)} B at {addr}"
-        result, error = self._call(
-            what, self.ph.writeTxRx, self.port, servo_id, addr, len(data), list(data)
-        )
-        _raise_for(result, error, servo_id, what)
-
-    def write_item(self, servo_id: int, item: Item, value: int) -> None:
-        self.write(servo_id, item.addr, item.encode(value))
-
-    def reboot(self, servo_id: int) -> None:
-        """Reboot one servo (clears a latched hardware error; RAM back to defaults)."""
-        _check_unicast(servo_id)
-        result, error = self._call("Reboot", self.ph.reboot, self.port, servo_id)
-        _raise_for(result, error, servo_id, "Reboot")
-
-
-def _check_baud(port: PortHandler, baud: int) -> None:
-    if port.getCFlagBaud(baud) <= 0:
-        raise ValueError(
-            f"baud {baud} is not supported; use one of "
-            f"{sorted(set(ct.BAUD_RATES.values()) - {4_500_000})}"
-        )
-
-
-def _check_unicast(servo_id: int) -> None:
-    if not 0 <= servo_id <= 252:
-        raise ValueError(f"servo ID must be 0..252, got {servo_id}")
 
 
 def _retry(attempts: int, fn: Callable[[], T]) -> T:
@@ -351,109 +76,6 @@ def _retry(attempts: int, fn: Callable[[], T]) -> T:
             if k + 1 == attempts:
                 raise
     raise AssertionError("unreachable")
-
-
-# ----------------------------------------------------------------------- start-up data
-class ReadMode(StrEnum):
-    """How :meth:`DynamixelBus.read_present` reads: Fast Sync Read, plain Sync Read, or
-    ``auto`` (fast when every servo's firmware supports it)."""
-
-    AUTO = "auto"
-    FAST = "fast"
-    PLAIN = "plain"
-
-
-@dataclass(frozen=True)
-class Expectation:
-    """What the rig expects of one servo; :meth:`DynamixelBus.check` compares.
-
-    Attributes:
-        id: servo ID.
-        model: model name (``"XM430-W350"``); None accepts any model.
-        operating_mode: Operating Mode (addr 11).
-        position_range_rad: ``(lo, hi)`` rad, servo frame, the loop will command; must
-            lie within Min/Max Position Limit in Position mode. None: not checked.
-        return_delay_us_max: largest acceptable Return Delay Time, µs (factory 500; 0
-            is what a 1 kHz loop wants).
-        allow_torque_on: False makes torque already on at start a mismatch; True (default)
-            only reports it (:attr:`StartupReport.torque_on_ids`) and the loop decides.
-    """
-
-    id: int
-    model: str | None = None
-    operating_mode: OperatingMode = OperatingMode.POSITION
-    position_range_rad: tuple[float, float] | None = None
-    return_delay_us_max: float = 0.0
-    allow_torque_on: bool = True
-
-    def __post_init__(self) -> None:
-        _check_unicast(self.id)
-        if self.model is not None:
-            ct.model_number(self.model)  # raises ValueError naming the known models
-        object.__setattr__(self, "operating_mode", OperatingMode(self.operating_mode))
-        if self.position_range_rad is not None:
-            lo, hi = (float(x) for x in self.position_range_rad)
-            if not (math.isfinite(lo) and math.isfinite(hi) and lo <= hi):
-                raise ValueError(
-                    f"servo {self.id}: position_range_rad must be finite "
-                    f"(lo, hi) with lo <= hi, got {self.position_range_rad}"
-                )
-            object.__setattr__(self, "position_range_rad", (lo, hi))
-        if not self.return_delay_us_max >= 0:
-            raise ValueError(f"servo {self.id}: return_delay_us_max must be >= 0")
-
-
-@dataclass(frozen=True)
-class ServoState:
-    """What :meth:`DynamixelBus.check` found on one servo (raw control-table values,
-    plus Present Position in rad, servo frame)."""
-
-    id: int
-    model_number: int
-    model_name: str
-    firmware: int
-    fast_read: bool
-    operating_mode: int
-    torque_on: bool
-    return_delay_us: float
-    status_return_level: int
-    hardware_error: int
-    bus_watchdog: int
-    position_limits: tuple[int, int]  # Min, Max Position Limit, ticks
-    position_rad: float
-
-
-@dataclass(frozen=True)
-class StartupReport:
-    """Result of a passing :meth:`DynamixelBus.check`."""
-
-    port: str
-    baud: int
-    read_mode: ReadMode  # FAST or PLAIN: what read_present will use
-    servos: tuple[ServoState, ...]
-    notes: tuple[str, ...] = ()
-
-    @property
-    def torque_on_ids(self) -> tuple[int, ...]:
-        return tuple(s.id for s in self.servos if s.torque_on)
-
-    @property
-    def positions_rad(self) -> np.ndarray:
-        """(n,) Present Position at check time, rad, servo frame, in ``ids`` order."""
-        return np.array([s.position_rad for s in self.servos])
-
-    def __str__(self) -> str:
-        lines = [
-            f"{self.port} @ {self.baud} bit/s, {len(self.servos)} servo(s), "
-            f"{self.read_mode.value} sync read"
-        ]
-        lines += [
-            f"  servo {s.id}: {s.model_name} fw {s.firmware}, mode {s.operating_mode}, "
-            f"torque {'on' if s.torque_on else 'off'}, {s.position_rad:+.4f} rad"
-            for s in self.servos
-        ]
-        lines += [f"  note: {n}" for n in self.notes]
-        return "\n".join(lines)
 
 
 class _UnconfirmedError(Exception):
@@ -507,7 +129,7 @@ class DynamixelBus(ServoBus):
 
         ``read_mode`` ``"auto"`` pings every servo now and reads fast only if all answer
         with Fast Sync Read firmware. ``latency_timer_ms``, ``clock``: see
-        :meth:`Link.open`. Nothing is written to the servos.
+        :meth:`~drivers.dynamixel.link.Link.open`. Nothing is written to the servos.
         """
         mode = ReadMode(read_mode)
         if retries < 0:

@@ -89,6 +89,12 @@ BAUD_RATES: dict[int, int] = {
 BAUD_INDEX: dict[int, int] = {bps: i for i, bps in BAUD_RATES.items()}
 
 
+def check_unicast_id(servo_id: int) -> None:
+    """ValueError unless ``servo_id`` can be addressed alone (0..252; 254 is broadcast)."""
+    if not 0 <= servo_id <= 252:
+        raise ValueError(f"servo ID must be 0..252, got {servo_id}")
+
+
 class OperatingMode(IntEnum):
     """Operating Mode (addr 11)."""
 

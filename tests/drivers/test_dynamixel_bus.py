@@ -16,7 +16,7 @@ from drivers.dxlsim import DxlBus, register_bus, unregister_bus
 from drivers.dxlsim.protocol import encode_fast_status, encode_status
 from drivers.dynamixel import control_table as ct
 from drivers.dynamixel import units
-from drivers.dynamixel.bus import DynamixelBus, LatencyTimerWarning, tune_latency_timer
+from drivers.dynamixel.bus import DynamixelBus
 from drivers.dynamixel.errors import (
     CommTimeout,
     ExitNotConfirmed,
@@ -24,6 +24,7 @@ from drivers.dynamixel.errors import (
     PortGone,
     ServoError,
 )
+from drivers.dynamixel.link import LatencyTimerWarning, tune_latency_timer
 from drivers.servo_bus import BusClosed, PresentReading, ReadStatus
 from tests.drivers.conftest import make_bus
 
@@ -219,7 +220,7 @@ def test_write_goals_validates_before_sending(open_bus, goals, match):
 def test_goal_range_comes_from_the_servos_limits(open_bus):
     bus, _ = open_bus(min_position_limit=1024, max_position_limit=3072)
     bus.write_goals(np.full(4, 3.1))  # default range 0..4095 until check()
-    from drivers.dynamixel.bus import Expectation
+    from drivers.dynamixel.startup import Expectation
 
     bus.check([Expectation(i) for i in bus.ids])
     bus.write_goals(np.full(4, math.pi / 2))

@@ -12,7 +12,6 @@ from hypothesis import strategies as st
 
 from drivers.dynamixel import control_table as ct
 from drivers.dynamixel import units
-from drivers.dynamixel.bus import _raise_for
 from drivers.dynamixel.errors import (
     CommError,
     CommTimeout,
@@ -25,6 +24,7 @@ from drivers.dynamixel.errors import (
     ServoError,
     StartupMismatch,
 )
+from drivers.dynamixel.link import _raise_for
 from drivers.servo_bus import ExitPolicy, ExitReport, ServoBusError
 
 
