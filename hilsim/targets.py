@@ -7,7 +7,7 @@ track per joint in joint order and fills preallocated ``(n_joints,)`` arrays eve
 Tracks::
 
     Keyframes(times_s, values_rad, easing)   keys with a named easing per segment (table below)
-    CsvCurve(times_s, values_rad)            one CSV column, linearly interpolated
+    CsvCurve(times_s, values_rad)            one CSV column, linear (in hilsim.animation_csv)
     Hold(value_rad)   Step(at_s, before_rad, after_rad)   Sine(amplitude_rad, frequency_hz, ...)
 
 Keyframes and CSV curves hold their first value before the first key and their last value after the
@@ -39,25 +39,24 @@ Rig files describe tracks in degrees; :func:`track_from_spec` turns one spec dic
 
 from __future__ import annotations
 
-import csv
 import math
 from abc import ABC, abstractmethod
 from bisect import bisect_right
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from types import MappingProxyType
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import numpy.typing as npt
+
+if TYPE_CHECKING:
+    from hilsim.animation_csv import CsvAnimation, CsvCurve
 
 FloatArray = npt.NDArray[np.float64]
 
 #: easing names accepted by :class:`Keyframes`
 EASINGS = ("linear", "step", "ease_in", "ease_out", "ease_in_out", "sine_in_out", "smooth")
-#: header names accepted for the CSV time column (case-insensitive)
-TIME_COLUMNS = ("time_s", "time", "t")
 
 
 class Track(ABC):
@@ -290,170 +289,6 @@ class Keyframes(Track):
         return float(self.times_s[-1])
 
 
-# ------------------------------------------------------------------------------------- CSV
-
-
-class CsvFormatError(ValueError):
-    """A CSV animation that cannot be used; the message starts with ``file:line:``."""
-
-    def __init__(self, path: str | Path, line: int, message: str) -> None:
-        super().__init__(f"{path}:{line}: {message}")
-        self.path, self.line = str(path), line
-
-
-@dataclass(frozen=True, eq=False)
-class CsvCurve(Track):
-    """One joint's column of a CSV animation: linear between rows, held before and after.
-
-    Args:
-        times_s: row times, shape ``(k,)``, finite, strictly increasing (s).
-        values_rad: the column, shape ``(k,)``, finite (rad).
-        source: where it came from, for messages (e.g. ``"demo_animation.csv:jaw"``).
-
-    The velocity is the slope of the segment t lies in (at a row: the segment that starts there).
-    Kept lean (two lists and the slopes, no per-segment objects) because a show-length CSV has
-    thousands of rows per joint.
-    """
-
-    times_s: npt.ArrayLike
-    values_rad: npt.ArrayLike
-    source: str = ""
-    _t: list[float] = field(init=False, repr=False)
-    _v: list[float] = field(init=False, repr=False)
-    _slope: list[float] = field(init=False, repr=False)
-
-    def __post_init__(self) -> None:
-        t, v = _times_values(self.times_s, self.values_rad)
-        object.__setattr__(self, "times_s", t)
-        object.__setattr__(self, "values_rad", v)
-        object.__setattr__(self, "_t", t.tolist())
-        object.__setattr__(self, "_v", v.tolist())
-        object.__setattr__(self, "_slope", (np.diff(v) / np.diff(t)).tolist())
-
-    def sample(self, t: float) -> tuple[float, float]:
-        ts = self._t
-        i = bisect_right(ts, t)
-        if i == 0:
-            return self._v[0], 0.0
-        if i == len(ts):
-            return self._v[-1], 0.0
-        slope = self._slope[i - 1]
-        return self._v[i - 1] + slope * (t - ts[i - 1]), slope
-
-    @property
-    def duration(self) -> float:
-        return float(self.times_s[-1])
-
-
-@dataclass(frozen=True, eq=False)
-class CsvAnimation:
-    """A CSV animation file, loaded once: a time column (s) and one column per joint (degrees).
-
-    Format: a header row, then one row per sample. The first column is the time in seconds, headed
-    ``time_s`` (or ``time``, ``t``); the others are named after joints and hold degrees. Blank lines
-    and lines starting with ``#`` are skipped. Times must strictly increase; every cell must be a
-    finite number. ``columns`` maps each joint name to its values in radians, shape ``(k,)``.
-    """
-
-    path: Path
-    times_s: FloatArray
-    columns: Mapping[str, FloatArray]
-
-    @classmethod
-    def load(cls, path: str | Path) -> CsvAnimation:
-        """Read and check the file.
-
-        Raises:
-            CsvFormatError: ``file:line: ...`` for a bad header, cell, row length or time.
-            OSError: the file cannot be read.
-        """
-        path = Path(path)
-        header: list[str] | None = None
-        rows: list[list[float]] = []
-        prev_line = 0
-        with path.open(newline="", encoding="utf-8-sig") as f:
-            reader = csv.reader(f)
-            for row in reader:
-                line = reader.line_num
-                if not any(c.strip() for c in row) or row[0].lstrip().startswith("#"):
-                    continue
-                if header is None:
-                    header = _csv_header(path, line, row)
-                    continue
-                if len(row) != len(header):
-                    raise CsvFormatError(
-                        path, line, f"{len(row)} cells, but the header has {len(header)}"
-                    )
-                values = [
-                    _csv_number(path, line, name, cell)
-                    for name, cell in zip(header, row, strict=True)
-                ]
-                if rows and values[0] <= rows[-1][0]:
-                    raise CsvFormatError(
-                        path,
-                        line,
-                        f"time {values[0]!r} s is not after {rows[-1][0]!r} s on line {prev_line}",
-                    )
-                rows.append(values)
-                prev_line = line
-        if header is None:
-            raise CsvFormatError(path, 1, "no header row (expected e.g. 'time_s,jaw,tail')")
-        if not rows:
-            raise CsvFormatError(path, 2, "no data rows after the header")
-        data = np.array(rows, dtype=np.float64)
-        columns = {name: _frozen(np.radians(data[:, j])) for j, name in enumerate(header) if j}
-        return cls(path=path, times_s=_frozen(data[:, 0]), columns=MappingProxyType(columns))
-
-    @property
-    def names(self) -> tuple[str, ...]:
-        """The joint columns, in file order."""
-        return tuple(self.columns)
-
-    @property
-    def duration(self) -> float:
-        """Time of the last row (s)."""
-        return float(self.times_s[-1])
-
-    def curve(self, column: str) -> CsvCurve:
-        """The track of one column. Raises :class:`CsvFormatError` (line 1) if there is none."""
-        if column not in self.columns:
-            raise CsvFormatError(
-                self.path, 1, f"no column {column!r}; the joint columns are {', '.join(self.names)}"
-            )
-        return CsvCurve(self.times_s, self.columns[column], source=f"{self.path}:{column}")
-
-
-def _csv_header(path: Path, line: int, row: list[str]) -> list[str]:
-    names = [c.strip() for c in row]
-    if names[0].lower() not in TIME_COLUMNS:
-        raise CsvFormatError(
-            path, line, f"the first column must be the time in seconds, headed 'time_s', "
-            f"got {names[0]!r}"
-        )  # fmt: skip
-    if len(names) < 2:
-        raise CsvFormatError(path, line, "no joint columns after the time column")
-    seen: set[str] = set()
-    for name in names[1:]:
-        if not name:
-            raise CsvFormatError(path, line, "a joint column has an empty name")
-        if name in seen:
-            raise CsvFormatError(path, line, f"column {name!r} appears twice")
-        seen.add(name)
-    return names
-
-
-def _csv_number(path: Path, line: int, name: str, cell: str) -> float:
-    try:
-        x = float(cell)
-    except ValueError:
-        raise CsvFormatError(
-            path, line, f"column {name!r}: {cell.strip()!r} is not a number"
-        ) from None
-    if not math.isfinite(x):
-        raise CsvFormatError(path, line, f"column {name!r}: {cell.strip()!r} is not finite")
-    return x
-
-
 # -------------------------------------------------------------------------------- target set
 
 
@@ -644,6 +479,8 @@ def _csv_from_spec(
         raise SpecError("file", f"must be a file name, got {file!r}")
     if not isinstance(column, str) or not column:
         raise SpecError("column", f"must be a column name, got {column!r}")
+    from hilsim.animation_csv import CsvAnimation  # not at the top: it imports Track from here
+
     path = (base_dir / file).resolve()
     anim = cache.get(path) if cache is not None else None
     if anim is None:

@@ -6,8 +6,9 @@ from pathlib import Path
 
 from drivers.dynamixel.startup import Expectation, StartupReport
 from drivers.dynamixel.startup import ReadMode as BusReadMode
+from hilsim.animation_csv import CsvAnimation
 from hilsim.rig import ReadMode, Rig, RigError
-from hilsim.targets import CsvAnimation, TargetSet, track_from_spec
+from hilsim.targets import TargetSet, track_from_spec
 
 #: Fraction of a tick the bus transaction may take; the rest is for the host.
 BUS_SHARE_OF_TICK = 0.8

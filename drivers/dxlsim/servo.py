@@ -17,9 +17,9 @@ nothing moving means a jump)::
                   -> Present Position/Velocity (132/128)
 
 The profile is planned analytically when a goal arrives (piecewise constant
-acceleration, see :func:`plan_profile`) so move durations match the e-Manual formulas;
-only the lag is stepped. Velocity, PWM and Current modes drive a velocity trajectory
-instead and the horn velocity lags it.
+acceleration, see :mod:`drivers.dxlsim.profile`) so move durations match the e-Manual
+formulas; only the lag is stepped. Velocity, PWM and Current modes drive a velocity
+trajectory instead and the horn velocity lags it.
 
 Choices where the e-Manual is silent or ambiguous (all deliberate, all tested):
 
@@ -59,7 +59,6 @@ Choices where the e-Manual is silent or ambiguous (all deliberate, all tested):
 from __future__ import annotations
 
 import math
-from enum import IntEnum
 from typing import NamedTuple
 
 from drivers.dynamixel.control_table import ALERT_BIT, OperatingMode, StatusError
@@ -74,17 +73,9 @@ from .models import (
     ServoModel,
     get_model,
 )
+from .profile import ProfileType, _segments_end, plan_profile, plan_velocity
 
 ALERT = ALERT_BIT  # bit 7 of the ERR byte: Hardware Error Status is not 0
-
-
-class ProfileType(IntEnum):
-    """Moving Status (addr 123) bits 4-5."""
-
-    STEP = 0
-    RECTANGULAR = 1
-    TRIANGULAR = 2
-    TRAPEZOIDAL = 3
 
 
 class MotionState(NamedTuple):
@@ -95,9 +86,6 @@ class MotionState(NamedTuple):
     trajectory_position: float
     trajectory_velocity: float
 
-
-#: One trajectory piece: (t_start, t_end, p_start, v_start, accel); s, pulse, pulse/s, pulse/s².
-Segment = tuple[float, float, float, float, float]
 
 CLEAR_MULTI_TURN = b"\x01\x44\x58\x4c\x22"
 FACTORY_RESET_ALL, FACTORY_RESET_KEEP_ID, FACTORY_RESET_KEEP_ID_BAUD = 0xFF, 0x01, 0x02
@@ -110,88 +98,6 @@ _GRID_EPS = 1e-7  # grid steps are counted with this slack against float round-o
 _MASKS = {1: 0xFF, 2: 0xFFFF, 4: 0xFFFFFFFF}
 # Physical quantities a constructor override may set although the field is read-only.
 _INITIAL_STATE_FIELDS = ("present_position", "present_input_voltage", "present_temperature")
-
-
-def plan_profile(
-    t0: float, p0: float, v0: float, goal: float, v_max: float, a_max: float
-) -> tuple[list[Segment], ProfileType]:
-    """Plan a velocity-continuous move from ``(p0, v0)`` at ``t0`` to rest at ``goal``.
-
-    ``v_max`` > 0 pulse/s caps the speed; ``a_max`` pulse/s² bounds the acceleration
-    (``math.inf``: rectangular profile, the velocity jumps). From rest this is the
-    e-Manual profile: trapezoid when ``|Δ| >= v²/a`` (time ``|Δ|/v + v/a``), else
-    triangle (time ``2·sqrt(|Δ|/a)``). Moving away from the goal, or too fast to stop in
-    time, it first brakes to zero and then plans from rest (it overshoots).
-    """
-    segs: list[Segment] = []
-    d = goal - p0
-    if a_max == math.inf:
-        if d == 0.0:
-            return segs, ProfileType.RECTANGULAR
-        t1 = t0 + abs(d) / v_max
-        segs.append((t0, t1, p0, math.copysign(v_max, d), 0.0))
-        return segs, ProfileType.RECTANGULAR
-    a = a_max
-    s = 1.0 if d > 0.0 or (d == 0.0 and v0 < 0.0) else -1.0
-    u = v0 * s  # speed towards the goal
-    dist = abs(d)
-    if u < 0.0 or u * u / (2.0 * a) > dist:
-        tb = abs(v0) / a
-        segs.append((t0, t0 + tb, p0, v0, -math.copysign(a, v0)))
-        p0 += 0.5 * v0 * tb
-        t0 += tb
-        d = goal - p0
-        s = 1.0 if d >= 0.0 else -1.0
-        u, dist = 0.0, abs(d)
-    if u <= v_max:
-        vp = min(v_max, math.sqrt(a * dist + 0.5 * u * u))
-        t1 = (vp - u) / a
-        d1 = (vp * vp - u * u) / (2.0 * a)
-        a1 = s * a
-    else:  # slower profile than the present speed: decelerate to it first
-        vp = v_max
-        t1 = (u - vp) / a
-        d1 = (u * u - vp * vp) / (2.0 * a)
-        a1 = -s * a
-    t3 = vp / a
-    d2 = max(0.0, dist - d1 - vp * vp / (2.0 * a))
-    t2 = d2 / vp if vp > 0.0 else 0.0
-    p, t = p0, t0
-    if t1 > 0.0:
-        segs.append((t, t + t1, p, s * u, a1))
-        p += s * d1
-        t += t1
-    if t2 > 0.0:
-        segs.append((t, t + t2, p, s * vp, 0.0))
-        p += s * d2
-        t += t2
-    if t3 > 0.0:
-        segs.append((t, t + t3, p, s * vp, -s * a))
-    kind = ProfileType.TRAPEZOIDAL if d2 > 1e-9 * max(1.0, dist) else ProfileType.TRIANGULAR
-    return segs, kind
-
-
-def plan_velocity(t0: float, p0: float, v0: float, v_goal: float, a_max: float) -> list[Segment]:
-    """Ramp the velocity from ``v0`` to ``v_goal`` (pulse/s) at ``a_max`` pulse/s², then
-    hold it forever (last segment ends at ``math.inf`` unless ``v_goal`` is 0)."""
-    segs: list[Segment] = []
-    if a_max != math.inf and v_goal != v0:
-        ta = abs(v_goal - v0) / a_max
-        segs.append((t0, t0 + ta, p0, v0, math.copysign(a_max, v_goal - v0)))
-        p0 += 0.5 * (v0 + v_goal) * ta
-        t0 += ta
-    if v_goal != 0.0:
-        segs.append((t0, math.inf, p0, v_goal, 0.0))
-    return segs
-
-
-def _segments_end(segs: list[Segment], p_default: float) -> float:
-    """Position where a finite plan comes to rest."""
-    if not segs:
-        return p_default
-    ts, te, p, v, a = segs[-1]
-    tau = te - ts
-    return p + (v + 0.5 * a * tau) * tau
 
 
 class VirtualServo:

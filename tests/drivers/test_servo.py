@@ -16,13 +16,12 @@ from drivers.dxlsim.models import (
     PULSE_PER_S2_PER_ACCEL_UNIT,
     PULSE_PER_S_PER_VELOCITY_UNIT,
 )
+from drivers.dxlsim.profile import ProfileType, plan_profile
 from drivers.dxlsim.servo import (
     ALERT,
     CLEAR_MULTI_TURN,
-    ProfileType,
     StatusError,
     VirtualServo,
-    plan_profile,
 )
 from drivers.dynamixel.control_table import HardwareError
 

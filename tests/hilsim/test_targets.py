@@ -10,11 +10,9 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from hilsim.animation_csv import CsvAnimation, CsvCurve, CsvFormatError
 from hilsim.targets import (
     EASINGS,
-    CsvAnimation,
-    CsvCurve,
-    CsvFormatError,
     Hold,
     Keyframes,
     Sine,
