@@ -169,6 +169,12 @@ class Integrator(ABC):
         """ρ(M)² − 1 of the one-step update matrix M for the free spring x'' = −w2·x − cm·x'.
 
         Broadcasts over h (s), w2 = k/m (1/s²) and cm = c/m (1/s). ≤ 0: no mode grows.
+
+        Rounding floor: the value is computed in float64 from terms of size ~(h·|λ|)², so it
+        is resolved to about 1e-16·(h·|λ|)². Where the true growth is smaller than that (an
+        undamped spring at a tiny step: RK4 loses −(hω)⁶/72 per step, −1e-26 at hω = 1e-4)
+        the sign is rounding noise. The stability guard never asks there: it scans from
+        h·|λ| = 0.005 up.
         """
 
     # -- hooks ------------------------------------------------------------------------------------
