@@ -7,6 +7,7 @@ from pathlib import Path
 from drivers.dynamixel.startup import Expectation, StartupReport
 from drivers.dynamixel.startup import ReadMode as BusReadMode
 from hilsim.animation_csv import CsvAnimation
+from hilsim.bench.model import cycle_bytes, cycle_time_s
 from hilsim.rig import ReadMode, Rig, RigError
 from hilsim.targets import TargetSet, track_from_spec
 
@@ -30,48 +31,42 @@ def build_targets(rig: Rig) -> TargetSet:
     return TargetSet(tracks, rig.joint_names)
 
 
-def bus_cycle_s(n: int, baud: int, fast: bool, return_delay_s: float) -> float:
-    """Wire-time model of one tick's bus traffic (Sync Write 4 B + read 4 B), dynamixel.md."""
-    n_bytes = 36 + 14 * n if fast else 28 + 21 * n
-    waits = 1 if fast else n
-    return 10.0 * n_bytes / baud + waits * return_delay_s
-
-
 def return_delay_budget_us(rig: Rig, latency_timer_ms: float = 0.0) -> float:
     """The largest Return Delay Time with which the bus traffic still fits in a tick."""
     n = len(rig.joints)
     fast = rig.bus.read is not ReadMode.PLAIN
-    spare = BUS_SHARE_OF_TICK * rig.loop.period_s - bus_cycle_s(n, rig.bus.baud, fast, 0.0)
-    spare -= latency_timer_ms * 1e-3
-    per_wait = spare / (1 if fast else n)
-    return max(0.0, per_wait * 1e6)
+    base = cycle_time_s(n, rig.bus.baud, fast, latency_s=latency_timer_ms * 1e-3)
+    spare = BUS_SHARE_OF_TICK * rig.loop.period_s - base
+    return max(0.0, spare / (1 if fast else n) * 1e6)
 
 
 def bus_capacity_problem(rig: Rig, report: StartupReport, latency_timer_ms: float) -> str | None:
     """Why this bus cannot carry the rig's tick rate, or None if it can.
 
-    Uses the wire-time model with what the start-up check found: the read mode in force,
-    each servo's Return Delay Time, and the adapter latency timer in force (every read
-    waits for it once). The bus may use at most ``BUS_SHARE_OF_TICK`` of a tick.
+    Uses the wire-time model (:mod:`hilsim.bench.model`) with what the start-up check found:
+    the read mode in force, each servo's Return Delay Time, and the adapter latency timer in
+    force. The bus may use at most ``BUS_SHARE_OF_TICK`` of a tick.
     """
     n = len(rig.joints)
     fast = report.read_mode is BusReadMode.FAST
     rdts = [s.return_delay_us * 1e-6 for s in report.servos]
-    waits = max(rdts) if fast else sum(rdts)
-    wire = bus_cycle_s(n, report.baud, fast, 0.0)
-    cycle = wire + waits + latency_timer_ms * 1e-3
+    cycle = cycle_time_s(
+        n, report.baud, fast, return_delay_s=rdts, latency_s=latency_timer_ms * 1e-3
+    )
     budget = BUS_SHARE_OF_TICK * rig.loop.period_s
     if cycle <= budget:
         return None
-    max_rate = BUS_SHARE_OF_TICK / cycle
+    wire = 10.0 * cycle_bytes(n, fast) / report.baud
+    waits = rdts[0] if fast else sum(rdts)
     return (
         f"the bus cannot carry {rig.loop.rate_hz:g} Hz: one tick's Sync Write + "
         f"{'Fast ' if fast else ''}Sync Read takes {cycle * 1e3:.2f} ms (wire "
         f"{wire * 1e3:.2f} ms at {report.baud} bps, Return Delay {waits * 1e3:.2f} ms, USB "
-        f"latency timer {latency_timer_ms:g} ms) against {budget * 1e3:.2f} ms "
+        f"latency timer {latency_timer_ms:g} ms, servo turnaround) against {budget * 1e3:.2f} ms "
         f"({BUS_SHARE_OF_TICK:.0%} of a {rig.loop.period_s * 1e3:g} ms tick). Lower "
-        f"loop.rate_hz to {max_rate:.0f} or less, or shorten the cycle: Return Delay Time 0, "
-        "a higher baud rate, a 1 ms latency timer, Fast Sync Read (`hilsim bench` shows each)."
+        f"loop.rate_hz to {BUS_SHARE_OF_TICK / cycle:.0f} or less, or shorten the cycle: Return "
+        "Delay Time 0, a higher baud rate, a 1 ms latency timer, Fast Sync Read (`hilsim bench` "
+        "shows each)."
     )
 
 
