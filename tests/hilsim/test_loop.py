@@ -402,3 +402,18 @@ def test_signals_apply_the_exit_policy_and_keep_telemetry(tmp_path, signum, code
     assert not run.truncated  # the signal may land before the first tick: 0 rows is fine
     policy = [e for e in run.events if e["kind"] == "exit_policy"]
     assert policy and "4 servo(s) confirmed" in policy[0]["message"]
+
+
+def test_realtime_scheduling_refused_is_a_warning_not_a_crash(monkeypatch):
+    from hilsim import loop as loop_mod
+
+    def refuse(*_a, **_k):
+        raise PermissionError(1, "Operation not permitted")
+
+    monkeypatch.setattr(loop_mod.os, "sched_setscheduler", refuse)
+    monkeypatch.setattr(loop_mod.os, "sched_setaffinity", refuse)
+    with pytest.warns(UserWarning) as caught:
+        assert loop_mod.try_realtime(50, 1) == "SCHED_OTHER"
+    text = " ".join(str(w.message) for w in caught)
+    assert "SCHED_FIFO" in text and "setcap" in text and "CPU 1" in text
+    assert loop_mod.try_realtime(None, None) == "SCHED_OTHER"  # nothing asked, nothing tried
