@@ -9,6 +9,7 @@ Rig files reach these through :func:`hilsim.targets.track_from_spec` (``type = "
 from __future__ import annotations
 
 import csv
+import io
 import math
 from bisect import bisect_right
 from collections.abc import Mapping
@@ -96,15 +97,30 @@ class CsvAnimation:
         """Read and check the file.
 
         Raises:
-            CsvFormatError: ``file:line: ...`` for a bad header, cell, row length or time.
+            CsvFormatError: ``file:line: ...`` for a bad header, cell, row length or time, or
+                bytes that are not UTF-8 text (a binary file).
             OSError: the file cannot be read.
         """
         path = Path(path)
         header: list[str] | None = None
         rows: list[list[float]] = []
         prev_line = 0
-        with path.open(newline="", encoding="utf-8-sig") as f:
-            reader = csv.reader(f)
+        raw = path.read_bytes()
+        try:
+            text = raw.decode("utf-8-sig")
+        except UnicodeDecodeError as exc:
+            line = raw.count(b"\n", 0, exc.start) + 1
+            raise CsvFormatError(
+                path,
+                line,
+                f"not a text file: byte {raw[exc.start]:#04x} is not UTF-8 "
+                "(a CSV animation is text: time_s,joint,... then one row per sample)",
+            ) from None
+        if "\0" in text:
+            line = text.count("\n", 0, text.index("\0")) + 1
+            raise CsvFormatError(path, line, "not a text file: it contains NUL bytes")
+        reader = csv.reader(io.StringIO(text, newline=""))
+        try:
             for row in reader:
                 line = reader.line_num
                 if not any(c.strip() for c in row) or row[0].lstrip().startswith("#"):
@@ -128,6 +144,9 @@ class CsvAnimation:
                     )
                 rows.append(values)
                 prev_line = line
+        except csv.Error as exc:  # e.g. a field beyond csv.field_size_limit()
+            raise CsvFormatError(path, reader.line_num, f"not a readable CSV: {exc}") from None
+
         if header is None:
             raise CsvFormatError(path, 1, "no header row (expected e.g. 'time_s,jaw,tail')")
         if not rows:

@@ -11,6 +11,14 @@ Boundaries are computed numerically from each method's growth function, so they 
 springs, whose rays are not the axes the textbooks tabulate: a scan of r on a grid finds the first
 unstable radius, and bisection pins the crossing to rounding. The growth is evaluated as
 |R|² − 1 = 2·Re(R − 1) + |R − 1|², which keeps its sign even when |R| is within 1e-15 of 1.
+
+One rounding floor decides "does this step grow?" everywhere (:func:`grows`): the boundary
+search, the substep count and the tests' oracle all call a step stable when its growth is at most
+:data:`GROWTH_FLOOR`·(h·|λ|)². Below that the sign of the computed growth is float64 noise.
+
+The substep count is computed once as the ceiling of h / h*, then settled by ±1 with that same
+test, and not searched above :data:`MAX_SUBSTEPS` (a spring that needs more is reported with
+the count it would need, never looped over).
 """
 
 from __future__ import annotations
@@ -33,6 +41,25 @@ _BISECTIONS = 60
 #: boundaries below this are reported as exactly 0: the method amplifies the mode at any step size
 #: (e.g. Euler or midpoint on an undamped spring), and rounding alone decides where below it
 ZERO_FLOOR = 1e-6
+#: growth at most GROWTH_FLOOR·(h·|λ|)² counts as "does not grow": spectral_growth sums terms of
+#: size ~(h·|λ|)², so it is resolved to ~1e-16 of that; 1e-14 leaves a factor 100 above the noise
+GROWTH_FLOOR = 1e-14
+#: the largest substep count check_stability reports; above it ``min_substeps`` is None and
+#: ``substeps_needed`` says how many it would take (10⁶ steps of an explicit method per tick is
+#: seconds of CPU per tick: no real-time loop runs that)
+MAX_SUBSTEPS = 1_000_000
+#: how many ±1 corrections may follow the ceiling (it is off by at most one in practice)
+_SETTLE_STEPS = 8
+
+
+def grows(growth: npt.ArrayLike, h_lambda: npt.ArrayLike) -> npt.NDArray[np.bool_]:
+    """True where ``growth`` (ρ² − 1) is above the rounding floor for a step of size h·|λ|.
+
+    The one test of "does this step amplify?" shared by the boundary search, the substep count
+    and the test suite's oracle, so they cannot disagree about a step.
+    """
+    floor = GROWTH_FLOOR * np.square(np.asarray(h_lambda, dtype=np.float64))
+    return ~(np.asarray(growth) <= floor)  # nan (an overflowed growth) grows too
 
 
 def _first_crossing(growth_of_r: Callable[[FloatArray], FloatArray], width: int) -> FloatArray:
@@ -41,13 +68,13 @@ def _first_crossing(growth_of_r: Callable[[FloatArray], FloatArray], width: int)
     ``growth_of_r`` maps radii shaped (G, 1) or (1, width) to growth shaped (G, width).
     """
     r = np.linspace(R_MAX / N_GRID, R_MAX, N_GRID)[:, np.newaxis]
-    unstable = growth_of_r(r) > 0.0
+    unstable = grows(growth_of_r(r), r)
     first = np.argmax(unstable, axis=0)
     hi = r[first, 0]
     lo = np.where(first > 0, r[np.maximum(first - 1, 0), 0], 0.0)
     for _ in range(_BISECTIONS):
         mid = 0.5 * (lo + hi)
-        bad = growth_of_r(mid[np.newaxis, :])[0] > 0.0
+        bad = grows(growth_of_r(mid[np.newaxis, :])[0], mid)
         hi = np.where(bad, mid, hi)
         lo = np.where(bad, lo, mid)  # lo stays a radius known to be stable
     r_star = np.where(unstable.any(axis=0), lo, np.inf)
@@ -112,8 +139,12 @@ class StabilityReport:
         boundary: r* per spring: the largest stable h·|λ|max along that spring's eigenvalue ray.
         critical_step: r* / |λ|max, the largest stable step per spring (s).
         angle: direction of the spring's eigenvalue λ in degrees (90 undamped, 180 overdamped).
-        stable_springs: h ≤ critical_step per spring.
-        min_substeps: smallest n ≥ 1 with h/n stable for every spring; None if no n works.
+        stable_springs: per spring, h does not grow it (:func:`grows`; the same as
+            h ≤ critical_step, up to rounding).
+        min_substeps: smallest n ≥ 1 with h/n stable for every spring; None if no n works, or
+            if more than :data:`MAX_SUBSTEPS` would be needed.
+        substeps_needed: h / min(critical_step): about how many substeps it takes (1 or less
+            when stable; inf when no step is stable); says how far off a capped spring is.
     """
 
     method: str
@@ -125,6 +156,7 @@ class StabilityReport:
     angle: FloatArray
     stable_springs: npt.NDArray[np.bool_]
     min_substeps: int | None
+    substeps_needed: float = math.nan
 
     @property
     def stable(self) -> bool:
@@ -168,7 +200,12 @@ class StabilityReport:
                 )
         if len(bad) > 5:
             lines.append(f"  … and {len(bad) - 5} more.")
-        if self.min_substeps is None:
+        if self.min_substeps is None and math.isfinite(self.substeps_needed):
+            lines.append(
+                f"It would take about {self.substeps_needed:.3g} substeps (more than "
+                f"{MAX_SUBSTEPS:,} are not searched): soften the spring or add damping."
+            )
+        elif self.min_substeps is None:
             lines.append(
                 "No number of substeps helps: add damping or choose 'rk4' or 'semi_implicit_euler'."
             )
@@ -202,24 +239,49 @@ def check_stability(
         a :class:`StabilityReport`; ``str(report)`` explains the verdict.
 
     Raises:
-        ValueError: h is not finite and positive, or the method is unknown.
+        ValueError: h is not finite and positive, the method is unknown, or the spring's rates
+            (k/m, c/m, its eigenvalues) overflow float64.
     """
     if not (isinstance(h, int | float) and math.isfinite(h) and h > 0.0):
         raise ValueError(f"h must be finite and > 0, got {h!r}")
     cls = get_method(method)
-    _, _, lam_max = _coefficients(spring)
+    with np.errstate(over="ignore", invalid="ignore"):  # an overflow is reported just below
+        w2, cm, lam_max = _coefficients(spring)
+    if not (np.isfinite(w2).all() and np.isfinite(cm).all() and np.isfinite(lam_max).all()):
+        raise ValueError(
+            "the spring's rates overflow float64 (k/m, c/m or its eigenvalues are not finite): "
+            "no step size can integrate it"
+        )
     h_star = critical_step(spring, cls)
     lam = np.reshape(spring.eigenvalues, (spring.n, 2))[:, 0]
-    stable = h <= h_star
+
+    def stable_at(step: float) -> npt.NDArray[np.bool_]:
+        # per spring: a boundary exists (not "unstable at every step"), the step lies within the
+        # scanned range (every method here is unstable beyond R_MAX) and does not grow the mode
+        h_lambda = step * lam_max
+        with np.errstate(over="ignore", invalid="ignore"):  # far outside: inf/nan, i.e. grows
+            growth = cls.spectral_growth(step, w2, cm)
+        return (h_star > 0.0) & (h_lambda <= R_MAX) & ~grows(growth, h_lambda)
+
+    stable = stable_at(float(h))
     h_min = float(h_star.min())
-    if h_min == 0.0:
-        substeps = None
+    needed = h / h_min if h_min > 0.0 else math.inf
+    substeps: int | None
+    if stable.all():
+        substeps = 1
+    elif not needed <= MAX_SUBSTEPS:
+        substeps = None  # no step is stable, or too many substeps to be worth counting
     else:
-        substeps = max(1, math.ceil(h / h_min))
-        # ceil of a rounded quotient can be one off either way; settle it with the same test
-        while h / substeps > h_min:
+        # the ceiling once, then settle it by ±1 with the very test the report uses: the
+        # rounded quotient can be one off either way, never more
+        substeps = max(2, math.ceil(needed))
+        for _ in range(_SETTLE_STEPS):
+            if stable_at(h / substeps).all():
+                break
             substeps += 1
-        while substeps > 1 and h / (substeps - 1) <= h_min:
+        for _ in range(_SETTLE_STEPS):
+            if substeps <= 2 or not stable_at(h / (substeps - 1)).all():
+                break
             substeps -= 1
     return StabilityReport(
         method=cls.name,
@@ -231,4 +293,5 @@ def check_stability(
         angle=np.degrees(np.angle(lam)),
         stable_springs=stable,
         min_substeps=substeps,
+        substeps_needed=needed,
     )

@@ -101,11 +101,18 @@ class Fault:
         if self.until < self.at:
             raise FaultSpecError(f"{self.kind}: until ({self.until}) is before at ({self.at})")
         if self.count is not None and self.count < 0:
-            raise FaultSpecError(f"{self.kind}: count must be >= 0")
-        if self.delay < 0 or self.duration < 0 or self.nbytes < 1:
-            raise FaultSpecError(f"{self.kind}: delay/duration must be >= 0 and nbytes >= 1")
+            raise FaultSpecError(f"{self.kind}: count must be >= 0, got {self.count}")
+        for key in ("delay", "duration"):
+            value = getattr(self, key)
+            if value < 0:
+                raise FaultSpecError(f"{self.kind}: {key} must be >= 0 s, got {value}")
+        if self.nbytes < 1:
+            raise FaultSpecError(f"{self.kind}: nbytes must be >= 1, got {self.nbytes}")
         if not 0 < self.bits <= 0xFF:
-            raise FaultSpecError(f"{self.kind}: bits must be 1..255")
+            names = ", ".join(HARDWARE_ERROR_BITS)
+            raise FaultSpecError(
+                f"{self.kind}: bits must be 1..255 or one of {names}, got {self.bits}"
+            )
         if (
             self.is_event
             and self.kind is not FaultKind.UNPLUG
@@ -208,7 +215,10 @@ def parse_fault(text: str) -> Fault:
             if isinstance(exc, FaultSpecError):
                 raise
             raise FaultSpecError(f"{text!r}: bad value for {key!r}: {value!r}") from None
-    return Fault(kind, **kwargs)
+    try:
+        return Fault(kind, **kwargs)
+    except FaultSpecError as exc:
+        raise FaultSpecError(f"{text!r}: {exc}") from None
 
 
 def parse_fault_plan(text: str, seed: int = 0) -> FaultPlan:

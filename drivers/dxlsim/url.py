@@ -23,6 +23,7 @@ trace           ``1`` to keep a timestamped trace of every byte       ``0``
 
 from __future__ import annotations
 
+import math
 import threading
 import urllib.parse
 
@@ -30,6 +31,7 @@ from drivers.clock import MonotonicClock, VirtualClock
 from drivers.dxlsim.bus import DxlBus
 from drivers.dxlsim.faults import parse_fault_plan
 from drivers.dxlsim.ids import parse_ids
+from drivers.dxlsim.models import get_model
 from drivers.dxlsim.servo import VirtualServo
 
 _KEYS = (
@@ -81,38 +83,76 @@ def bus_from_url(url: str, host_baud: int = 1_000_000) -> DxlBus:
         return bus
     unknown = sorted(set(query) - set(_KEYS))
     if unknown:
-        raise ValueError(f"{url!r}: unknown key(s) {unknown}; allowed: {', '.join(_KEYS)}")
+        raise ValueError(
+            f"{url!r}: unknown key(s) {', '.join(unknown)}; allowed: {', '.join(_KEYS)}"
+        )
 
     def get(key: str, default: str) -> str:
         return query.get(key, [default])[-1]
 
+    def bad(key: str, message: str) -> ValueError:
+        """One line naming the URL, the key, the value and what is allowed."""
+        return ValueError(f"{url!r}: {key}: {message}")
+
+    def number(key: str, default: str, kind: type, allowed: str) -> float:
+        text = get(key, default)
+        try:
+            value = kind(text)
+        except ValueError:
+            raise bad(key, f"expected {allowed}, got {text!r}") from None
+        if kind is float and not (math.isfinite(value) and value >= 0.0):
+            raise bad(key, f"expected {allowed}, got {text!r}")
+        return value
+
     try:
         ids = parse_ids(get("ids", "1"))
-        servo_baud = int(get("baud", str(host_baud)))
-        rdt_us = float(get("rdt_us", "500"))
-        turnaround_us = float(get("turnaround_us", "20"))
-        latency_ms = float(get("latency_ms", "0"))
-        seed = int(get("seed", "0"))
-        firmware = query.get("firmware")
-        firmware_v = int(firmware[-1]) if firmware else None
     except ValueError as exc:
-        raise ValueError(f"{url!r}: {exc}") from None
+        message = str(exc)
+        if len(message) > 120:  # "... got [253, 254, ...]": one line, not a screenful
+            message = message[:120] + " …]"
+        raise bad("ids", message) from None
+    servo_baud = int(number("baud", str(host_baud), int, "bit/s as an integer, e.g. 1000000"))
+    rdt_us = number("rdt_us", "500", float, "µs, a multiple of 2 in 0..508")
+    turnaround_us = number("turnaround_us", "20", float, "µs, a finite number >= 0")
+    latency_ms = number("latency_ms", "0", float, "ms, a finite number >= 0 (0, 1, 16, ...)")
+    seed = int(number("seed", "0", int, "an integer"))
+    firmware = query.get("firmware")
+    firmware_v = int(number("firmware", "0", int, "an integer 0..255")) if firmware else None
     clock_name = get("clock", "virtual").lower()
     if clock_name not in ("virtual", "real"):
-        raise ValueError(f"{url!r}: clock must be 'virtual' or 'real', got {clock_name!r}")
-    clock = VirtualClock() if clock_name == "virtual" else MonotonicClock()
+        raise bad("clock", f"must be 'virtual' or 'real', got {clock_name!r}")
     model = get("model", "XM430-W350")
+    try:
+        get_model(model)
+    except ValueError as exc:
+        raise bad("model", str(exc)) from None
+    try:
+        faults = parse_fault_plan(get("faults", ""), seed=seed)
+    except ValueError as exc:
+        raise bad("faults", str(exc)) from None
+    clock = VirtualClock() if clock_name == "virtual" else MonotonicClock()
     t = clock.now()
-    servos = [
-        VirtualServo(model, i, baud=servo_baud, return_delay_us=rdt_us, firmware=firmware_v, t=t)
-        for i in ids
-    ]
-    return DxlBus(
-        servos,
-        baud=host_baud,
-        clock=clock,
-        latency_timer_ms=latency_ms,
-        turnaround_us=turnaround_us,
-        faults=parse_fault_plan(get("faults", ""), seed=seed),
-        trace=get("trace", "0") not in ("0", "", "false", "no"),
-    )
+    try:
+        servos = [
+            VirtualServo(
+                model, i, baud=servo_baud, return_delay_us=rdt_us, firmware=firmware_v, t=t
+            )
+            for i in ids
+        ]
+    except ValueError as exc:  # the model refuses the baud, the Return Delay Time or firmware
+        key = next((k for k in ("baud", "rdt_us", "firmware") if k in str(exc)), "servos")
+        key = "rdt_us" if "return_delay" in str(exc) else key
+        key = "baud" if "bps" in str(exc) else key
+        raise bad(key, str(exc)) from None
+    try:
+        return DxlBus(
+            servos,
+            baud=host_baud,
+            clock=clock,
+            latency_timer_ms=latency_ms,
+            turnaround_us=turnaround_us,
+            faults=faults,
+            trace=get("trace", "0") not in ("0", "", "false", "no"),
+        )
+    except ValueError as exc:
+        raise ValueError(f"{url!r}: {exc}") from None

@@ -24,3 +24,19 @@ def test_scan_says_when_nobody_answers(capsys):
 def test_scan_rejects_bad_ids(capsys):
     assert main(["scan", "--port", "dxlsim://?ids=1", "--ids", "1-999"]) == 2
     assert "0..252" in capsys.readouterr().err
+
+
+def test_scan_takes_the_helps_baud_notation(capsys):
+    # The help lists "57600 115200 1M ..."; 57.6k and 1M are what people type.
+    code = main(["scan", "--port", "dxlsim://?ids=1-2&baud=57600", "--baud", "57.6k",
+                 "--baud", "1M", "--ids", "1-3"])  # fmt: skip
+    assert code == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert [line[:22] for line in lines] == ["ID   1 @   57600 bit/s", "ID   2 @   57600 bit/s"]
+
+
+def test_scan_refuses_an_unsupported_baud_in_one_line(capsys):
+    assert main(["scan", "--port", "dxlsim://?ids=1", "--baud", "250000"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and "Traceback" not in err
+    assert err.startswith("hilsim scan: --baud '250000': the servos do not run at that rate")
