@@ -5,19 +5,29 @@ canvas: no pyplot, no global backend switch), so ``import hilsim.plots`` stays c
 
 * :func:`plot_joints`  one row per joint: target, spring (sim_x), commanded and present position
   in degrees against time; reads that were not OK are drawn as a coloured rug along the bottom of
-  the row (stale, error, alert) and leave a gap in the present trace.
+  the row (stale, error, alert) and leave a gap in the present trace. The joint's limits
+  (``min_deg``/``max_deg`` from the run's copy of the rig, ``rig.toml``, joint frame) are dotted
+  lines, and the spans where the safety filter acted are shaded: the command differs from the
+  spring by more than rounding (:data:`ACTED_TOLERANCE_RAD`: a limit, the soft start, a walk back
+  in) or the spring is beyond a limit. The y axis always shows the joint's whole range (without a
+  readable rig.toml: at least :data:`MIN_SPAN_DEG`), so a quiet window is not blown up to noise.
+  Beside each row: how long the filter acted, and the summary's clamp counts if it has them.
 * :func:`plot_lateness` histogram of tick lateness (µs, log count) with p50/p99/p99.9/max marked,
-  and lateness against time with overruns marked.
+  and lateness against time with overruns marked. A virtual-time run (``"clock": "virtual
+  time"`` in summary.json) starts every tick on time by construction: the figure says so instead.
 * :func:`plot_timing`  per-stage wall time (sim, safety, bus, telemetry; µs) stacked against time
   (means over time bins, with the worst tick of each bin and the tick period for reference), and
-  per-stage p50/p99/max.
+  per-stage p50/p99/max. In a virtual-time run these are the host's compute times (the bus stage
+  includes the in-process emulator) and no deadline applies: labelled so, without the period line.
 
 :func:`plot_run` writes all three into ``RUN_DIR/plots/`` (or another directory).
 """
 
 from __future__ import annotations
 
+import math
 import os
+import tomllib
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -50,6 +60,125 @@ STATUS_STYLE: dict[ReadStatus, tuple[str, str]] = {
     ReadStatus.ALERT: ("black", "alert bit"),
 }
 STAGE_COLORS = {"sim": "tab:blue", "safety": "tab:orange", "bus": "tab:green", "telemetry": "0.5"}
+LIMIT_STYLE: dict[str, Any] = {"color": "tab:red", "linestyle": ":", "linewidth": 1.3}
+ACTED_STYLE: dict[str, Any] = {"facecolor": "tab:red", "alpha": 0.13, "edgecolor": "none"}
+SOFT_START_STYLE: dict[str, Any] = {"facecolor": "0.5", "alpha": 0.13, "edgecolor": "none"}
+#: |cmd − sim_x| above this (rad) means the safety filter changed the command (it passes the
+#: spring through bit for bit otherwise; telemetry round-trips floats exactly)
+ACTED_TOLERANCE_RAD = 1e-9
+#: smallest y span of a joint row (deg) when its limits are unknown
+MIN_SPAN_DEG = 2.0
+#: summary.json's "clock" for a run on the emulator's virtual clock
+VIRTUAL_CLOCK = "virtual time"
+
+
+def _rig_copy(run: Run) -> dict[str, Any]:
+    """The run's ``rig.toml`` copy, parsed; {} when there is none or it does not parse."""
+    if not run.config_text:
+        return {}
+    try:
+        return tomllib.loads(run.config_text)
+    except (tomllib.TOMLDecodeError, ValueError):
+        return {}
+
+
+def soft_start_s(run: Run) -> float | None:
+    """The run's soft start (s) from its ``rig.toml`` copy (the rig default when the key is
+    absent); None when there is no readable rig copy or the value is not a number >= 0."""
+    data = _rig_copy(run)
+    if not isinstance(data.get("joints"), list):  # not a rig file: its defaults do not apply
+        return None
+    from hilsim.rig import SafetyConfig
+
+    table = data.get("safety", {})
+    value = (
+        table.get("soft_start_s", SafetyConfig.soft_start_s) if isinstance(table, dict) else None
+    )
+    ok = isinstance(value, int | float) and not isinstance(value, bool)
+    return float(value) if ok and math.isfinite(value) and value >= 0 else None
+
+
+def joint_limits_deg(run: Run) -> dict[str, tuple[float, float]]:
+    """``{joint: (min_deg, max_deg)}`` from the run's ``rig.toml`` copy (joint frame, degrees).
+
+    Tolerant: no copy, TOML that does not parse, or a joint without two finite numbers with
+    min < max gives no entry for it (the plot then draws no limits for that joint).
+    """
+    joints = _rig_copy(run).get("joints")
+    out: dict[str, tuple[float, float]] = {}
+    if not isinstance(joints, list):
+        return out
+    for table in joints:
+        if not isinstance(table, dict) or not isinstance(table.get("name"), str):
+            continue
+        lo, hi = table.get("min_deg"), table.get("max_deg")
+        ok = all(isinstance(x, int | float) and not isinstance(x, bool) for x in (lo, hi))
+        if ok and math.isfinite(lo) and math.isfinite(hi) and lo < hi:
+            out[table["name"]] = (float(lo), float(hi))
+    return out
+
+
+def is_virtual_time(run: Run) -> bool:
+    """True when the run's summary says it ran on the virtual clock."""
+    return isinstance(run.summary, dict) and run.summary.get("clock") == VIRTUAL_CLOCK
+
+
+def safety_acted(
+    cmd: np.ndarray, sim_x: np.ndarray, limits_rad: tuple[float, float] | None
+) -> np.ndarray:
+    """Per tick (bool, like ``cmd``): the filter changed the command, or the spring was beyond a
+    limit. Ticks with a NaN command or spring (none recorded) count as not acted."""
+    with np.errstate(invalid="ignore"):
+        acted = np.abs(cmd - sim_x) > ACTED_TOLERANCE_RAD
+        if limits_rad is not None:
+            acted |= (sim_x < limits_rad[0]) | (sim_x > limits_rad[1])
+    return acted
+
+
+def _spans(t: np.ndarray, mask: np.ndarray, dt: float) -> list[tuple[float, float]]:
+    """(start, width) of each run of True in ``mask``; a tick covers [t, t + dt)."""
+    if not mask.any():
+        return []
+    edges = np.diff(np.concatenate([[0], mask.astype(np.int8), [0]]))
+    starts, ends = np.flatnonzero(edges == 1), np.flatnonzero(edges == -1) - 1
+    return [(float(t[a]), float(t[b] - t[a] + dt)) for a, b in zip(starts, ends, strict=True)]
+
+
+def _y_range(
+    values: np.ndarray, limits: tuple[float, float] | None, min_span: float
+) -> tuple[float, float]:
+    """The joint row's y limits: the data and the joint's limits, at least ``min_span`` tall,
+    with room for the rug at the bottom."""
+    finite = values[np.isfinite(values)]
+    lo = float(finite.min()) if finite.size else math.inf
+    hi = float(finite.max()) if finite.size else -math.inf
+    if limits is not None:
+        lo, hi = min(lo, limits[0]), max(hi, limits[1])
+    if not (math.isfinite(lo) and math.isfinite(hi)):
+        lo, hi = -0.5 * min_span, 0.5 * min_span
+    if hi - lo < min_span:
+        mid = 0.5 * (lo + hi)
+        lo, hi = mid - 0.5 * min_span, mid + 0.5 * min_span
+    pad = 0.06 * (hi - lo)
+    return lo - 2.3 * pad, hi + pad
+
+
+def _safety_note(run: Run, name: str, acted_s: float, soft_s: float) -> str:
+    """Beside a joint row: how long the filter acted, and the summary's counts if any."""
+    lines = [f"safety limited {acted_s:.2f} s" if acted_s > 0 else "safety never limited"]
+    if soft_s > 0:
+        lines.append(f"soft start blended {soft_s:.2f} s")
+    limits = run.summary.get("safety_limits") if isinstance(run.summary, dict) else None
+    if isinstance(limits, dict):
+        counts = [
+            f"{kind} {per.get(name)}"
+            for kind, per in limits.items()
+            if isinstance(per, dict) and isinstance(per.get(name), int) and per.get(name)
+        ]
+        if counts:  # clamp counts from the summary, two a line (the margin is narrow)
+            lines.append("run total, ticks:")
+            lines += [", ".join(counts[i : i + 2]) for i in range(0, len(counts), 2)]
+    return "\n".join(lines)
 
 
 def _new_figure(width: float, height: float) -> Figure:
@@ -93,18 +222,62 @@ def plot_joints(
     end: float | None = None,
     dpi: int = 110,
 ) -> Path:
-    """One row per joint: target, spring, commanded, present (deg) vs time (s); bad reads marked."""
+    """One row per joint: target, spring, commanded, present (deg) vs time (s); bad reads marked,
+    limits drawn, spans where the safety filter acted shaded (module docstring)."""
+    return _save(joints_figure(run, start=start, end=end), Path(path), dpi)
+
+
+def joints_figure(run: Run, *, start: float | None = None, end: float | None = None) -> Figure:
+    """The figure :func:`plot_joints` saves (axes in joint order)."""
+    from matplotlib.lines import Line2D
+    from matplotlib.patches import Patch
+
     keep = _window(run, start, end)
     t = run.t_sched[keep]
     names = run.joint_names
     status = run.joint("status")[keep]
+    raw = {q: run.joint(q)[keep] for q in ("sim_x", "cmd")}
     traces = {q: np.degrees(run.joint(q)[keep]) for q in TRACE_STYLE}
+    limits = joint_limits_deg(run)
+    soft = soft_start_s(run)
+    in_soft = t < (soft if soft is not None else -math.inf)
+    dt = float(np.median(np.diff(run.t_sched))) if run.n_ticks > 1 else 0.0
     n = len(names)
     fig = _new_figure(12.0, 1.2 + 2.1 * n)
     axes = fig.subplots(n, 1, sharex=True, squeeze=False)[:, 0]
     trace_lines = []
+    any_acted = any_soft = False
     for j, (ax, name) in enumerate(zip(axes, names, strict=True)):
+        lim = limits.get(name)
+        lim_rad = None if lim is None else (math.radians(lim[0]), math.radians(lim[1]))
+        acted = safety_acted(raw["cmd"][:, j], raw["sim_x"][:, j], lim_rad)
+        spans = _spans(t, acted & ~in_soft, dt)
+        soft_spans = _spans(t, acted & in_soft, dt)
+        for sp, style in ((spans, ACTED_STYLE), (soft_spans, SOFT_START_STYLE)):
+            if sp:
+                ax.broken_barh(sp, (0.0, 1.0), transform=ax.get_xaxis_transform(), **style)
+        any_acted |= bool(spans)
+        any_soft |= bool(soft_spans)
+        if lim is not None:
+            for edge in lim:
+                ax.axhline(edge, **LIMIT_STYLE)
         trace_lines = [ax.plot(t, traces[q][:, j], **style)[0] for q, style in TRACE_STYLE.items()]
+        stacked = np.concatenate([traces[q][:, j] for q in TRACE_STYLE])
+        ax.set_ylim(*_y_range(stacked, lim, MIN_SPAN_DEG))
+        ax.text(
+            1.01,
+            0.97,
+            _safety_note(
+                run,
+                name,
+                float(np.count_nonzero(acted & ~in_soft)) * dt,
+                float(np.count_nonzero(acted & in_soft)) * dt,
+            ),
+            transform=ax.transAxes,
+            va="top",
+            fontsize="small",
+            color="tab:red" if spans else "0.4",
+        )
         marks = []
         for code, (color, label) in STATUS_STYLE.items():
             bad = status[:, j] == code
@@ -124,14 +297,14 @@ def plot_joints(
                         label=f"{label} ×{count}",
                     )[0]
                 )
-        ax.margins(x=0.01, y=0.14)  # leave the bottom band to the rug
+        ax.margins(x=0.01)  # y: _y_range leaves the bottom band to the rug
         ax.set_ylabel(f"{name}\nangle (deg)")
         ax.grid(True, alpha=0.3)
         if marks:
             ax.legend(
                 handles=marks,
-                loc="center left",
-                bbox_to_anchor=(1.005, 0.5),
+                loc="lower left",  # the safety note is at the top
+                bbox_to_anchor=(1.005, 0.0),
                 fontsize="small",
                 title="reads not OK",
                 title_fontsize="small",
@@ -139,22 +312,30 @@ def plot_joints(
         else:
             ax.text(
                 1.01,
-                0.5,
+                0.03,
                 "all reads OK",
                 transform=ax.transAxes,
-                va="center",
+                va="bottom",
                 fontsize="small",
                 color="0.4",
             )
     axes[-1].set_xlabel("time since run start (s)")
-    fig.legend(handles=trace_lines, loc="outside upper right", ncols=len(trace_lines))
+    handles = list(trace_lines)
+    if limits:
+        handles.append(Line2D([], [], **LIMIT_STYLE, label="joint limits (rig.toml)"))
+    if any_acted:
+        handles.append(Patch(**ACTED_STYLE, label="safety filter limited the command"))
+    if any_soft:
+        handles.append(Patch(**SOFT_START_STYLE, label="soft start (command blended)"))
+    # below the plots: at the top, two rows of handles would run into the title
+    fig.legend(handles=handles, loc="outside lower center", ncols=min(len(handles), 4))
     span = f"{t[-1] - t[0]:.3g} s" if t.size else "no ticks"
     fig.suptitle(
         f"Joint positions: {run.path.name}{_window_note(start, end)} ({t.size} ticks, {span})",
         x=0.01,
         ha="left",
     )
-    return _save(fig, Path(path), dpi)
+    return fig
 
 
 def _lateness_marks(lat: np.ndarray) -> list[tuple[str, float, str]]:
@@ -186,6 +367,20 @@ def plot_lateness(
     with overruns marked. The lateness axis is logarithmic when the tail is > 20× the median."""
     keep = _window(run, start, end)
     t = run.t_sched[keep]
+    if is_virtual_time(run):
+        fig = _new_figure(11.0, 3.0)
+        fig.suptitle(f"Tick lateness: {run.path.name}{_window_note(start, end)} ({t.size} ticks)",
+                     x=0.01, ha="left")  # fmt: skip
+        ax = fig.subplots()
+        ax.set_axis_off()
+        note = (
+            "Virtual-time run: the clock jumps to every deadline, so each tick starts exactly on "
+            "time by construction.\nLateness was not measured; run on the real clock (without "
+            "--virtual-time) to see it."
+        )
+        ax.text(0.5, 0.5, note, transform=ax.transAxes, ha="center", va="center",
+                fontsize="large")  # fmt: skip
+        return _save(fig, Path(path), dpi)
     lat_all = run.lateness_us[keep]
     lat = lat_all[np.isfinite(lat_all)]
     overrun = run.overrun[keep]
@@ -268,10 +463,17 @@ def plot_timing(
     keep = _window(run, start, end)
     t = run.t_sched[keep]
     stages = np.column_stack([run.stage_us(s)[keep] for s in STAGES]).reshape(-1, len(STAGES))
+    virtual = is_virtual_time(run)
     fig = _new_figure(11.0, 7.5)
     ax_s, ax_b = fig.subplots(2, 1, height_ratios=[3, 2])
     fig.suptitle(
-        f"Time per tick by stage: {run.path.name}{_window_note(start, end)} ({t.size} ticks)",
+        f"Time per tick by stage: {run.path.name}{_window_note(start, end)} ({t.size} ticks)"
+        + (
+            "\nvirtual-time run: the host's compute time per stage ('bus' includes the "
+            "in-process emulator, not wire time); no deadline applied"
+            if virtual
+            else ""
+        ),
         x=0.01,
         ha="left",
     )
@@ -286,7 +488,7 @@ def plot_timing(
                    colors=[STAGE_COLORS[s] for s in STAGES], alpha=0.85)  # fmt: skip
     ax_s.plot(centers, worst, color="black", linewidth=0.8, label="all stages, worst tick")
     top = float(np.nanmax(worst))
-    if t.size > 1:
+    if t.size > 1 and not virtual:
         period_us = float(np.median(np.diff(t))) * 1e6
         top = max(top, period_us)
         ax_s.axhline(period_us, color="tab:red", linestyle="--", linewidth=1.0,

@@ -3,6 +3,18 @@
 :class:`RunStats` is fed by :class:`hilsim.telemetry.TelemetryWriter` (or directly, without a
 writer); :func:`summarize` builds the JSON-ready summary (``summary.json``) from whole-run arrays,
 with percentiles (:data:`PERCENTILES`) of lateness and per-stage times.
+
+Safety interventions are counted in one place, the summary's ``safety_limits``: kind -> joint ->
+count, where the kinds are the safety filter's counters (:data:`hilsim.safety.COUNTER_KINDS`:
+``position`` the desired position was beyond a limit and was clamped, ``speed``, ``accel``,
+``brake`` the step was shortened by that limit, ``nonfinite`` the desired value was NaN/inf,
+``outside`` the command itself was outside the limits, walking back in after a start outside
+them), counted in ticks; one tick may count under several kinds. Beside it, ``safety_ticks`` gives
+``{"filtered": ticks the filter ran, "held": ticks it held every joint on a non-finite input}``.
+The loop hands the filter's counters over once, at the end (:meth:`RunStats.set_safety_counts`);
+then every kind lists every joint, **0 included**, so a missing joint never reads as "not counted".
+If no counts ever arrived (the run died before the loop could hand them over) ``safety_limits``
+and ``safety_ticks`` are ``null``: unknown, not zero.
 """
 
 from __future__ import annotations
@@ -44,6 +56,7 @@ def summarize(
     servo_ids: Sequence[Any] | None = None,
     comm_errors: Mapping[Any, int] | None = None,
     safety_limits: Mapping[str, Mapping[str, int]] | None = None,
+    safety_ticks: Mapping[str, int] | None = None,
     faults: Sequence[Mapping[str, Any]] = (),
     exit_code: int | None = None,
     exit_reason: str | None = None,
@@ -59,7 +72,8 @@ def summarize(
     (numpy's linear interpolation over finite values; None when there are none); ``overruns``;
     ``stale_reads``/``error_reads``/``alert_reads`` per joint; ``comm_errors`` per servo (reads that
     were not OK, plus ``comm_errors`` given here) and ``comm_errors_total``; ``safety_limits``
-    (kind -> joint -> count); ``faults``; ``exit_code``, ``exit_reason``; then ``extra`` verbatim.
+    (kind -> joint -> count) and ``safety_ticks`` (as given; None, JSON null, when not given: see
+    the module docstring); ``faults``; ``exit_code``, ``exit_reason``; then ``extra`` verbatim.
     """
     names = list(joint_names)
     ids = [str(s) for s in (servo_ids if servo_ids is not None else names)]
@@ -90,9 +104,12 @@ def summarize(
         "alert_reads": dict(zip(names, per_joint(ReadStatus.ALERT), strict=True)),
         "comm_errors": comm,
         "comm_errors_total": sum(comm.values()),
-        "safety_limits": {
-            k: {str(j): int(n) for j, n in v.items()} for k, v in (safety_limits or {}).items()
-        },
+        "safety_limits": None
+        if safety_limits is None
+        else {k: {str(j): int(n) for j, n in v.items()} for k, v in safety_limits.items()},
+        "safety_ticks": None
+        if safety_ticks is None
+        else {str(k): int(n) for k, n in safety_ticks.items()},
         "faults": [dict(f) for f in faults],
         "exit_code": exit_code,
         "exit_reason": exit_reason,
@@ -106,7 +123,8 @@ class RunStats:
     Per tick, :meth:`add` stores the tick's start time, lateness, overrun flag, the four stage
     times and the read status into preallocated chunks of ``chunk_ticks`` rows (when one fills a
     new one is allocated, never copied: no tick pays for a large copy). Rare things are counted
-    when they happen: :meth:`comm_error`, :meth:`safety_limit`, :meth:`fault`. :meth:`summary`
+    when they happen: :meth:`comm_error`, :meth:`safety_limit`, :meth:`fault`; the safety
+    filter's counters arrive once, at the end (:meth:`set_safety_counts`). :meth:`summary`
     computes everything with numpy (:func:`summarize`). A :class:`TelemetryWriter` owns one and
     feeds it; use one directly only without a writer.
     """
@@ -131,7 +149,8 @@ class RunStats:
         self._new_chunk()
         self._last_tick: int | None = None
         self.comm_errors: dict[Any, int] = {}
-        self.safety_limits: dict[str, dict[str, int]] = {}
+        self.safety_limits: dict[str, dict[str, int]] | None = None
+        self.safety_ticks: dict[str, int] | None = None
         self.faults: list[dict[str, Any]] = []
 
     def _new_chunk(self) -> None:
@@ -200,10 +219,48 @@ class RunStats:
         self.comm_errors[servo] = self.comm_errors.get(servo, 0) + n
 
     def safety_limit(self, kind: str, joint: str | int, n: int = 1) -> None:
-        """Count a safety intervention of ``kind`` (e.g. "position", "speed") on a joint."""
+        """Count a safety intervention of ``kind`` (e.g. "position", "speed") on a joint, on top
+        of what :meth:`set_safety_counts` set (for interventions made outside the filter)."""
         name = self.joint_names[joint] if isinstance(joint, int) else str(joint)
+        if self.safety_limits is None:
+            self.safety_limits = {}
         per_kind = self.safety_limits.setdefault(kind, {})
         per_kind[name] = per_kind.get(name, 0) + n
+
+    def set_safety_counts(
+        self,
+        counts: Mapping[str, Mapping[str, int]],
+        *,
+        ticks: int,
+        held_ticks: int = 0,
+    ) -> None:
+        """Take the safety filter's counters for the summary (once, at the end of the run).
+
+        Args:
+            counts: kind -> joint name -> ticks, e.g. ``SafetyFilter.counters.by_kind()`` (kinds
+                position, speed, accel, brake, nonfinite, outside).
+            ticks: how many ticks the filter ran (``SafetyCounters.ticks``).
+            held_ticks: ticks it held every joint on a non-finite input (``.fault_ticks``).
+
+        Replaces what earlier calls of either method counted; every joint of this run is listed
+        under every kind given, 0 when the counts do not name it. Raises ValueError for a
+        negative count or a joint name this run does not have.
+        """
+        known = set(self.joint_names)
+        table: dict[str, dict[str, int]] = {}
+        for kind, per_joint in counts.items():
+            row = dict.fromkeys(self.joint_names, 0)
+            for joint, n in per_joint.items():
+                if str(joint) not in known:
+                    raise ValueError(f"safety counts for an unknown joint {joint!r} ({kind})")
+                if int(n) < 0:
+                    raise ValueError(f"negative safety count {n!r} for {joint} ({kind})")
+                row[str(joint)] = int(n)
+            table[str(kind)] = row
+        if int(ticks) < 0 or int(held_ticks) < 0:
+            raise ValueError(f"tick counts must be >= 0, got {ticks!r} and {held_ticks!r}")
+        self.safety_limits = table
+        self.safety_ticks = {"filtered": int(ticks), "held": int(held_ticks)}
 
     def fault(
         self, kind: str, message: str, tick: int | None, t: float | None, **fields: Any
@@ -236,6 +293,7 @@ class RunStats:
             servo_ids=self.servo_ids,
             comm_errors=self.comm_errors,
             safety_limits=self.safety_limits,
+            safety_ticks=self.safety_ticks,
             faults=self.faults,
             **extra,
         )

@@ -10,7 +10,8 @@ only its output is converted to servo ticks. In order, per tick:
    loop should stop. NaN is caught before any comparison (``numpy.clip``, ``min`` and ``max`` all
    pass NaN on).
 2. **Position.** Clamp the desired position to ``[lower, upper]``. During soft start the clamped
-   desired pose is blended with the start pose: ``p0 + s·(desired − p0)``, ``s = smoothstep(k/K)``,
+   desired pose is blended with the start pose p0 (the present pose as it was, even outside the
+   limits): ``p0 + s·(desired − p0)``, ``s = smoothstep(k/K)``,
    k the tick since :meth:`~SafetyFilter.start` and K = ⌈soft_start_s/dt_s⌉; from tick K on, s = 1.
 3. **Speed.** The step from the last output is limited to ``max_speed·dt``.
 4. **Acceleration.** The step may differ from the last step by at most ``max_accel·dt²`` (the
@@ -18,7 +19,8 @@ only its output is converted to servo ticks. In order, per tick:
 5. **Brake.** Moving towards a position limit, the step is limited to the largest step from which
    the joint can still stop at the limit while slowing by ``max_accel·dt`` per tick (the discrete
    form of v ≤ √(2·a·distance)).
-6. The result is clamped to ``[lower, upper]`` once more: the position clamp has the last word.
+6. The result is clamped to ``[lower, upper]`` once more: the position clamp has the last word
+   (except for a joint still walking back in, below).
 
 How the limits interact. Steps 3–4 make the output *lag* a desired motion that is too fast: it
 follows at the speed limit and catches up when the desired motion turns back. Step 2 alone would
@@ -33,11 +35,31 @@ absorbs it (applied before, the rounding would pile up over a long braking run, 
 step 6 trims whatever is left. So the position and finiteness guarantees are exact, and the speed
 and acceleration guarantees hold to within rounding (a few ulp of the position).
 
-Guarantees, for any float64 input: the output is finite, within ``[lower, upper]``, its step per
-tick is at most ``max_speed·dt`` and its change of step at most ``max_accel·dt²`` (to rounding).
-When the desired motion is within every limit (and soft start is over), the output *is* the input,
-bit for bit. To stop smoothly (an exit policy of "hold"), feed the last output back as the desired
-position: the filter brakes to a standstill.
+A start outside the limits. The servos may be found outside a joint's limits (moved by hand, or
+limits narrower than the servo's own). Clamping that start pose would make the first goal jump by
+the whole excess, so the filter starts from the present pose as it is and *walks it back in*: the
+soft start blends from that pose to the desired position, which is inside the limits (step 2),
+so the steps point inwards, within the speed and acceleration limits from rest; with a soft start
+long enough for the excess the output follows the blend and arrives at rest. Without one (or if
+it is too short) the output walks in at the speed limit, arrives moving and, like any
+speed-limited step, may pass its target inwards before settling back. A step that would point
+outwards (the output overtaking the blend, or rounding) meets the brake with a negative distance
+left, whose bound is 0; the final clamp leaves such a joint where it is, short of the limit it
+has not reached yet. So the joint never moves further out, and once inside it stays inside (the
+final clamp has the last word again); the brake towards the far limit works from the distance
+actually left, so it never leaves through the other side. :meth:`SafetyFilter.start` reports
+such joints (a non-fatal event), and the ``outside`` counter counts the ticks each one spent
+outside.
+
+Guarantees, for any float64 input, from any finite start pose: the output is finite; its step per
+tick is at most ``max_speed·dt`` and its change of step at most ``max_accel·dt²`` (from rest, to
+rounding). It is within ``[lower, upper]`` whenever the start pose was (from the first tick on) or
+once the joint is back inside (from then on); before that, it never moves away from the range and
+it reaches the range in finite time (at most about ``excess/max_speed + max_speed/max_accel``
+after the soft start). When the desired motion is within every limit
+(and soft start is over), the output *is* the input, bit for bit. To stop smoothly (an exit
+policy of "hold"), feed the last output back as the desired position: the filter brakes to a
+standstill (a joint still outside its limits keeps walking in, and comes to rest just inside).
 
 The per-tick path runs in pure Python on lists and allocates no arrays: for the 1–16 joints of one
 bus that beats numpy, whose ~0.6 µs per call adds up over the dozen-plus calls a vectorised filter
@@ -61,7 +83,7 @@ IntArray = npt.NDArray[np.int64]
 
 class SafetyFault(StrEnum):
     NONFINITE = "nonfinite_desired"  # NaN or inf in the desired positions: all joints hold
-    START_OUTSIDE_LIMITS = "start_outside_limits"  # the present pose was clamped into the limits
+    START_OUTSIDE_LIMITS = "start_outside_limits"  # starts outside its limits, walked back in
 
 
 @dataclass(frozen=True)
@@ -82,7 +104,14 @@ class SafetyEvent:
         which = ", ".join(f"{n} ({v!r} rad)" for n, v in zip(self.joints, self.values, strict=True))
         if self.kind is SafetyFault.NONFINITE:
             return f"tick {self.tick}: non-finite desired position for {which}; all joints hold"
-        return f"start pose outside the limits for {which}; clamped into them"
+        return (
+            f"start pose outside the limits for {which}; walked back in at the speed and "
+            "acceleration limits"
+        )
+
+
+#: the kinds of :class:`SafetyCounters`, in the order summaries list them
+COUNTER_KINDS = ("position", "speed", "accel", "brake", "nonfinite", "outside")
 
 
 @dataclass(frozen=True)
@@ -91,7 +120,8 @@ class SafetyCounters:
 
     ``position``: the desired position was outside the limits; ``speed``: the speed limit shortened
     the step; ``accel``: the acceleration limit changed it; ``brake``: the brake bound near a
-    position limit shortened it; ``nonfinite``: the desired value was NaN or inf. One tick may
+    position limit shortened it; ``nonfinite``: the desired value was NaN or inf; ``outside``: the
+    output itself was outside the limits (a start outside them, walking back in). One tick may
     count under several limits.
     ``ticks`` counts filter calls, ``fault_ticks`` those that held every joint.
     """
@@ -104,14 +134,18 @@ class SafetyCounters:
     brake: IntArray
     accel: IntArray
     nonfinite: IntArray
+    outside: IntArray
+
+    def by_kind(self) -> dict[str, dict[str, int]]:
+        """Plain ints, kind (:data:`COUNTER_KINDS`) -> joint name -> count, every joint listed."""
+        return {
+            kind: dict(zip(self.joint_names, getattr(self, kind).tolist(), strict=True))
+            for kind in COUNTER_KINDS
+        }
 
     def as_dict(self) -> dict[str, object]:
-        """Plain ints keyed by limit and joint name, for a JSON run summary."""
-        out: dict[str, object] = {"ticks": self.ticks, "fault_ticks": self.fault_ticks}
-        for limit in ("position", "speed", "brake", "accel", "nonfinite"):
-            counts = getattr(self, limit).tolist()
-            out[limit] = dict(zip(self.joint_names, counts, strict=True))
-        return out
+        """Plain ints keyed by limit and joint name, with ``ticks`` and ``fault_ticks``."""
+        return {"ticks": self.ticks, "fault_ticks": self.fault_ticks, **self.by_kind()}
 
 
 def _array(name: str, value: npt.ArrayLike, n: int | None) -> FloatArray:
@@ -205,8 +239,15 @@ def _brake_step(room: float, a: float) -> float:
 
     With m = ⌊Δ/a⌋ those steps travel (m + 1)·Δ − a·m(m + 1)/2, piecewise linear and increasing
     in Δ; this inverts it. ``a`` is max_accel·dt² (the most a step may shrink per tick).
+    A room ≤ 0 (at the limit, or beyond it: a joint walking back in) allows no step towards the
+    limit; a room too large to compute with bounds nothing.
     """
-    m = math.floor((math.sqrt(1.0 + 8.0 * room / a) - 1.0) * 0.5)
+    if room <= 0.0:
+        return 0.0
+    r = 8.0 * room / a
+    if r > 1e300:
+        return math.inf
+    m = math.floor((math.sqrt(1.0 + r) - 1.0) * 0.5)
     return room / (m + 1) + 0.5 * a * m
 
 
@@ -268,7 +309,7 @@ class SafetyFilter:
 
     def _reset_counters(self) -> None:
         n = self.n_joints
-        self._count = {k: [0] * n for k in ("position", "speed", "brake", "accel", "nonfinite")}
+        self._count = {k: [0] * n for k in COUNTER_KINDS}
 
     # -- public -----------------------------------------------------------------------------------
 
@@ -279,9 +320,10 @@ class SafetyFilter:
             present_rad: present joint positions (rad), shape ``(n,)``, finite.
 
         Returns:
-            None, or a non-fatal :class:`SafetyEvent` if some joints were outside their limits;
-            those start from the nearest limit instead (the first goals then differ from the
-            present pose of those joints by as much as they were outside).
+            None, or a non-fatal :class:`SafetyEvent` naming the joints outside their limits and
+            their present positions: the filter starts from that pose as it is and walks those
+            joints back in, through the soft start and within the speed and acceleration limits
+            (module docstring).
 
         Raises:
             ValueError: wrong shape, or a non-finite position (names the joints): the filter cannot
@@ -296,8 +338,8 @@ class SafetyFilter:
             which = ", ".join(f"{names[i]} ({float(x[i])!r})" for i in bad)
             raise ValueError(f"cannot soft-start: no finite present position for {which}")
         pose = np.clip(x, self.params.lower_rad, self.params.upper_rad)
-        self._p = pose.tolist()
-        self._p0 = pose.tolist()
+        self._p = x.tolist()  # as it is: a joint outside its limits is walked back in
+        self._p0 = x.tolist()  # and the soft start blends from there
         self._dp = [0.0] * self.n_joints
         self._tick = 0
         self._faults = 0
@@ -358,6 +400,7 @@ class SafetyFilter:
         )
         c = self._count
         n_pos, n_speed, n_brake, n_accel = c["position"], c["speed"], c["brake"], c["accel"]
+        n_out = c["outside"]
         for j in range(n):
             lo, hi, pj, x = lower[j], upper[j], p[j], d[j]
             if x > hi:
@@ -385,7 +428,8 @@ class SafetyFilter:
                 step = prev - a
                 n_accel[j] += 1
             # brake last, from the actual distance left: it then absorbs each tick's rounding
-            # instead of letting it pile up over a long braking run
+            # instead of letting it pile up over a long braking run (a room < 0, beyond the
+            # limit, bounds the step to 0: a joint walking back in never steps further out)
             if step > 0.0:
                 room = hi - pj
                 if room < dstop[j]:
@@ -401,15 +445,39 @@ class SafetyFilter:
                         step = bound
                         n_brake[j] += 1
             q = x if step == e else pj + step  # untouched: pass the input through bit for bit
-            # the last word; only rounding gets this far, so it is not counted
+            # the last word; only rounding gets this far, so it is not counted. A joint that was
+            # beyond a limit (walking back in, never outwards) may still be beyond it
             if q > hi:
-                q = hi
+                if pj > hi:
+                    n_out[j] += 1
+                else:
+                    q = hi
             elif q < lo:
-                q = lo
+                if pj < lo:
+                    n_out[j] += 1
+                else:
+                    q = lo
             dp[j] = q - pj
             p[j] = q
         out[:] = p
         return event
+
+    def rejoin(self, joint: int, position_rad: float) -> None:
+        """Continue joint ``joint`` from ``position_rad``, at rest: a servo that stopped by
+        itself (a tripped Bus Watchdog) rejoins the show from where it is, within the speed and
+        acceleration limits, instead of jumping to where its command had got to.
+
+        Raises ValueError for a non-finite position; RuntimeError before :meth:`start`.
+        """
+        if self._p is None:
+            raise RuntimeError("SafetyFilter.start(present) must be called before rejoin()")
+        if not math.isfinite(position_rad):
+            raise ValueError(
+                f"cannot rejoin {self.params.joint_names[joint]} from {position_rad!r}"
+            )
+        self._p[joint] = float(position_rad)
+        self._dp[joint] = 0.0
+        self._p0[joint] = float(position_rad)  # as start(): a soft start blends from here
 
     @property
     def started(self) -> bool:

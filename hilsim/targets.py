@@ -74,6 +74,17 @@ class Track(ABC):
         """u'(t) (rad/s)."""
         return self.sample(t)[1]
 
+    def sample_array(self, t: npt.ArrayLike) -> tuple[FloatArray, FloatArray]:
+        """(u, u') at many times at once, float64 arrays shaped like ``t``; for checks at load
+        time, not for the tick. Vectorised by the tracks here; this default calls :meth:`sample`
+        once per time. Agrees with :meth:`sample` to rounding (numpy's sin/cos may differ from
+        :mod:`math`'s by an ulp)."""
+        times = np.asarray(t, dtype=np.float64)
+        pos, vel = np.empty(times.shape), np.empty(times.shape)
+        for i, ti in enumerate(times.flat):
+            pos.flat[i], vel.flat[i] = self.sample(float(ti))
+        return pos, vel
+
     @property
     def duration(self) -> float | None:
         """Time (s) after which the track holds still; None if it never ends."""
@@ -133,6 +144,10 @@ class Hold(Track):
     def sample(self, t: float) -> tuple[float, float]:
         return self.value_rad, 0.0
 
+    def sample_array(self, t: npt.ArrayLike) -> tuple[FloatArray, FloatArray]:
+        shape = np.shape(t)
+        return np.full(shape, self.value_rad), np.zeros(shape)
+
 
 @dataclass(frozen=True)
 class Step(Track):
@@ -148,6 +163,10 @@ class Step(Track):
 
     def sample(self, t: float) -> tuple[float, float]:
         return (self.before_rad if t < self.at_s else self.after_rad), 0.0
+
+    def sample_array(self, t: npt.ArrayLike) -> tuple[FloatArray, FloatArray]:
+        times = np.asarray(t, dtype=np.float64)
+        return np.where(times < self.at_s, self.before_rad, self.after_rad), np.zeros(times.shape)
 
 
 @dataclass(frozen=True)
@@ -175,6 +194,13 @@ class Sine(Track):
         return (
             self.offset_rad + self.amplitude_rad * math.sin(arg),
             self.amplitude_rad * self._omega * math.cos(arg),
+        )
+
+    def sample_array(self, t: npt.ArrayLike) -> tuple[FloatArray, FloatArray]:
+        arg = self._omega * np.asarray(t, dtype=np.float64) + self.phase_rad
+        return (
+            self.offset_rad + self.amplitude_rad * np.sin(arg),
+            self.amplitude_rad * self._omega * np.cos(arg),
         )
 
 
@@ -283,6 +309,22 @@ class Keyframes(Track):
             return c0 + 0.5 * c1 * (1.0 - math.cos(a)), 0.5 * math.pi * c1 * math.sin(a) * inv
         value = c0 + tau * (c1 + tau * (c2 + tau * c3))
         return value, (c1 + tau * (2.0 * c2 + 3.0 * c3 * tau)) * inv
+
+    def sample_array(self, t: npt.ArrayLike) -> tuple[FloatArray, FloatArray]:
+        times = np.asarray(t, dtype=np.float64)
+        cols = np.array([p[:6] for p in self._pieces], dtype=np.float64)
+        sine = np.array([p[6] for p in self._pieces])
+        which = np.searchsorted(np.array(self._starts), times, side="right") - 1
+        t0, inv, c0, c1, c2, c3 = np.moveaxis(cols[which], -1, 0)
+        tau = (times - t0) * inv
+        value = c0 + tau * (c1 + tau * (c2 + tau * c3))
+        vel = (c1 + tau * (2.0 * c2 + 3.0 * c3 * tau)) * inv
+        if sine.any():
+            s = sine[which]
+            a = np.pi * tau
+            value = np.where(s, c0 + 0.5 * c1 * (1.0 - np.cos(a)), value)
+            vel = np.where(s, 0.5 * np.pi * c1 * np.sin(a) * inv, vel)
+        return np.asarray(value, dtype=np.float64), np.asarray(vel, dtype=np.float64)
 
     @property
     def duration(self) -> float:

@@ -118,3 +118,129 @@ def test_importing_does_not_import_matplotlib() -> None:
     )
     root = Path(__file__).resolve().parents[2]
     subprocess.run([sys.executable, "-c", code], check=True, cwd=root)
+
+
+# ------------------------------------------------------------ limits, safety spans, virtual time
+
+RIG_TEXT = """\
+name = "two"
+[safety]
+soft_start_s = 0.5
+[[joints]]
+name = "arm"
+min_deg = -40
+max_deg = 40
+[[joints]]
+name = "still"
+min_deg = -10.5
+max_deg = 10
+"""
+
+
+def _write_run(run_dir: Path, *, config_text: str | None, summary: dict, noise: float = 0.0):
+    """100 Hz, 3 s: arm's spring ramps 0 → 60° and the command is clamped at 40° (from t = 2 s);
+    still sits at 0 (± noise)."""
+    rate = 100
+    with TelemetryWriter(run_dir, ["arm", "still"], config_text=config_text) as w:
+        for k in range(3 * rate + 1):
+            t = k / rate
+            x = np.radians([20.0 * t, 0.0]) + noise * math.sin(k)
+            cmd = np.minimum(x, np.radians([40.0, 90.0]))
+            w.record(k, t, t, x, x, x * 0, cmd, cmd, np.zeros(2, dtype=np.int8),
+                     1.0, 1.0, 1.0, 1.0, False, 0)  # fmt: skip
+        w.close(summary)
+    return read_run(run_dir)
+
+
+def _limit_lines(ax) -> list[float]:
+    return sorted(
+        float(line.get_ydata()[0]) for line in ax.get_lines() if line.get_linestyle() == ":"
+    )
+
+
+def _shaded(ax) -> list[tuple[float, float]]:
+    """(start, end) in s of every shaded span in a joint row."""
+    spans = []
+    for coll in ax.collections:
+        for path in coll.get_paths():
+            xs = path.vertices[:, 0]
+            spans.append((float(xs.min()), float(xs.max())))
+    return sorted(spans)
+
+
+def test_joint_limits_come_from_the_rig_copy(tmp_path: Path) -> None:
+    from hilsim.plots import joint_limits_deg, soft_start_s
+
+    run = _write_run(tmp_path / "a", config_text=RIG_TEXT, summary={})
+    assert joint_limits_deg(run) == {"arm": (-40.0, 40.0), "still": (-10.5, 10.0)}
+    assert soft_start_s(run) == 0.5
+    bad = RIG_TEXT.replace("max_deg = 10", "max_deg = -20").replace(
+        "min_deg = -40", "min_deg = true"
+    )
+    run = _write_run(tmp_path / "b", config_text=bad, summary={})
+    assert joint_limits_deg(run) == {}
+    for text in (None, "not [toml", '[rig]\nname = "x"\n'):
+        run = _write_run(tmp_path / f"c{len(str(text))}", config_text=text, summary={})
+        assert joint_limits_deg(run) == {} and soft_start_s(run) is None
+
+
+def test_joint_plot_draws_the_limits_and_shades_where_safety_acted(tmp_path: Path) -> None:
+    from hilsim.plots import joints_figure
+
+    summary = {"safety_limits": {"position": {"arm": 100, "still": 0}, "speed": {"arm": 0}}}
+    run = _write_run(tmp_path, config_text=RIG_TEXT, summary=summary)
+    fig = joints_figure(run)
+    arm, still = fig.axes[:2]
+    assert _limit_lines(arm) == [-40.0, 40.0] and _limit_lines(still) == [-10.5, 10.0]
+    # the command is clamped from t = 2.01 s (20°/s · t > 40°) to the end, 3 s + one tick
+    (span,) = _shaded(arm)
+    assert span == pytest.approx((2.01, 3.01))
+    assert _shaded(still) == []
+    assert arm.get_ylim()[0] < -40.0 and arm.get_ylim()[1] > 60.0  # limits and data in view
+    notes = [t.get_text() for t in arm.texts]
+    assert any("safety limited 1.00 s" in n and "position 100" in n for n in notes), notes
+    assert any("never limited" in t.get_text() for t in still.texts)
+    labels = [t.get_text() for t in fig.legends[0].get_texts()]
+    assert "joint limits (rig.toml)" in labels and "safety filter limited the command" in labels
+
+
+def test_a_quiet_window_keeps_a_readable_y_axis(tmp_path: Path) -> None:
+    from hilsim.plots import MIN_SPAN_DEG, joints_figure
+
+    # no rig copy: no limits to show, so at least MIN_SPAN_DEG; tiny noise must not fill the axis
+    run = _write_run(tmp_path / "a", config_text=None, summary={}, noise=1e-72)
+    fig = joints_figure(run, start=0.5, end=1.0)
+    lo, hi = fig.axes[1].get_ylim()
+    assert hi - lo >= MIN_SPAN_DEG and lo < 0.0 < hi
+    assert _limit_lines(fig.axes[1]) == []
+    run = _write_run(tmp_path / "b", config_text=RIG_TEXT, summary={}, noise=1e-72)
+    lo, hi = joints_figure(run, start=0.5, end=1.0).axes[1].get_ylim()
+    assert lo < -10.5 and hi > 10.0  # with the rig: the joint's whole range
+
+
+def test_virtual_time_runs_say_lateness_and_timing_are_not_measured(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    import hilsim.plots as plots
+
+    figures = {}
+    save = plots._save
+
+    def keep(fig, path, dpi):
+        figures[Path(path).name] = fig
+        return save(fig, path, dpi)
+
+    monkeypatch.setattr(plots, "_save", keep)
+    run = _write_run(tmp_path, config_text=RIG_TEXT, summary={"clock": "virtual time"})
+    _assert_pngs(plots.plot_run(run, tmp_path / "out", dpi=50))
+    lateness = " ".join(t.get_text() for ax in figures["lateness.png"].axes for t in ax.texts)
+    assert "Virtual-time run" in lateness and "not measured" in lateness
+    timing = figures["timing.png"]
+    assert "virtual-time run" in timing._suptitle.get_text()
+    labels = [line.get_label() for line in timing.axes[0].get_lines()]
+    assert not any("tick period" in label for label in labels)
+    # the same run on the real clock keeps both figures as they were
+    figures.clear()
+    run = _write_run(tmp_path / "real", config_text=RIG_TEXT, summary={"clock": "real time"})
+    plots.plot_run(run, tmp_path / "out2", dpi=50)
+    assert any("tick period" in ln.get_label() for ln in figures["timing.png"].axes[0].get_lines())

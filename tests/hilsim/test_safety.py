@@ -35,15 +35,25 @@ def run(f: SafetyFilter, desired_rows) -> np.ndarray:
 
 
 def check_limits(f: SafetyFilter, start: np.ndarray, outputs: np.ndarray) -> None:
-    """Finite, in range, speed and acceleration limited, from the (clamped) start pose at rest."""
+    """Finite, speed and acceleration limited from the start pose at rest; in range, except that
+    a joint that starts outside only ever moves towards the range until it is in it."""
     p = f.params
+    lo, hi = p.lower_rad, p.upper_rad
     assert np.isfinite(outputs).all()
-    assert (outputs >= p.lower_rad).all() and (outputs <= p.upper_rad).all()
-    path = np.vstack([np.clip(start, p.lower_rad, p.upper_rad), outputs])
+    path = np.vstack([np.asarray(start, dtype=np.float64), outputs])
+    # rounding: a few ulp of the largest position involved (≈ ROUNDING for |x| of a few rad)
+    with np.errstate(over="ignore"):  # spacing(max float) is inf: no claim that far out
+        tol = ROUNDING + 8 * np.spacing(np.abs(path).max(axis=0))
     steps = np.diff(path, axis=0)
-    assert (np.abs(steps) <= p.max_speed_rad_s * p.dt_s + ROUNDING).all()
+    assert (np.abs(steps) <= p.max_speed_rad_s * p.dt_s + tol).all()
     steps = np.vstack([np.zeros(f.n_joints), steps])  # at rest before the first tick
-    assert (np.abs(np.diff(steps, axis=0)) <= p.max_accel_rad_s2 * p.dt_s**2 + ROUNDING).all()
+    assert (np.abs(np.diff(steps, axis=0)) <= p.max_accel_rad_s2 * p.dt_s**2 + tol).all()
+    before, after = path[:-1], path[1:]
+    # never further out: within [min(lower, previous), max(upper, previous)]
+    assert (after >= np.minimum(lo, before)).all() and (after <= np.maximum(hi, before)).all()
+    # once inside, inside for good
+    inside = (path >= lo) & (path <= hi)
+    assert not (inside[:-1] & ~inside[1:]).any()
 
 
 # ----------------------------------------------------------------------------- parameters
@@ -106,16 +116,78 @@ def test_start_needs_a_finite_pose_and_names_the_joint():
     assert not f.started
 
 
-def test_start_outside_the_limits_is_clamped_and_reported():
-    f = make()
-    event = f.start(np.array([0.0, 0.9, -0.1]))
+def test_start_outside_the_limits_is_walked_back_in_and_reported():
+    # the review's case: a jaw found 14 deg beyond its limit must not jump there in one tick
+    speed, accel = 2.0, 50.0
+    f = make(speed=speed, accel=accel)
+    start = np.array([0.0, 0.9, -0.25])
+    event = f.start(start)
     assert isinstance(event, SafetyEvent) and not event.fatal
     assert event.kind is SafetyFault.START_OUTSIDE_LIMITS
-    assert event.joints == ("head_tilt", "jaw") and event.values == (0.9, -0.1)
-    assert "head_tilt (0.9 rad)" in str(event)
-    out = run(f, [[0.0, 0.9, -0.1]])
-    np.testing.assert_array_equal(out[0], [0.0, 0.8, 0.0])
+    assert event.joints == ("head_tilt", "jaw") and event.values == (0.9, -0.25)
+    assert "head_tilt (0.9 rad)" in str(event) and "walked back in" in str(event)
+    out = run(f, [start] * 400)  # the desired pose is the start pose, clamped by step 2
+    check_limits(f, start, out)
+    v, a = speed * DT, accel * DT * DT
+    # from rest: the first step is one acceleration step, then they grow by a each tick
+    np.testing.assert_allclose(np.diff(np.concatenate([[-0.25], out[:3, 2]])), a * np.arange(1, 4))
+    np.testing.assert_allclose(out[0, 1], 0.9 - a)
+    # never a jump; inwards only while outside (it arrives moving, so it may pass the limit
+    # inwards and come back to it, like any speed-limited step); then resting on the limits
+    assert np.abs(np.diff(out, axis=0)).max() <= v + ROUNDING
+    first_in = [int(np.argmax(out[:, 1] <= 0.8)), int(np.argmax(out[:, 2] >= 0.0))]
+    assert (np.diff(out[: first_in[0] + 1, 1]) < 0).all()
+    assert (np.diff(out[: first_in[1] + 1, 2]) > 0).all()
+    # 0.25 rad: 20 ticks ramping up to 2 rad/s at 50 rad/s² (0.042 rad), then 52 at full speed
+    assert 68 <= first_in[1] <= 74
+    np.testing.assert_array_equal(out[-1], [0.0, 0.8, 0.0])
+    assert (out[:, 0] == 0.0).all()
+    c = f.counters
+    assert c.outside.tolist() == [0, *first_in]
+    assert c.position.tolist() == [0, 400, 400]  # the desired pose (the start) was outside
     assert make().start(np.zeros(3)) is None
+
+
+def test_start_outside_walks_in_through_the_soft_start():
+    # a soft start long enough for the excess: the output is the blend from the present pose,
+    # outside the limits, to the desired one: smooth, monotone, no limit acting, arriving at rest
+    soft = 1.0
+    f = make(speed=5.0, accel=50.0, soft_start_s=soft)
+    start = np.array([-1.3, 0.0, 0.0])  # 0.3 rad below head_pan's lower limit
+    assert f.start(start) is not None
+    desired = np.array([0.5, 0.0, 0.3])
+    k_end = round(soft / DT)
+    out = run(f, [desired] * (k_end + 50))
+    check_limits(f, start, out)
+    u = np.arange(k_end) / k_end
+    blend = start[0] + u * u * (3 - 2 * u) * (desired[0] - start[0])
+    np.testing.assert_allclose(out[:k_end, 0], blend, rtol=0, atol=1e-15)
+    assert (np.diff(out[:, 0]) >= 0).all()
+    np.testing.assert_array_equal(out[k_end:], np.tile(desired, (50, 1)))  # then bit for bit
+    c = f.counters
+    assert not c.speed.any() and not c.accel.any() and not c.brake.any()
+    assert c.outside[0] == int(np.argmax(out[:, 0] >= -1.0)) > 0
+
+
+def test_start_outside_with_a_range_narrower_than_one_speed_step():
+    # vmax·dt = 0.1 > the whole 0.05 range: the step cap is the range; no overshoot through it
+    f = SafetyFilter([0.0], [0.05], 50.0, 5000.0, DT, soft_start_s=0.0)
+    start = np.array([0.4])
+    f.start(start)
+    out = run(f, [[0.05]] * 200)
+    check_limits(f, start, out)
+    assert out[-1, 0] == 0.05
+
+
+def test_nan_while_walking_back_in_keeps_walking_in_and_stops_on_the_limit():
+    f = make(speed=2.0, accel=50.0)
+    start = np.array([0.0, 1.2, 0.0])
+    f.start(start)
+    out = run(f, [start] * 20)
+    held = run(f, [[math.nan, 0.0, 0.0]] * 400)
+    check_limits(f, start, np.vstack([out, held]))
+    assert out[-1, 1] > 0.8  # still outside when the NaN came
+    assert -0.5 <= held[-1, 1] <= 0.8 and held[-1, 1] == held[-2, 1]  # in, and at rest
 
 
 # ------------------------------------------------------------------------- pass-through
@@ -192,7 +264,7 @@ anything = hnp.arrays(np.float64, 3, elements=floats)
     st.lists(anything, min_size=1, max_size=40),
     hnp.arrays(np.float64, 3, elements=st.floats(-2, 2)),
 )
-def test_any_float_input_gives_a_finite_in_range_limited_output(rows, start):
+def test_any_float_input_gives_a_finite_limited_output(rows, start):
     f = make(speed=3.0, accel=400.0, soft_start_s=0.01)
     f.start(start)
     out = np.empty(3)
@@ -240,6 +312,57 @@ def test_limits_hold_for_generated_target_sequences(joints, dt, data):
     rows = data.draw(st.lists(target, min_size=1, max_size=20))
     rows = [r for r in rows for _ in range(data.draw(st.integers(1, 30)))]  # hold each a while
     check_limits(f, start, run(f, rows))
+
+
+finite = st.floats(allow_nan=False, allow_infinity=False, width=64)
+
+
+@settings(max_examples=200, deadline=None)
+@given(
+    st.lists(limits, min_size=1, max_size=3),
+    st.sampled_from([0.001, 0.004, 0.01]),
+    st.floats(0.0, 0.1),
+    st.data(),
+)
+def test_from_any_finite_start_the_output_walks_in_and_stays_in(joints, dt, soft, data):
+    """From any finite start, inside or outside, and any desired inputs: steps within the speed
+    limit, step changes within the acceleration limit (from rest), never away from the range while
+    outside, inside for good once in; and inside within the bound when the desired motion is."""
+    lower = np.array([j[0] for j in joints])
+    upper = lower + np.array([j[1] for j in joints])
+    speed, accel = np.array([j[2] for j in joints]), np.array([j[3] for j in joints])
+    f = SafetyFilter(lower, upper, speed, accel, dt, soft_start_s=soft)
+    n = len(joints)
+    start = data.draw(
+        st.one_of(
+            hnp.arrays(np.float64, n, elements=st.floats(-10.0, 10.0)),
+            hnp.arrays(np.float64, n, elements=finite),
+        )
+    )
+    f.start(start)
+    # first anything at all, then a desired motion inside the limits, for long enough to get in
+    wild = data.draw(st.lists(hnp.arrays(np.float64, n, elements=floats), max_size=10))
+    fractions = data.draw(
+        st.lists(hnp.arrays(np.float64, n, elements=st.floats(0.0, 1.0)), min_size=1, max_size=5)
+    )
+    out = run(f, wild)
+    vmax = np.minimum(speed * dt, upper - lower)
+    excess = np.maximum(np.maximum(lower - start, start - upper), 0.0) + (upper - lower)
+    # from rest to the speed limit, across the excess (plus the range), and the soft start
+    with np.errstate(over="ignore"):
+        ticks = float(np.max(np.ceil(excess / vmax + vmax / (accel * dt * dt)))) + 4
+    bound = int(min(ticks, 1e9)) + int(np.ceil(soft / dt))
+    if bound > 20_000:  # a start far outside: check the walk only
+        tail = run(f, [lower + fractions[0] * (upper - lower)] * 200)
+        check_limits(f, start, np.vstack([out, tail]) if len(out) else tail)
+        return
+    per = -(-bound // len(fractions))
+    inside = [lower + fr * (upper - lower) for fr in fractions for _ in range(per)]
+    tail = run(f, inside)
+    both = np.vstack([out, tail]) if len(out) else tail
+    check_limits(f, start, both)
+    end = both[len(out) + bound - 1 :]
+    assert ((end >= lower) & (end <= upper)).all()
 
 
 # ------------------------------------------------------------------------------- limits

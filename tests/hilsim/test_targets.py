@@ -443,3 +443,32 @@ def test_csv_format_errors_pass_through_the_spec_builder(tmp_path):
     _write(tmp_path, "time_s,jaw\n0,0\n1,x\n")
     with pytest.raises(CsvFormatError, match=r"anim.csv:3: column 'jaw'"):
         build({"type": "csv", "file": "anim.csv"}, base_dir=tmp_path)
+
+
+# ----------------------------------------------------------------------- many times at once
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    st.lists(st.floats(-90.0, 90.0), min_size=1, max_size=6),
+    st.lists(st.sampled_from(EASINGS), min_size=5, max_size=5),
+)
+def test_sample_array_agrees_with_sample(values, easings):
+    """The vectorised sampler (for load-time checks) against the per-tick one, every track type."""
+    times = np.cumsum(np.linspace(0.3, 1.1, len(values)))
+    tracks = [
+        Keyframes(times, np.radians(values), easings[: len(values) - 1]),
+        Sine(0.4, 1.3, 0.2, -0.1),
+        Step(1.0, -0.2, 0.3),
+        Hold(0.25),
+        CsvCurve(times, np.radians(values)),  # the default: one sample() call per time
+    ]
+    t = np.concatenate([np.linspace(-1.0, times[-1] + 1.0, 397), times, [1.0]])
+    for track in tracks:
+        pos, vel = track.sample_array(t)
+        assert pos.shape == vel.shape == t.shape
+        expected = np.array([track.sample(float(x)) for x in t])
+        np.testing.assert_allclose(pos, expected[:, 0], rtol=0, atol=1e-12)
+        np.testing.assert_allclose(vel, expected[:, 1], rtol=1e-12, atol=1e-9)
+    grid = np.linspace(0.0, 2.0, 6).reshape(2, 3)  # any shape
+    assert tracks[0].sample_array(grid)[0].shape == (2, 3)
