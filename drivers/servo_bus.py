@@ -137,11 +137,14 @@ class ExitPolicy(StrEnum):
 @dataclass(frozen=True, slots=True)
 class ExitReport:
     """Outcome of :meth:`ServoBus.apply_exit_policy`: which servos were confirmed (read
-    back) in the policy's state, and why the others were not."""
+    back) in the policy's state, why the others were not, and anything the exit found and
+    had to change on the way (``notes``, e.g. a Bus Watchdog that had tripped), which the
+    caller must show: nothing is changed silently."""
 
     policy: ExitPolicy
     confirmed: tuple[int, ...]
     unconfirmed: tuple[tuple[int, str], ...] = ()
+    notes: tuple[str, ...] = ()
 
     @property
     def ok(self) -> bool:
@@ -154,10 +157,50 @@ class ExitReport:
     def __str__(self) -> str:
         head = f"exit policy {self.policy.value!r}: {len(self.confirmed)} servo(s) confirmed"
         if self.ok:
-            return head
-        lines = [f"{head}, NOT confirmed on {len(self.unconfirmed)}:"]
-        lines += [f"  servo {sid}: {why}" for sid, why in self.unconfirmed]
+            lines = [head]
+        else:
+            lines = [f"{head}, NOT confirmed on {len(self.unconfirmed)}:"]
+            lines += [f"  servo {sid}: {why}" for sid, why in self.unconfirmed]
+        lines += [f"  note: {n}" for n in self.notes]
         return "\n".join(lines)
+
+
+class HealthProblem(StrEnum):
+    """Why a servo that answers is no longer following its goals (worst first)."""
+
+    HARDWARE_ERROR = "hardware error"  # Hardware Error Status != 0 (torque cut per Shutdown)
+    RESET = "reset"  # RAM back to defaults: a brownout or a reboot (torque off, watchdog 0)
+    WATCHDOG_TRIPPED = "Bus Watchdog tripped"  # goals refused until the trip is cleared
+    TORQUE_OFF = "torque off"  # Torque Enable reads 0 while the show needs it on
+
+
+class HealthPart(StrEnum):
+    """What one :meth:`ServoBus.read_health` reads."""
+
+    STATE = "state"  # torque and hardware error
+    WATCHDOG = "watchdog"  # the Bus Watchdog
+    ALL = "all"
+
+
+@dataclass(frozen=True, slots=True)
+class ServoHealth:
+    """One servo's state beyond its position, from :meth:`ServoBus.read_health`.
+
+    ``problem`` is None when the servo can follow goals; otherwise the worst
+    :class:`HealthProblem` and ``detail`` says it in words (decoded error bits, registers).
+    """
+
+    servo_id: int
+    torque_on: bool | None  # None: not read
+    hardware_error: int | None  # Hardware Error Status bits, 0 = none; None: not read
+    watchdog_tripped: bool | None
+    watchdog_armed: bool | None
+    problem: HealthProblem | None = None
+    detail: str = ""
+
+    @property
+    def ok(self) -> bool:
+        return self.problem is None
 
 
 @dataclass(slots=True)
@@ -296,6 +339,50 @@ class ServoBus(ABC):
         self._check_open()
         self._disarm_watchdog()
 
+    def read_health(self, servo_id: int, part: HealthPart = HealthPart.ALL) -> ServoHealth:
+        """Read one servo's health in one transaction (not per tick: the loop spreads these
+        over ticks with time to spare). ``part`` picks what is read: STATE (torque and
+        hardware error, short), WATCHDOG (the Bus Watchdog alone, shorter) or ALL (both);
+        what was not read is None in the result. When torque is off or a hardware error is
+        set, the watchdog is read as well to name the cause.
+
+        Raises a :class:`ServoBusError` if the servo does not answer properly.
+        """
+        self._check_open()
+        if servo_id not in self._ids:
+            raise ValueError(f"servo {servo_id} is not on this bus {self._ids}")
+        return self._read_health(int(servo_id), HealthPart(part))
+
+    @property
+    def health_read_s(self) -> float:
+        """Expected bus time of a :meth:`read_health` of STATE (s), the longer of the two
+        periodic parts: the loop schedules health reads only where a tick has that much time
+        to spare."""
+        return self._health_read_s()
+
+    #: the raw bytes of the latest corrupt reply to a read, for diagnosis (None if none yet);
+    #: a backend that keeps them sets it, the caller may reset it to None after sampling it
+    corrupt_sample: bytes | None = None
+
+    @property
+    def host_stall_s(self) -> float:
+        """Cumulative time (s) the host was not running while waiting for replies (the
+        process was descheduled between polls); difference it to get one transaction's.
+        A backend that cannot tell returns 0."""
+        return 0.0
+
+    def recover_watchdog(self, servo_id: int, goal_rad: float) -> None:
+        """A servo whose Bus Watchdog tripped (the host was silent longer than its period):
+        clear the trip, set its goal to ``goal_rad`` (servo frame; normally its present
+        position, so nothing jumps) and arm the watchdog again, each confirmed by reading
+        back. Raises a :class:`ServoBusError` when any step cannot be confirmed."""
+        self._check_open()
+        if servo_id not in self._ids:
+            raise ValueError(f"servo {servo_id} is not on this bus {self._ids}")
+        if not np.isfinite(goal_rad):
+            raise ValueError(f"non-finite goal {goal_rad!r} for servo {servo_id}")
+        self._recover_watchdog(int(servo_id), float(goal_rad))
+
     def apply_exit_policy(self, policy: ExitPolicy | str, retries: int = 3) -> ExitReport:
         """Leave every servo in ``policy``'s state, confirmed by reading back.
 
@@ -348,6 +435,15 @@ class ServoBus(ABC):
 
     @abstractmethod
     def _apply_exit_policy(self, policy: ExitPolicy, retries: int) -> ExitReport: ...
+
+    @abstractmethod
+    def _read_health(self, servo_id: int, part: HealthPart) -> ServoHealth: ...
+
+    @abstractmethod
+    def _health_read_s(self) -> float: ...
+
+    @abstractmethod
+    def _recover_watchdog(self, servo_id: int, goal_rad: float) -> None: ...
 
     @abstractmethod
     def _close(self) -> None:

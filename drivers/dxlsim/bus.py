@@ -40,7 +40,7 @@ from drivers.dxlsim.protocol import (
     Frame,
     Instruction,
     StreamParser,
-    encode_fast_status,
+    crc16,
     encode_status,
 )
 from drivers.dxlsim.servo import VirtualServo
@@ -146,9 +146,11 @@ class DxlBus:
         self._apply_events(t)  # an unplug is due even if the host has not written since
         return self.unplugged_at is not None and t >= self.unplugged_at
 
-    def write(self, data: bytes) -> float:
-        """Put ``data`` on the wire now; returns when its last byte has left (bus clock)."""
-        now = self.clock.now()
+    def write(self, data: bytes, t: float | None = None) -> float:
+        """Put ``data`` on the wire at ``t`` (default now); returns when its last byte has left
+        (bus clock). A ``t`` in the past is for a server that was not running when the bytes
+        came (see :mod:`drivers.dxlsim.pty_server`)."""
+        now = self.clock.now() if t is None else t
         self._apply_events(now)
         bt = self.byte_time
         start = max(now, self._tx_free)
@@ -429,13 +431,8 @@ class DxlBus:
         Returns when its last byte ends, or None if the chain must stop here.
         """
         lead = packets[0][0]
-        data = packets[0][1]
-        note = f"id={lead.id}"
-        for _, other in packets[1:]:  # same ID twice: both drive the line (0 wins)
-            note += " collision"
-            n = max(len(data), len(other))
-            a, b = data.ljust(n, b"\xff"), other.ljust(n, b"\xff")
-            data = bytes(x & y for x, y in zip(a, b, strict=False))
+        data = _merge([p for _, p in packets])
+        note = f"id={lead.id}" + " collision" * (len(packets) - 1)
         fault = self.faults.reply_fault(lead.id, start - self.t0)
         keep_chain = True
         if fault is not None:
@@ -466,7 +463,14 @@ class DxlBus:
 
     def _send_fast(self, links: list[tuple[list, int]], t: float) -> None:
         """Fast Sync/Bulk Read: one packet, header and first block from the first servo,
-        then each servo appends ``ERR ID data CRC`` (data zero-filled after an error)."""
+        then each servo appends ``ERR ID data CRC`` (data zero-filled after an error).
+
+        Each block's CRC runs on over what its servo heard on the line before it (header
+        and earlier blocks with their CRCs). Two servos on one ID send their blocks at the
+        same moment, each with its own data and CRC; the line carries both merged (0 wins,
+        as :meth:`_emit_group` does), and the servos after them run their CRCs on over the
+        merged bytes they heard - so the packet's last CRC can hold over a garbled block.
+        """
         answered = []
         for answers, _ in links:
             if not answers:
@@ -474,19 +478,20 @@ class DxlBus:
             answered.append(answers)
         if not answered:
             return
-        blocks = [
-            (err, s.id, data if len(data) == length else bytes(length))
-            for (s, err, data), (_, length) in zip((a[0] for a in answered), links, strict=False)
-        ]
-        full = encode_fast_status(blocks, length=1 + sum(n + 4 for _, n in links))
-        lead = answered[0][0][0]
-        ready = t + lead.return_delay_s + self.turnaround_s
-        pos = 0
+        size = 1 + sum(n + 4 for _, n in links)  # the first servo announces every block
+        header = HEADER + bytes((BROADCAST_ID, size & 0xFF, size >> 8, Inst.STATUS))
+        heard = crc16(header)  # running CRC of the line so far, as every servo hears it
+        ready = t + answered[0][0][0].return_delay_s + self.turnaround_s
         for k, answers in enumerate(answered):
-            size = (8 if k == 0 else 0) + len(blocks[k][2]) + 4
-            part = full[pos : pos + size]
-            pos += size
-            end = self._emit_group([(s, part) for s, _, _ in answers], ready)
+            length = links[k][1]
+            blocks = []
+            for s, err, data in answers:
+                body = bytes((err, s.id)) + (data if len(data) == length else bytes(length))
+                crc = crc16(body, heard)
+                blocks.append((s, body + bytes((crc & 0xFF, crc >> 8))))
+            heard = crc16(_merge([b for _, b in blocks]), heard)
+            head = header if k == 0 else b""
+            end = self._emit_group([(s, head + b) for s, b in blocks], ready)
             if end is None:
                 return
             ready = end
@@ -537,3 +542,14 @@ class DxlBus:
             if old[j] <= now and wire[j] <= old[j]:
                 vis[j] = min(vis[j], old[j])
         self._rx_vis = vis
+
+
+def _merge(packets: list[bytes]) -> bytes:
+    """What the line carries when several servos send at once: every byte ANDed (a driven
+    0 wins on the open-drain bus; a shorter packet leaves the line idle, 0xFF)."""
+    data = packets[0]
+    for other in packets[1:]:
+        n = max(len(data), len(other))
+        a, b = data.ljust(n, b"\xff"), other.ljust(n, b"\xff")
+        data = bytes(x & y for x, y in zip(a, b, strict=True))
+    return data

@@ -1,8 +1,11 @@
 """``hilsim emulate``: an emulated Dynamixel bus on a pseudo-terminal.
 
-Prints the device path as the first line of stdout, then serves until SIGINT/SIGTERM.
-Any serial program (dynamixel-sdk's own PortHandler, Dynamixel Wizard under Wine, a
-terminal) can open that path.
+Prints the device path as the first line of stdout, then what to use it with - the
+``--port`` to give ``hilsim run`` and the ``[bus]`` lines of a rig file - and serves until
+SIGINT/SIGTERM. Any serial program (dynamixel-sdk's own PortHandler, Dynamixel Wizard
+under Wine, a terminal) can open that path. The defaults serve the demo figure as
+``configs/demo.toml``'s own emulated bus has it (IDs 1-4, XM430-W350, 1 Mbps, Return
+Delay Time 0): ``hilsim emulate``, then ``hilsim run configs/demo.toml --port /dev/pts/N``.
 """
 
 from __future__ import annotations
@@ -20,14 +23,25 @@ from drivers.dxlsim.pty_server import PtyServer
 from drivers.dxlsim.servo import VirtualServo
 
 HELP = "serve an emulated Dynamixel bus on a pseudo-terminal (path printed first)"
+#: Adapter latency a host should count for this pty on top of ``--latency-ms`` (ms): the
+#: server writes each byte when due and wakes within ~0.1-1 ms on a quiet host. The same
+#: figure as ``drivers.dynamixel.link.PTY_LATENCY_MS``, which ``hilsim run`` assumes for
+#: a pty when the rig gives no ``latency_timer_ms`` (not imported: the emulator does not
+#: load the host's driver).
+PTY_LATENCY_MS = 1.0
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--ids", default="1", help="servo IDs, e.g. 1-4 or 1,3,5 (default 1)")
+    p.add_argument(
+        "--ids", default="1-4", help="servo IDs, e.g. 1-4 or 1,3,5 (default 1-4: the demo figure)"
+    )
     p.add_argument("--model", default="XM430-W350", help="servo model (default XM430-W350)")
     p.add_argument("--baud", type=int, default=1_000_000, help="bus baud rate (default 1000000)")
     p.add_argument(
-        "--rdt-us", type=float, default=500.0, help="Return Delay Time in µs (factory 500)"
+        "--rdt-us",
+        type=float,
+        default=0.0,
+        help="Return Delay Time in µs (default 0, as the demo's servos; factory 500)",
     )
     p.add_argument(
         "--turnaround-us",
@@ -47,6 +61,22 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument("--seed", type=int, default=0, help="fault plan seed (default 0)")
     p.add_argument("--trace", metavar="FILE", help="write every byte, timestamped, as JSON lines")
+
+
+def usage_lines(path: str, args: argparse.Namespace) -> str:
+    """What to give a host to use this pty: ``--port`` and a rig's ``[bus]`` lines."""
+    latency = PTY_LATENCY_MS + args.latency_ms
+    return "\n".join(
+        (
+            f"--port {path}",
+            f"  e.g. hilsim run configs/demo.toml --port {path}",
+            "  or in a rig file:",
+            "[bus]",
+            f'port = "{path}"',
+            f"baud = {args.baud}",
+            f"latency_timer_ms = {latency:g}",
+        )
+    )
 
 
 def run(args: argparse.Namespace) -> int:
@@ -88,6 +118,7 @@ def run(args: argparse.Namespace) -> int:
     signal.signal(signal.SIGINT, on_signal)
     signal.signal(signal.SIGTERM, on_signal)
     print(server.path, flush=True)
+    print(usage_lines(server.path, args), flush=True)
     print(
         f"hilsim emulate: {len(servos)} x {args.model} (IDs {args.ids}) at {args.baud} bps "
         f"on {server.path}; Ctrl-C to stop",

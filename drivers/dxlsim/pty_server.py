@@ -3,14 +3,24 @@
 The bus runs on the host's monotonic clock: bytes the client writes go on the emulated
 wire when they arrive; each reply byte is written to the pty when the bus says it is
 readable. Accuracy is bounded by the OS's wake-up latency (``select``), typically
-0.1-1 ms late: use ``dxlsim://`` in-process for timing work, this for compatibility.
+0.1-1 ms late (tens of ms when the host is busy and this process waits for a CPU): use
+``dxlsim://`` in-process for timing work, this for compatibility.
+
+The line rate is the client's: a pty carries whatever speed the client set with
+``tcsetattr`` (pyserial, the SDK) and reports it back through ``tcgetattr`` on either end,
+so before each burst of client bytes the bus takes that speed as the host's rate, and
+servos at another baud hear noise and never answer, as on a real bus. The slave starts
+at the bus's rate, so a client that never sets one is heard. A speed the termios table
+cannot name (pyserial's custom ``BOTHER`` rates, e.g. 4.5 Mbps) leaves the rate as it was.
 """
 
 from __future__ import annotations
 
 import contextlib
 import os
+import re
 import select
+import termios
 import threading
 import tty
 
@@ -18,6 +28,23 @@ from drivers.dxlsim.bus import DxlBus
 
 #: Longest the server sleeps with nothing due, so a stop request is seen promptly.
 _IDLE_S = 0.05
+#: a wake-up later than asked by more than this means this process was not running (s)
+_LATE_WAKE_S = 0.005
+#: termios speed code -> bit/s (``B0``, hang-up, is not a rate).
+_SPEEDS = {
+    getattr(termios, name): int(name[1:])
+    for name in dir(termios)
+    if re.fullmatch(r"B[1-9][0-9]*", name)
+}
+_CODES = {bps: code for code, bps in _SPEEDS.items()}
+
+
+def line_speed(fd: int) -> int | None:
+    """The speed (bit/s) a terminal is set to, or None if termios cannot name it."""
+    try:
+        return _SPEEDS.get(termios.tcgetattr(fd)[5])
+    except termios.error:
+        return None
 
 
 class PtyServer:
@@ -29,6 +56,11 @@ class PtyServer:
         self.bus = bus
         self._master, self._slave = os.openpty()
         tty.setraw(self._slave)  # no echo, no line discipline: bytes pass untouched
+        code = _CODES.get(bus.baud)
+        if code is not None:  # until the client sets its own, the line runs at the bus's
+            attrs = termios.tcgetattr(self._slave)
+            attrs[4] = attrs[5] = code
+            termios.tcsetattr(self._slave, termios.TCSANOW, attrs)
         self.path = os.ttyname(self._slave)
         self._stop = threading.Event()
 
@@ -44,15 +76,25 @@ class PtyServer:
         bus, clock, master = self.bus, self.bus.clock, self._master
         while not self._stop.is_set():
             due = bus.visible_at(1)
-            wait = _IDLE_S if due is None else min(_IDLE_S, max(0.0, due - clock.now()))
+            t_wait = clock.now()
+            wait = _IDLE_S if due is None else min(_IDLE_S, max(0.0, due - t_wait))
             readable, _, _ = select.select([master], [], [], wait)
+            t_woke = clock.now()
+            # This process may itself be descheduled (a busy host): bytes that came while it
+            # was not running reached real servos on time. When it woke late, take them as
+            # arrived when it began to wait, so its own stall never trips a servo's watchdog
+            # or delays a reply (a real host silence finds no bytes waiting, and still trips).
+            arrived = t_wait if t_woke - t_wait > wait + _LATE_WAKE_S else None
             if readable:
                 try:
                     data = os.read(master, 4096)
                 except OSError:  # client side closed: keep serving the next one
                     data = b""
                 if data:
-                    bus.write(data)
+                    speed = line_speed(self._slave)
+                    if speed is not None:
+                        bus.baud = speed  # the host's rate: the client's setting
+                    bus.write(data, arrived)
             n = bus.in_waiting()
             if n:
                 os.write(master, bus.read(n))

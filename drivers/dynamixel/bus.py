@@ -9,11 +9,13 @@ path calls the SDK's packet handler directly.
 Per-servo status on every read. The SDK's ``GroupSyncRead`` drops each servo's ERR byte
 and ``getData`` returns 0 for missing data, and its Fast Sync Read reports one result for
 the whole packet, so the bus sends the request with ``syncReadTx`` and parses the replies
-itself: plain Sync Read takes each status packet with ``rxPacket`` and files it under the
-ID it carries (a corrupt one costs only that servo); Fast Sync Read takes the one packet
-and, when the SDK finds it corrupt or short, checks every block's own CRC (the running
-CRC, re-seeded from the previous block's transmitted CRC, so one bad block does not
-condemn the rest) and keeps the blocks that verify.
+itself: plain Sync Read takes the status packets in chain order with ``rxPacket`` (a
+corrupt one costs only its own place; a reply from an unexpected ID ends the read); Fast
+Sync Read takes the one packet and keeps each block only while every earlier block was
+kept, the block carries the ID asked at its position, and the running CRC over it matches:
+a late reply spliced into this one can never give a previous transaction's value as this
+tick's. After a read with a silent servo the next request waits until the rest of that
+chain would be over, and discards it.
 
 In a Sync Read chain a silent servo silences those after it (each waits for the previous
 status packet). So after a read with a STALE servo, the first STALE servo moves to the
@@ -51,7 +53,16 @@ from drivers.dynamixel.units import (
     rad_to_ticks,
     ticks_to_rad,
 )
-from drivers.servo_bus import ExitPolicy, ExitReport, PresentReading, ReadStatus, ServoBus
+from drivers.servo_bus import (
+    ExitPolicy,
+    ExitReport,
+    HealthPart,
+    HealthProblem,
+    PresentReading,
+    ReadStatus,
+    ServoBus,
+    ServoHealth,
+)
 
 T = TypeVar("T")
 
@@ -76,6 +87,22 @@ def _retry(attempts: int, fn: Callable[[], T]) -> T:
             if k + 1 == attempts:
                 raise
     raise AssertionError("unreachable")
+
+
+def _crc_table() -> list[int]:
+    """Protocol 2.0 CRC-16 (polynomial 0x8005, MSB first) by high byte."""
+    table = []
+    for i in range(256):
+        c = i << 8
+        for _ in range(8):
+            c = ((c << 1) ^ 0x8005) if c & 0x8000 else c << 1
+        table.append(c & 0xFFFF)
+    return table
+
+
+#: For ``_parse_fast``, which runs every tick (the SDK's ``updateCRC`` rebuilds its table
+#: on every call: 13 us for one 4-servo packet).
+_CRC_TABLE = _crc_table()
 
 
 class _UnconfirmedError(Exception):
@@ -111,6 +138,9 @@ class DynamixelBus(ServoBus):
         self._hi = np.full(n, 4095.0)
         self._rdt_s = np.full(n, FACTORY_RETURN_DELAY_S)
         self._watchdog_units: int | None = None
+        #: the bytes of the latest corrupt reply to a tick's read (None until one comes); the
+        #: loop samples it into events.jsonl so a noisy line can be diagnosed afterwards
+        self.corrupt_sample: bytes | None = None
         self._update_timeouts()
 
     @classmethod
@@ -200,6 +230,8 @@ class DynamixelBus(ServoBus):
                 if fast:
                     port.setPacketTimeoutMillis(self._fast_timeout_ms)
                     packet, rx = ph.rxPacket(port, True)
+                    if rx == _CORRUPT and packet:
+                        self.corrupt_sample = bytes(packet)
                     if rx == _OK or (rx == _CORRUPT and packet):
                         self._parse_fast(packet, rx == _OK, out)
                 else:
@@ -217,60 +249,107 @@ class DynamixelBus(ServoBus):
             order = self._order
             for i, k in enumerate(order):
                 if status[k] == _STALE:
+                    # The rest of the chain may still be on its way (a slow servo): the
+                    # next transmit waits it out and discards it, so it is never read as
+                    # the next transaction's reply.
+                    port.hold_until_quiet(out.t_done + self._chain_rest_s(i))
                     if i + 1 < len(order):  # the chain broke here: ask it last next time
                         self._set_order(order[:i] + order[i + 1 :] + [k])
                     break
 
+    def _chain_rest_s(self, i: int) -> float:
+        """Longest the replies of this Sync Read's servos from chain position ``i`` on can
+        still take from now, if the one at ``i`` started late: their wire time, Return
+        Delay Times and turnaround (one of each in a Fast Sync Read, every one in a plain
+        chain), and the adapter's latency. 1.5 ms for four fast servos at 1 Mbps, 1 ms
+        latency. Not the device margin: only a failed read pays this, every time."""
+        order, byte_s = self._order, self._port.tx_time_per_byte * 1e-3
+        rest = len(order) - i
+        delays = self._rdt_s + TURNAROUND_ALLOWANCE_S
+        if self._fast:  # (header if it is still to come) + ERR ID pos(4) CRC(2) each
+            wire, wait = (8 * rest + (8 if i == 0 else 0)) * byte_s, float(delays[order[i]])
+        else:  # one 15-byte status packet each, each after its own delay
+            wire, wait = 15 * rest * byte_s, float(sum(delays[k] for k in order[i:]))
+        return wire + wait + self.link.latency_timer_ms * 1e-3
+
     def _receive_plain(self, out: PresentReading) -> None:
-        """Take up to n status packets; file each under the ID it carries."""
+        """Take the chain's status packets in the order asked (``_read_param``: each servo
+        answers after the one before it). A packet is a reading only if it carries the ID
+        asked at its place. A corrupt one takes its place (that servo only loses this
+        tick); a valid one from another ID - a late reply to an earlier request, whose
+        chain had another order, a stranger, a second reply - ends the read, since what
+        follows it cannot be placed."""
         pos, status, errors = out.positions, out.status, out.errors
-        index, ph, port = self._index, self._ph, self._port
-        missing = self.n
-        for _ in range(2 * self.n):
+        want, order, ph, port = self._read_param, self._order, self._ph, self._port
+        p, n = 0, self.n
+        while p < n:
             packet, result = ph.rxPacket(port, False)
             if result == _OK:
-                k = index.get(packet[4])
-                if k is None or status[k] != _STALE:
-                    continue  # a stranger, or a second reply from the same servo
+                if packet[4] != want[p]:
+                    return
+                k = order[p]
+                p += 1
                 err = packet[8]
                 errors[k] = err
                 if err & ct.ERROR_NUMBER_MASK:
                     status[k] = _ALERT if err & ct.ALERT_BIT else _ERROR
-                elif (packet[5] | packet[6] << 8) >= 8:  # LEN = INST ERR data(4) CRC(2)
+                elif (packet[5] | packet[6] << 8) == 8:  # LEN = INST ERR data(4) CRC(2)
                     v = packet[9] | packet[10] << 8 | packet[11] << 16 | packet[12] << 24
                     pos[k] = ((v - 0x1_0000_0000 if v & 0x8000_0000 else v) - CENTER_TICK) * (
                         RAD_PER_TICK
                     )
                     status[k] = _ALERT if err & ct.ALERT_BIT else _GOOD
-                else:
-                    continue  # no data and no error: not a reading
-                missing -= 1
-                if not missing:
-                    return
+                # else no data and no error, or a reply to another request: not a reading
             elif result == _TIMEOUT:
                 return
-            # corrupt: that reply is lost; the next may be fine
+            else:  # corrupt: this place's reply is lost; the next may be fine
+                self.corrupt_sample = bytes(packet)
+                p += 1
 
     def _parse_fast(self, packet: list[int], verified: bool, out: PresentReading) -> None:
-        """Blocks ``ERR ID pos(4) CRC(2)`` from offset 8. ``verified``: the SDK checked the
-        packet CRC (which covers every block); else each block's CRC is checked alone."""
-        if packet[:5] != [0xFF, 0xFF, 0xFD, 0x00, 0xFE]:
-            return
-        pos, status, errors, index = out.positions, out.status, out.errors, self._index
-        crc = self._ph.updateCRC
+        """Blocks ``ERR ID pos(4) CRC(2)`` from offset 8, one per servo in request order.
+
+        ``verified``: the SDK found the packet's last CRC right; else the packet is what
+        arrived of a corrupt or short reply (any length, even under 8 bytes). Either way a
+        block is a reading only if
+
+        * every block before it was one (prefix rule: a bad block costs the servos after
+          it this tick, as a silent one does; what follows a bad block may be another
+          transaction's reply spliced in),
+        * it carries the ID this Sync Read asked for at its position (``_read_param``: a
+          late reply to an earlier request has another order after a failed read),
+        * its CRC is the running CRC of the packet up to its data. Checked even when the
+          SDK verified the packet: after two servos collide on one block, the servos
+          after them compute their CRCs over what they heard, so the last CRC can hold
+          over a garbled block.
+        """
         end = len(packet)
-        seed = None if verified else crc(0, packet, 8)
-        for o in range(8, 8 + 8 * self.n, 8):
-            if o + 8 > end:
+        if (
+            end < 16
+            or packet[0] != 0xFF
+            or packet[1] != 0xFF
+            or packet[2] != 0xFD
+            or packet[3] != 0x00
+            or packet[4] != 0xFE
+        ):
+            return
+        pos, status, errors, order = out.positions, out.status, out.errors, self._order
+        table = _CRC_TABLE
+        running = 0
+        for b in packet[0:8]:
+            running = ((running << 8) ^ table[((running >> 8) ^ b) & 0xFF]) & 0xFFFF
+        for p, sid in enumerate(self._read_param):
+            o = 8 + 8 * p
+            if o + 8 > end or packet[o + 1] != sid:
                 return
-            if not verified:
-                if o > 8:  # the sender's running CRC went on over the previous CRC bytes
-                    seed = crc(packet[o - 2] | packet[o - 1] << 8, packet[o - 2 : o], 2)
-                if crc(seed, packet[o : o + 6], 6) != packet[o + 6] | packet[o + 7] << 8:
-                    continue
-            k = index.get(packet[o + 1])
-            if k is None:
-                continue
+            for b in packet[o : o + 6]:
+                running = ((running << 8) ^ table[((running >> 8) ^ b) & 0xFF]) & 0xFFFF
+            lo, hi = packet[o + 6], packet[o + 7]
+            if running != lo | hi << 8:
+                return
+            for b in (lo, hi):  # the next servo's CRC runs on over this one's
+                running = ((running << 8) ^ table[((running >> 8) ^ b) & 0xFF]) & 0xFFFF
+            k = order[p]
             err = packet[o]
             errors[k] = err
             if err & ct.ERROR_NUMBER_MASK:
@@ -285,10 +364,18 @@ class DynamixelBus(ServoBus):
         self._read_param = [self.ids[k] for k in order]
 
     def _update_timeouts(self) -> None:
-        """Packet timeouts for the reads: the SDK's (wire + 2·latency + 2 ms) plus the
+        """Packet timeouts for the reads: the SDK's (wire + 2·latency + 2 ms), the device
+        margin of a port that is not a known USB adapter (a pty: its replies come from a
+        process that may wait for a CPU; see ``PortHandler.timeout_margin_ms``), plus the
         servos' Return Delay Times, which the SDK leaves out (n of them in a plain chain,
-        one in a fast reply)."""
-        base = self._port.tx_time_per_byte * 15 * self.n + 2.0 * self.link.latency_timer_ms + 2.0
+        one in a fast reply). A longer timeout costs time only when a servo is silent."""
+        port = self._port
+        base = (
+            port.tx_time_per_byte * 15 * self.n
+            + 2.0 * self.link.latency_timer_ms
+            + 2.0
+            + port.timeout_margin_ms
+        )
         delays = self._rdt_s + TURNAROUND_ALLOWANCE_S
         self._plain_timeout_ms = base + 1e3 * float(delays.sum())
         self._fast_timeout_ms = base + 1e3 * float(delays.max())
@@ -347,6 +434,35 @@ class DynamixelBus(ServoBus):
             self.link.name, self.link.baud, self.read_mode, tuple(states), tuple(notes)
         )
 
+    @staticmethod
+    def _tries(attempts: int, fn: Callable[[], T], seen: list[CommError]) -> T:
+        """:func:`_retry`, keeping every wire failure in ``seen``."""
+        for k in range(attempts):
+            try:
+                return fn()
+            except CommError as exc:
+                seen.append(exc)
+                if k + 1 == attempts:
+                    raise
+        raise AssertionError("unreachable")
+
+    @staticmethod
+    def _corrupt_hint(seen: list[CommError], baud: int) -> tuple[str, str]:
+        """(found, fix) for a servo whose replies stayed corrupt. Two servos on one ID is
+        suggested only when every try got a whole packet - valid header, this ID, every
+        LEN byte - with a bad CRC (two replies merged on the wire); a reply cut short or
+        arriving late (a busy host, a pty) says so instead."""
+        garbled = sum(1 for e in seen if getattr(e, "complete", False))
+        if garbled == len(seen):
+            return (
+                f"corrupt replies ({garbled} of {garbled} whole packets with a bad CRC)",
+                "two servos with this ID? (connect them one at a time)",
+            )
+        return (
+            f"corrupt replies ({len(seen) - garbled} of {len(seen)} cut short or late)",
+            f"check wiring, termination and baud ({baud}); a busy host delays pty replies",
+        )
+
     def _check_one(
         self, k: int, exp: Expectation, rows: list[Mismatch], notes: list[str]
     ) -> ServoState | None:
@@ -355,8 +471,12 @@ class DynamixelBus(ServoBus):
         def add(item: str, expected: str, found: str, fix: str = "") -> None:
             rows.append(Mismatch(sid, item, expected, found, fix))
 
+        # Each step is tried 1 + retries times: a reply that comes late (after its
+        # timeout) is discarded at the next transmit or read as that try's reply (the same
+        # request's answer), so one late reply costs one try, never the check.
+        seen: list[CommError] = []
         try:
-            model, fw = _retry(attempts, lambda: link.ping(sid))
+            model, fw = self._tries(attempts, lambda: link.ping(sid), seen)
         except CommTimeout:
             add(
                 "answers Ping",
@@ -366,7 +486,7 @@ class DynamixelBus(ServoBus):
             )
             return None
         except CorruptPacket:
-            add("answers Ping", "yes", "corrupt replies", "two servos with this ID?")
+            add("answers Ping", "yes", *self._corrupt_hint(seen, link.baud))
             return None
         except ServoError as exc:
             add("answers Ping", "yes", f"error reply: {exc.name}", "")
@@ -389,8 +509,9 @@ class DynamixelBus(ServoBus):
                 "update firmware (DYNAMIXEL Wizard 2.0) or read_mode='plain'",
             )
         block_item = ct.STARTUP_BLOCK
+        seen = []
         try:
-            block = _retry(attempts, lambda: link.read(sid, 0, block_item.size))
+            block = self._tries(attempts, lambda: link.read(sid, 0, block_item.size), seen)
         except CommTimeout:
             add(
                 "Status Return Level",
@@ -399,7 +520,10 @@ class DynamixelBus(ServoBus):
                 "write 2 to addr 68 (Status Return Level)",
             )
             return None
-        except (CorruptPacket, ServoError) as exc:
+        except CorruptPacket:
+            add("read control table", "a reply", *self._corrupt_hint(seen, link.baud))
+            return None
+        except ServoError as exc:
             add("read control table", "a reply", str(exc), "")
             return None
 
@@ -445,6 +569,15 @@ class DynamixelBus(ServoBus):
             )
         if srl != ct.STATUS_RETURN_ALL:
             add("Status Return Level", "2", str(srl), "write 2 to addr 68")
+        shutdown = get(ct.SHUTDOWN)
+        if exp.shutdown_bits & ~shutdown:
+            want = exp.shutdown_bits
+            add(
+                "Shutdown (torque cut on)",
+                f"includes 0x{want:02X} ({ct.describe_hardware_error(want)})",
+                f"0x{shutdown:02X} ({ct.describe_hardware_error(shutdown)})",
+                f"write {shutdown | want} to addr 63 (torque off): the servo protects itself",
+            )
         if hw:
             add(
                 "Hardware Error Status",
@@ -507,6 +640,117 @@ class DynamixelBus(ServoBus):
         self._check_open()
         return self.link.read_item(servo_id, ct.HARDWARE_ERROR_STATUS)
 
+    def clear_watchdog_trips(self) -> tuple[int, ...]:
+        """Before a show: disarm every servo's Bus Watchdog and return the IDs whose
+        watchdog had tripped (a previous run's ``hold`` exit leaves it armed, and it trips
+        once that host is gone). Servos that do not answer are skipped (the start-up check
+        names them); the caller reports the trips, nothing is cleared silently."""
+        self._check_open()
+        self.link.recover()
+        tripped = []
+        for sid in self.ids:
+            try:
+                value = _retry(
+                    1 + self.retries, lambda sid=sid: self.link.read_item(sid, ct.BUS_WATCHDOG)
+                )
+                if value != 0:
+                    _retry(
+                        1 + self.retries,
+                        lambda sid=sid: self.link.write_item(sid, ct.BUS_WATCHDOG, 0),
+                    )
+            except (CommError, ServoError):
+                continue
+            if value == ct.WATCHDOG_TRIPPED:
+                tripped.append(sid)
+        self._watchdog_units = None
+        return tuple(tripped)
+
+    # -- health (spread over ticks by the loop) -----------------------------------
+    def _read_health(self, servo_id: int, part: HealthPart) -> ServoHealth:
+        torque = hw = wd = None
+        if part is HealthPart.WATCHDOG:
+            wd = self.link.read_item(servo_id, ct.BUS_WATCHDOG)
+        else:
+            item = ct.HEALTH_WATCHDOG_BLOCK if part is HealthPart.ALL else ct.HEALTH_BLOCK
+            block = self.link.read(servo_id, item.addr, item.size)
+            torque = ct.TORQUE_ENABLE.decode(block, item.addr) == 1
+            hw = ct.HARDWARE_ERROR_STATUS.decode(block, item.addr)
+            if part is HealthPart.ALL:
+                wd = ct.BUS_WATCHDOG.decode(block, item.addr)
+            elif not torque or hw:  # something is wrong: the watchdog names the cause
+                wd = self.link.read_item(servo_id, ct.BUS_WATCHDOG)
+        tripped = None if wd is None else wd == ct.WATCHDOG_TRIPPED
+        armed = None if wd is None else wd > 0
+        expected = self._watchdog_units
+        problem, detail = None, ""
+        if hw:
+            problem = HealthProblem.HARDWARE_ERROR
+            detail = (
+                f"Hardware Error Status 0x{hw:02X} ({ct.describe_hardware_error(hw)})"
+                f"{self._condition(servo_id)}; remove the cause, then reboot the servo"
+            )
+        elif torque is False and expected and wd == 0:
+            problem = HealthProblem.RESET
+            detail = (
+                f"torque off and Bus Watchdog 0 although it was armed ({expected} x 20 ms): "
+                "the servo restarted (brownout or reboot) and its RAM is back to defaults"
+                f"{self._condition(servo_id)}"
+            )
+        elif tripped:
+            problem = HealthProblem.WATCHDOG_TRIPPED
+            detail = "Bus Watchdog reads -1: the servo stopped itself and refuses goals"
+        elif torque is False:
+            problem = HealthProblem.TORQUE_OFF
+            detail = "Torque Enable reads 0: the servo is limp"
+        return ServoHealth(servo_id, torque, hw, tripped, armed, problem, detail)
+
+    def _condition(self, servo_id: int) -> str:
+        """Temperature, input voltage and load of one servo, as text (best effort)."""
+        block_item = ct.CONDITION_BLOCK
+        try:
+            block = self.link.read(servo_id, block_item.addr, block_item.size)
+        except (CommError, ServoError):
+            return ""
+        start = block_item.addr
+        return (
+            f"; {ct.PRESENT_TEMPERATURE.decode(block, start)} °C, "
+            f"{ct.PRESENT_INPUT_VOLTAGE.decode(block, start) / 10:.1f} V, "
+            f"load {ct.PRESENT_LOAD.decode(block, start)}"
+        )
+
+    def _health_read_s(self) -> float:
+        n_bytes = 14 + 11 + ct.HEALTH_BLOCK.size  # Read instruction + status with data
+        return (
+            self._port.tx_time_per_byte * 1e-3 * n_bytes
+            + float(self._rdt_s.max())
+            + TURNAROUND_ALLOWANCE_S
+            + self.link.latency_timer_ms * 1e-3
+        )
+
+    @property
+    def host_stall_s(self) -> float:
+        return float(getattr(self._port, "host_stall_s", 0.0))
+
+    def _recover_watchdog(self, servo_id: int, goal_rad: float) -> None:
+        attempts = 1 + self.retries
+        k = self._index[servo_id]
+        tick = int(rad_to_ticks(goal_rad))
+        if not self._lo[k] <= tick <= self._hi[k]:
+            raise ValueError(
+                f"servo {servo_id}: goal tick {tick} outside [{int(self._lo[k])}, "
+                f"{int(self._hi[k])}]"
+            )
+        self.link.recover()
+        try:
+            self._confirm(servo_id, ct.BUS_WATCHDOG, 0, attempts)
+            self._confirm(servo_id, ct.GOAL_POSITION, tick, attempts)
+            if self._watchdog_units:
+                self._confirm(servo_id, ct.BUS_WATCHDOG, self._watchdog_units, attempts)
+        except _UnconfirmedError as exc:
+            raise DynamixelError(
+                f"servo {servo_id}: cannot recover from the Bus Watchdog trip: {exc}"
+            ) from None
+
     # -- exit ----------------------------------------------------------------------
     def _apply_exit_policy(self, policy: ExitPolicy, retries: int) -> ExitReport:
         """``hold``: torque must be on; a tripped watchdog is cleared, Goal Position :=
@@ -516,13 +760,14 @@ class DynamixelBus(ServoBus):
         stops at once. Raises :class:`ExitNotConfirmed` unless every servo is confirmed."""
         confirmed: list[int] = []
         failed: list[tuple[int, str]] = []
+        notes: list[str] = []
         attempts = 1 + retries
         try:
             self.link.recover()
             for sid in self.ids:
                 try:
                     if policy is ExitPolicy.HOLD:
-                        self._hold_one(sid, attempts)
+                        self._hold_one(sid, attempts, notes)
                     else:
                         self._confirm(sid, ct.TORQUE_ENABLE, 0, attempts)
                     confirmed.append(sid)
@@ -531,17 +776,24 @@ class DynamixelBus(ServoBus):
         except PortGone as exc:
             done = {s for s, _ in failed} | set(confirmed)
             failed += [(s, f"adapter gone: {exc}") for s in self.ids if s not in done]
-            raise ExitNotConfirmed(ExitReport(policy, tuple(confirmed), tuple(failed))) from exc
-        report = ExitReport(policy, tuple(confirmed), tuple(failed))
+            report = ExitReport(policy, tuple(confirmed), tuple(failed), tuple(notes))
+            raise ExitNotConfirmed(report) from exc
+        report = ExitReport(policy, tuple(confirmed), tuple(failed), tuple(notes))
         if failed:
             raise ExitNotConfirmed(report)
         return report
 
-    def _hold_one(self, sid: int, attempts: int) -> None:
+    def _hold_one(self, sid: int, attempts: int, notes: list[str]) -> None:
         if not self._read(sid, ct.TORQUE_ENABLE, attempts):
             raise _UnconfirmedError("torque is off: cannot hold (the servo is limp)")
         if self._read(sid, ct.BUS_WATCHDOG, attempts) == ct.WATCHDOG_TRIPPED:
+            # The servo had stopped itself (the host was silent longer than the watchdog
+            # period); holding needs the trip cleared: say so, never silently.
             self._confirm(sid, ct.BUS_WATCHDOG, 0, attempts)
+            notes.append(
+                f"servo {sid}: its Bus Watchdog had tripped (it had stopped itself); "
+                "cleared to hold it"
+            )
         present = self._read(sid, ct.PRESENT_POSITION, attempts)
         self._confirm(sid, ct.GOAL_POSITION, present, attempts)
         units = self._watchdog_units or round(DEFAULT_EXIT_WATCHDOG_S / ct.WATCHDOG_UNIT_S)

@@ -56,11 +56,27 @@ BUS_WATCHDOG = Item("Bus Watchdog", 98, 1, signed=True)  # reads -1 once tripped
 GOAL_POSITION = Item("Goal Position", 116, 4, signed=True)
 PRESENT_VELOCITY = Item("Present Velocity", 128, 4, signed=True)
 PRESENT_POSITION = Item("Present Position", 132, 4, signed=True)
+PRESENT_LOAD = Item("Present Load", 126, 2, signed=True)  # current (mA units) on XM, 0.1 % on XL
+PRESENT_INPUT_VOLTAGE = Item("Present Input Voltage", 144, 2)  # 0.1 V
+PRESENT_TEMPERATURE = Item("Present Temperature", 146, 1)  # °C
 
 #: One Read from address 0 of this many bytes covers every item the start-up check needs
 #: (EEPROM, Torque Enable, Status Return Level, Hardware Error, Bus Watchdog, Goal and
 #: Present Position). Gaps read as 0.
 STARTUP_BLOCK = Item("start-up block", 0, PRESENT_POSITION.end)
+#: What a periodic health read covers (Torque Enable .. Hardware Error Status, 7 bytes: it
+#: must fit in the spare part of a tick behind a 1 ms USB latency timer)
+HEALTH_BLOCK = Item(
+    "health block", TORQUE_ENABLE.addr, HARDWARE_ERROR_STATUS.end - TORQUE_ENABLE.addr
+)
+#: ... and up to the Bus Watchdog (35 bytes), read after a bus silence or to name a cause
+HEALTH_WATCHDOG_BLOCK = Item(
+    "health block with watchdog", TORQUE_ENABLE.addr, BUS_WATCHDOG.end - TORQUE_ENABLE.addr
+)
+#: Present Load .. Present Temperature: what a hardware-error stop records
+CONDITION_BLOCK = Item(
+    "condition block", PRESENT_LOAD.addr, PRESENT_TEMPERATURE.end - PRESENT_LOAD.addr
+)
 
 #: Addresses below this are EEPROM: writes are refused (Access Error) while torque is on.
 EEPROM_END = 64

@@ -4,7 +4,9 @@
 used by :class:`~drivers.dynamixel.bus.DynamixelBus` (start-up check, torque, watchdog,
 exit policy) and :func:`drivers.dynamixel.scan.scan`. :func:`_raise_for` is the one place
 SDK result codes and status error numbers become exceptions; :func:`tune_latency_timer`
-lowers a Linux USB adapter's latency timer when the port opens.
+lowers a Linux USB adapter's latency timer when the port opens, and
+:func:`device_allowance_ms` says how much more a packet timeout must allow for a device
+that is not such an adapter (a pty served by another process, an unknown device).
 
 SDK traps avoided: unicast ``action()`` does not wait for the servo's status packet (the
 next request would receive it), so Reg Write/Action is not used; a SerialException inside
@@ -38,6 +40,20 @@ from drivers.dynamixel.errors import (
 )
 from drivers.dynamixel.port import SDK_LATENCY_TIMER_MS, PortHandler
 
+#: Adapter latency assumed for a pseudo-terminal (ms). A pty has no latency timer: the
+#: process serving it (``hilsim emulate``) writes each reply byte when it is due and is
+#: woken within ~0.1-1 ms on a quiet host. This is what a bus-capacity check should count;
+#: the scheduling tail under load is :data:`UNCHARACTERISED_DEVICE_ALLOWANCE_MS`'s business.
+PTY_LATENCY_MS = 1.0
+#: The least device allowance in the packet timeout (``2·latency`` is raised to this, ms)
+#: for a device that is not a known USB adapter: a pty served by a process that may be
+#: descheduled under CPU load, a CDC-ACM board, any other device. It is the SDK's stock
+#: allowance (2 x 16 ms). Over a ``hilsim emulate`` pty on a 2-core host with two CPU hogs
+#: beside it, 1000 pings lost 6-116 with 2 x 1 ms and 26-64 with 2 x 1 ms plus the
+#: drain-before-timeout port, 0 with this (in both runs; worst round trip 20-52 ms,
+#: answered). It costs time only when a servo is really silent.
+UNCHARACTERISED_DEVICE_ALLOWANCE_MS = 2.0 * SDK_LATENCY_TIMER_MS
+
 T = TypeVar("T")
 
 _OK = sdk.COMM_SUCCESS
@@ -55,11 +71,17 @@ _SERIAL_ERRORS = (serial.SerialException, OSError)
 SYSFS_USB_SERIAL = Path("/sys/bus/usb-serial/devices")
 
 
-def _raise_for(result: int, error: int, servo_id: int | None, what: str) -> None:
+def _raise_for(
+    result: int, error: int, servo_id: int | None, what: str, rx: list[int] | None = None
+) -> None:
     """The one place SDK result codes and status error numbers become exceptions.
 
     Returns quietly when ``result`` is success and the error number (ERR bits 0-6) is 0;
-    an Alert bit alone is not an error of the instruction.
+    an Alert bit alone is not an error of the instruction. A :class:`CorruptPacket` gets
+    ``complete``: True when ``rx`` (what the SDK received) is a whole status packet from
+    ``servo_id`` - valid header, that ID, all LEN bytes - whose CRC fails (line noise, or
+    two servos answering at once), False when the reply was cut short or never framed
+    (late, truncated, garbage).
     """
     if result == _OK:
         if error & ct.ERROR_NUMBER_MASK:
@@ -69,7 +91,9 @@ def _raise_for(result: int, error: int, servo_id: int | None, what: str) -> None
     if result == _TIMEOUT:
         raise CommTimeout(f"{who}: no reply to {what} (timeout)", servo_id=servo_id, what=what)
     if result == _CORRUPT:
-        raise CorruptPacket(f"{who}: corrupt reply to {what}", servo_id=servo_id, what=what)
+        exc = CorruptPacket(f"{who}: corrupt reply to {what}", servo_id=servo_id, what=what)
+        exc.complete = _complete_reply(rx, servo_id)
+        raise exc
     if result == sdk.COMM_PORT_BUSY:
         raise PortBusy(
             f"{who}: port busy during {what} (an earlier transaction never finished)",
@@ -78,6 +102,19 @@ def _raise_for(result: int, error: int, servo_id: int | None, what: str) -> None
         )
     text = _RESULT_TEXT.get(result, f"communication failed ({result})")
     raise CommError(f"{who}: {text} ({what})", servo_id=servo_id, what=what)
+
+
+def _complete_reply(rx: list[int] | None, servo_id: int | None) -> bool:
+    """``rx`` is a whole status packet from ``servo_id``: header, ID, INST, every LEN byte."""
+    return (
+        rx is not None
+        and servo_id is not None
+        and len(rx) >= 11
+        and rx[:4] == [0xFF, 0xFF, 0xFD, 0x00]
+        and rx[4] == servo_id
+        and rx[7] == 0x55
+        and len(rx) == (rx[5] | rx[6] << 8) + 7
+    )
 
 
 def _gone(exc: BaseException, port_name: str, what: str) -> PortGone:
@@ -107,11 +144,13 @@ def tune_latency_timer(
 
     Tries pyserial's ``set_low_latency_mode(True)`` and writing 1 to
     ``<sysfs>/<ttyUSBn>/latency_timer``; warns (:class:`LatencyTimerWarning`) with the exact
-    fix when it stays above 1 ms. Devices without a latency timer (ptys, CDC-ACM, other
-    OSes) return the SDK's conservative 16 ms allowance.
+    fix when it stays above 1 ms. A pseudo-terminal returns :data:`PTY_LATENCY_MS`; other
+    devices without a latency timer (CDC-ACM, other OSes) the SDK's conservative 16 ms.
     """
     if not sys.platform.startswith("linux") or not device.startswith("/dev/"):
         return SDK_LATENCY_TIMER_MS
+    if _is_pty(device):
+        return PTY_LATENCY_MS
     dev = os.path.basename(os.path.realpath(device))
     with contextlib.suppress(AttributeError, ValueError, OSError):
         ser.set_low_latency_mode(True)  # ASYNC_LOW_LATENCY: ftdi_sio then uses 1 ms
@@ -129,6 +168,38 @@ def tune_latency_timer(
     if ms > 1:
         warnings.warn(_latency_fix(dev, ms), LatencyTimerWarning, stacklevel=3)
     return float(ms)
+
+
+def _is_pty(device: str) -> bool:
+    """A Unix98 pseudo-terminal slave (``/dev/pts/N``; Linux majors 136-143)."""
+    real = os.path.realpath(device)
+    if real.startswith("/dev/pts/"):
+        return True
+    try:
+        return 136 <= os.major(os.stat(real).st_rdev) <= 143
+    except (OSError, ValueError):
+        return False
+
+
+def device_allowance_ms(
+    ser: serial.SerialBase, device: str, sysfs: Path = SYSFS_USB_SERIAL
+) -> float:
+    """The least device allowance a packet timeout needs on this port (ms; see
+    :attr:`~drivers.dynamixel.port.PortHandler.device_allowance_ms`).
+
+    0 where the latency timer says it all: the in-process emulator (``dxlsim://``, whose
+    own model is the latency) and a Linux USB-serial adapter with a sysfs latency timer
+    (FTDI: U2D2, USB2Dynamixel). :data:`UNCHARACTERISED_DEVICE_ALLOWANCE_MS` for the rest:
+    a pty (its replies come from another process, late when that one waits for a CPU) and
+    any device we cannot characterise.
+    """
+    if getattr(ser, "bus", None) is not None and device.lower().startswith("dxlsim://"):
+        return 0.0
+    if sys.platform.startswith("linux") and device.startswith("/dev/") and not _is_pty(device):
+        dev = os.path.basename(os.path.realpath(device))
+        if (sysfs / dev / "latency_timer").exists():
+            return 0.0
+    return UNCHARACTERISED_DEVICE_ALLOWANCE_MS
 
 
 # ----------------------------------------------------------------------- link
@@ -155,9 +226,12 @@ class Link:
     ) -> Link:
         """Open ``port`` (device path, pty or ``dxlsim://`` URL) at ``baud`` bit/s.
 
-        ``latency_timer_ms``: the adapter latency the packet timeouts allow for. None:
-        the emulator's own model for ``dxlsim://``; on a Linux USB adapter the timer is
-        lowered to 1 ms where permitted (:func:`tune_latency_timer`); else 16 ms.
+        ``latency_timer_ms``: the adapter's latency (packet timeouts, capacity checks).
+        None: the emulator's own model for ``dxlsim://``; on a Linux USB adapter the timer
+        is lowered to 1 ms where permitted (:func:`tune_latency_timer`); 1 ms for a pty;
+        else 16 ms. Whatever it is, a device that is not a known USB adapter gets the
+        timeout allowance of :func:`device_allowance_ms` (the ``device_allowance_ms``
+        of :attr:`port`).
         """
         ph = PortHandler(
             port,
@@ -173,6 +247,7 @@ class Link:
             raise PortGone(f"cannot open {port}: {exc}") from exc
         link = cls(ph)
         try:
+            ph.device_allowance_ms = device_allowance_ms(ph.ser, port)
             if latency_timer_ms is None:
                 emulated = getattr(ph.ser, "bus", None)
                 if emulated is not None and hasattr(emulated, "latency_s"):
@@ -198,7 +273,14 @@ class Link:
 
     @property
     def latency_timer_ms(self) -> float:
+        """The adapter's latency (ms): what a bus-capacity estimate counts."""
         return self.port.latency_timer_ms
+
+    @property
+    def timeout_margin_ms(self) -> float:
+        """What every packet timeout adds on top of ``2·latency_timer_ms`` for this
+        device (ms; 0 on a known USB adapter and the in-process emulator)."""
+        return self.port.timeout_margin_ms
 
     def set_baud(self, baud: int) -> None:
         """Change the host's line rate without reopening the port."""
@@ -235,7 +317,7 @@ class Link:
         tx = [0] * 10
         tx[4], tx[5], tx[6], tx[7] = servo_id, 3, 0, sdk.INST_PING
         rx, result, error = self._call("Ping", self.ph.txRxPacket, self.port, tx)
-        _raise_for(result, error, servo_id, "Ping")
+        _raise_for(result, error, servo_id, "Ping", rx)
         if len(rx) < 14:
             raise CorruptPacket(
                 f"servo {servo_id}: short Ping reply", servo_id=servo_id, what="Ping"
@@ -254,15 +336,21 @@ class Link:
         """Read ``size`` bytes from ``addr``."""
         check_unicast_id(servo_id)
         what = f"Read {size} B at {addr}"
-        data, result, error = self._call(what, self.ph.readTxRx, self.port, servo_id, addr, size)
-        _raise_for(result, error, servo_id, what)
-        if len(data) != size:
+        tx = [0] * 14
+        tx[4], tx[5], tx[6], tx[7] = servo_id, 7, 0, sdk.INST_READ
+        tx[8:12] = addr & 0xFF, addr >> 8, size & 0xFF, size >> 8
+        rx, result, error = self._call(what, self.ph.txRxPacket, self.port, tx)
+        _raise_for(result, error, servo_id, what, rx)
+        # LEN = INST ERR data CRC(2): a reply of another length (a late one to another
+        # request) is not this one's data, whatever its first bytes are
+        got = (rx[5] | rx[6] << 8) - 4
+        if got != size:
             raise CorruptPacket(
-                f"servo {servo_id}: {len(data)} of {size} bytes in reply to {what}",
+                f"servo {servo_id}: {got} of {size} bytes in reply to {what}",
                 servo_id=servo_id,
                 what=what,
             )
-        return bytes(data)
+        return bytes(rx[9 : 9 + size])
 
     def read_item(self, servo_id: int, item: Item) -> int:
         return item.decode(self.read(servo_id, item.addr, item.size), item.addr)

@@ -10,8 +10,22 @@ packet code:
   clock; hardware uses the monotonic clock. On a virtual clock the SDK's busy-poll for a
   status packet becomes one blocking read up to the packet deadline (a jump), so the
   SDK's own timeouts still fire and nothing sleeps;
-* the latency-timer term of the SDK's packet timeout is a per-port attribute instead of
-  the module global ``port_handler.LATENCY_TIMER``;
+* **a timeout is declared only by a poll that began after the deadline.** The SDK's
+  ``rxPacket`` busy-polls ``readPort()`` then ``isPacketTimeout()``; if the process is
+  descheduled between the two, a wall-clock check on wake-up would call the servo silent
+  while its whole reply sits in the buffer. :meth:`isPacketTimeout` answers True only when
+  the last :meth:`readPort` started after ``packet_start_time + packet_timeout``; otherwise
+  the SDK polls once more and takes whatever arrived. This holds for every transaction
+  (tick reads, unicast, broadcast ping): they all poll through here;
+* host stalls are measured: :attr:`host_stall_s` / :attr:`host_stalls` add up the gaps
+  between consecutive polls of one transaction longer than :data:`HOST_STALL_THRESHOLD_S`
+  (the process was not running). Always 0 on a virtual clock;
+* the packet timeout's device allowance is two per-port facts instead of the module
+  global ``port_handler.LATENCY_TIMER``: :attr:`latency_timer_ms` (the adapter's latency,
+  what a bus-capacity calculation uses) and :attr:`device_allowance_ms` (the least time
+  the timeout allows for the device as a whole; see :attr:`timeout_margin_ms`);
+* after a failed read, :meth:`hold_until_quiet` makes the next transmit wait until the
+  rest of a reply chain would be over and discard it (:meth:`clearPort`);
 * a ``SerialException`` (adapter unplugged) releases the port before it propagates, so
   the SDK's ``is_using`` flag is not left stuck at True.
 """
@@ -25,6 +39,12 @@ from drivers.clock import Clock, MonotonicClock
 
 #: The SDK's default latency-timer allowance (ms), matching an untuned FTDI adapter.
 SDK_LATENCY_TIMER_MS = 16.0
+#: A gap between two polls of one transaction longer than this (s) is a host stall. One
+#: poll (a non-blocking read plus the SDK's bookkeeping) takes 2-20 us in CPython, and
+#: interrupts or a context switch cost tens of us; a gap of a whole millisecond (a quarter
+#: of a 250 Hz tick, a fifth of its read timeout) is the process not running: descheduled
+#: by a busy neighbour, a GC pause, SIGSTOP.
+HOST_STALL_THRESHOLD_S = 1e-3
 
 
 class PortHandler(dynamixel_sdk.PortHandler):
@@ -39,8 +59,24 @@ class PortHandler(dynamixel_sdk.PortHandler):
         the host's monotonic clock. Giving a clock that differs from a ``dxlsim://``
         bus's clock is an error (two clocks would disagree about every timeout).
     latency_timer_ms:
-        The adapter latency allowance in the SDK's packet timeout
-        ``tx_time·len + 2·latency + 2 ms``. Lower it after lowering the adapter's timer.
+        The adapter's latency: it holds received bytes up to this long. Enters the SDK's
+        packet timeout ``tx_time·len + 2·latency + 2 ms`` and any bus-capacity estimate.
+        Lower it after lowering the adapter's timer.
+    device_allowance_ms:
+        The least total the timeout allows for the device's own delays (``2·latency``
+        raised to this): 0 for a known USB adapter or the in-process emulator, more for a
+        device whose delays are not its latency timer (a pty served by another process,
+        an unknown adapter). See :func:`drivers.dynamixel.link.device_allowance_ms`.
+
+    Attributes
+    ----------
+    host_stall_s:
+        Cumulative seconds the host was not running while it waited for replies: the sum
+        of the gaps longer than :data:`HOST_STALL_THRESHOLD_S` between consecutive polls
+        of one transaction (from its packet timer's start to its last poll). A counter:
+        difference it around a transaction. 0 on a virtual clock.
+    host_stalls:
+        How many such gaps :attr:`host_stall_s` adds up.
     """
 
     def __init__(
@@ -49,18 +85,33 @@ class PortHandler(dynamixel_sdk.PortHandler):
         *,
         clock: Clock | None = None,
         latency_timer_ms: float = SDK_LATENCY_TIMER_MS,
+        device_allowance_ms: float = 0.0,
     ) -> None:
         super().__init__(port_name)
         if latency_timer_ms < 0:
             raise ValueError(f"latency_timer_ms must be >= 0, got {latency_timer_ms}")
+        if device_allowance_ms < 0:
+            raise ValueError(f"device_allowance_ms must be >= 0, got {device_allowance_ms}")
         self._clock = clock
         self.latency_timer_ms = float(latency_timer_ms)
+        self.device_allowance_ms = float(device_allowance_ms)
+        self.host_stall_s = 0.0
+        self.host_stalls = 0
+        self._poll_ms: float | None = None  # when the last poll of this transaction began
+        self._mark_s: float | None = None  # stall measurement: the previous poll (s)
+        self._quiet_at: float | None = None  # replies may still arrive until then (s)
 
     @property
     def clock(self) -> Clock:
         if self._clock is None:
             self._clock = MonotonicClock()
         return self._clock
+
+    @property
+    def timeout_margin_ms(self) -> float:
+        """What the packet timeouts add on top of ``2·latency_timer_ms`` (ms): enough to
+        reach :attr:`device_allowance_ms`, never negative."""
+        return max(0.0, self.device_allowance_ms - 2.0 * self.latency_timer_ms)
 
     # -- the two SDK methods that touch the OS ------------------------------------
     def setupPort(self, cflag_baud):
@@ -91,17 +142,54 @@ class PortHandler(dynamixel_sdk.PortHandler):
         return self.clock.now() * 1000.0  # the SDK works in ms
 
     def setPacketTimeout(self, packet_length) -> None:
-        self.packet_start_time = self.getCurrentTime()
+        self._start()
         self.packet_timeout = (
-            self.tx_time_per_byte * packet_length + self.latency_timer_ms * 2.0 + 2.0
+            self.tx_time_per_byte * packet_length
+            + self.latency_timer_ms * 2.0
+            + 2.0
+            + self.timeout_margin_ms
         )
 
+    def setPacketTimeoutMillis(self, msec) -> None:
+        """Exactly ``msec`` (the SDK's meaning; callers add any device allowance)."""
+        self._start()
+        self.packet_timeout = msec
+
+    def _start(self) -> None:
+        clock = self.clock
+        now = clock.now()
+        self.packet_start_time = now * 1000.0
+        self._poll_ms = None
+        self._mark_s = None if clock.virtual else now
+
+    def isPacketTimeout(self) -> bool:
+        """True only if the last poll began after the deadline (then the SDK gives up, as
+        its own version does, with ``packet_timeout`` set to 0). A poll that began before
+        the deadline may have missed bytes that arrived while the host was not running:
+        the SDK then polls once more."""
+        poll = self._poll_ms
+        if poll is not None and poll >= self.packet_start_time + self.packet_timeout:
+            self.packet_timeout = 0
+            return True
+        return False
+
     def readPort(self, length):
-        if self.clock.virtual:
+        clock = self.clock
+        now = clock.now()
+        now_ms = now * 1000.0
+        self._poll_ms = now_ms
+        if clock.virtual:
             # Nobody else moves a virtual clock: wait on the port until the bytes are
-            # readable or just past the SDK's deadline, whichever is first.
-            remaining_ms = self.packet_start_time + self.packet_timeout - self.getCurrentTime()
-            self.ser.timeout = max(remaining_ms, 0.0) * 1e-3 + 1e-6
+            # readable or just past the SDK's deadline, whichever is first. A poll that
+            # begins at or after the deadline takes what is readable and never waits.
+            remaining_ms = self.packet_start_time + self.packet_timeout - now_ms
+            self.ser.timeout = remaining_ms * 1e-3 + 1e-6 if remaining_ms > 0.0 else 0
+        else:
+            mark = self._mark_s
+            if mark is not None and now - mark > HOST_STALL_THRESHOLD_S:
+                self.host_stall_s += now - mark
+                self.host_stalls += 1
+            self._mark_s = now
         try:
             return self.ser.read(length)
         except serial.SerialException:
@@ -115,8 +203,19 @@ class PortHandler(dynamixel_sdk.PortHandler):
             self.is_using = False
             raise
 
+    def hold_until_quiet(self, t: float) -> None:
+        """Replies may still be on the wire until ``t`` (clock seconds), e.g. the rest of
+        a Sync Read chain after a read timed out: the next :meth:`clearPort` (every
+        transmit calls it) first waits until then, so those bytes are discarded instead
+        of read as the next transaction's reply."""
+        if self._quiet_at is None or t > self._quiet_at:
+            self._quiet_at = t
+
     def clearPort(self) -> None:
+        quiet, self._quiet_at = self._quiet_at, None
         try:
+            if quiet is not None:
+                self.clock.wait_until(quiet)
             self.ser.reset_input_buffer()
         except serial.SerialException:
             self.is_using = False

@@ -41,6 +41,9 @@ class Expectation:
             is what a 1 kHz loop wants).
         allow_torque_on: False makes torque already on at start a mismatch; True (default)
             only reports it (:attr:`StartupReport.torque_on_ids`) and the loop decides.
+        shutdown_bits: Hardware Error bits the servo's Shutdown mask (addr 63) must include,
+            so it cuts its own torque on them (default the factory's: overheating,
+            electrical shock, overload); 0: not checked.
     """
 
     id: int
@@ -49,6 +52,9 @@ class Expectation:
     position_range_rad: tuple[float, float] | None = None
     return_delay_us_max: float = 0.0
     allow_torque_on: bool = True
+    shutdown_bits: int = int(
+        ct.HardwareError.OVERHEATING | ct.HardwareError.ELECTRICAL_SHOCK | ct.HardwareError.OVERLOAD
+    )
 
     def __post_init__(self) -> None:
         check_unicast_id(self.id)
