@@ -1,23 +1,33 @@
 """``hilsim run CONFIG``: drive a rig's joints as springs following its animation.
 
-Exit codes: 0 the show ended (exit policy applied), 2 the rig file or the servos on the bus
-do not fit (nothing moved), 3 a fault stopped the show (servo and cause printed),
-130/143 stopped by SIGINT/SIGTERM (exit policy applied), 1 an unexpected error.
+Exit codes (:mod:`hilsim.exit_codes`): 0 the show completed, exit policy confirmed;
+2 the rig file, a command-line value or the servos on the bus do not fit (nothing moved);
+3 a fault stopped the show (the servo, bus, host or telemetry cause printed); 4 the exit
+policy could not be confirmed on some servo; 130/143 stopped by SIGINT/SIGTERM (exit policy
+applied); 1 an unexpected error outside the show.
 """
 
 from __future__ import annotations
 
 import argparse
 import contextlib
+import math
+import os
 import signal
 import sys
 import time
 import urllib.parse
 from pathlib import Path
 
+from hilsim.exit_codes import ExitCode, for_signal
+
 HELP = "run a rig: springs follow the animation, streamed to the servos (or the emulator)"
 
-EXIT_USAGE = 2
+EXIT_USAGE = int(ExitCode.USAGE)
+#: a show that completes with more than this share of overrunning ticks, or of failed reads,
+#: ends with a verdict line saying so (the exit code stays 0: the show did go on)
+VERDICT_OVERRUN_SHARE = 0.05
+VERDICT_COMM_SHARE = 0.01
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -34,7 +44,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         action="store_true",
         help="run on the emulator's virtual clock: same numbers, no waiting",
     )
-    p.add_argument("--out", metavar="DIR", help="run directory (default: <out_dir>/<name>-<time>)")
+    p.add_argument(
+        "--out",
+        metavar="DIR",
+        help="run directory, new or empty (default <out_dir>/<name>-<time>)",
+    )
     p.add_argument("--no-plots", action="store_true", help="do not draw plots after the run")
 
 
@@ -57,6 +71,63 @@ def clocked_port(port: str, virtual: bool) -> str:
     return f"{parts.scheme}://?{urllib.parse.urlencode(query, safe='-,;:=|')}"
 
 
+#: run directories this process created (and may remove again if the run never starts)
+_CREATED: set[Path] = set()
+
+
+class UsageError(Exception):
+    """A command-line or file-system problem, said in one line (exit 2)."""
+
+
+def make_run_dir(out: str | None, out_dir: str, name: str) -> Path:
+    """Create the run directory before anything touches the bus.
+
+    ``--out``: a new directory, or an existing empty one. Default: ``<out_dir>/<name>-<time>``,
+    with ``-2``, ``-3`` ... added if that exists (two runs started in the same second).
+    Raises :class:`UsageError` naming the path and the problem.
+    """
+    if out is not None:
+        path = Path(out)
+        if path.exists() and not path.is_dir():
+            raise UsageError(f"--out {out}: exists and is not a directory")
+        if path.is_dir() and any(path.iterdir()):
+            raise UsageError(
+                f"--out {out}: the directory is not empty (a run directory holds one run)"
+            )
+        existed = path.is_dir()
+        _mkdir(path, exist_ok=True)
+        if not existed:
+            _CREATED.add(path)
+        return path
+    stem = Path(out_dir) / f"{name}-{time.strftime('%Y%m%d-%H%M%S')}"
+    for n in range(1, 1000):
+        path = stem if n == 1 else stem.with_name(f"{stem.name}-{n}")
+        try:
+            _mkdir(path, exist_ok=False)
+        except FileExistsError:
+            continue
+        _CREATED.add(path)
+        return path
+    raise UsageError(f"{stem}: too many runs with this name in one second")
+
+
+def _mkdir(path: Path, *, exist_ok: bool) -> None:
+    try:
+        path.mkdir(parents=True, exist_ok=exist_ok)
+    except FileExistsError:
+        if not exist_ok:
+            raise
+        raise UsageError(
+            f"{path}: cannot create the run directory (a file is in the way)"
+        ) from None
+    except OSError as exc:
+        raise UsageError(
+            f"{path}: cannot create the run directory: {exc.strerror or exc}"
+        ) from None
+    if not os.access(path, os.W_OK | os.X_OK):
+        raise UsageError(f"{path}: the run directory is not writable")
+
+
 def _status_printer(rate_hz: float):
     if not sys.stderr.isatty():
         return None
@@ -65,47 +136,51 @@ def _status_printer(rate_hz: float):
     def show(st: dict) -> None:
         wall = time.perf_counter() - start
         rate = st["tick"] / wall if wall > 0 else 0.0
+        total = st.get("duration")
+        of = f"/{total:.1f}" if total is not None else ""
         sys.stderr.write(
-            f"\r  t={st['t']:7.2f} s  rate {rate:7.1f} Hz (target {rate_hz:g})  "
-            f"late p99 {st.get('lateness_p99_us', float('nan')):6.0f} us  "
-            f"comm errors {st['comm_errors']}  overruns {st['overruns']}   "
+            f"\r t {st['t']:.1f}{of} s  {rate:.0f}/{rate_hz:g} Hz  "
+            f"late p99 {st.get('lateness_p99_us', float('nan')):.0f} us  "
+            f"comm err {st['comm_errors']}  overruns {st['overruns']}  "
+            f"stalls {st.get('host_stalls', 0)} "
         )
         sys.stderr.flush()
 
     return show
 
 
-def run(args: argparse.Namespace) -> int:
+def _say(message: str) -> None:
+    print(f"hilsim run: {message}", file=sys.stderr)
 
+
+def run(args: argparse.Namespace) -> int:
     from drivers.dynamixel.bus import DynamixelBus
-    from drivers.dynamixel.errors import DynamixelError, StartupMismatch
-    from hilsim.loop import HilLoop, StopFlag
+    from drivers.dynamixel.errors import DynamixelError
     from hilsim.rig import RigError, load_rig
-    from hilsim.telemetry import TelemetryWriter
-    from hilsim.wiring import build_targets, bus_capacity_problem, expectations
+    from hilsim.wiring import build_targets
 
     try:
         rig = load_rig(args.config, port=args.port)
         port = clocked_port(rig.bus.port, args.virtual_time)
         targets = build_targets(rig)
     except (RigError, ValueError) as exc:
-        print(f"hilsim run: {exc}", file=sys.stderr)
+        _say(str(exc))
         return EXIT_USAGE
-    if args.duration is not None and not args.duration > 0:
-        print("hilsim run: --duration must be > 0", file=sys.stderr)
+    if args.duration is not None and not (math.isfinite(args.duration) and args.duration > 0):
+        _say(f"--duration must be a finite number of seconds > 0, got {args.duration!r}")
         return EXIT_USAGE
     if args.duration is None and targets.duration is None:
-        print(
-            "hilsim run: the animation never ends (generators only); running until "
-            "Ctrl-C. Give --duration to stop by itself.",
-            file=sys.stderr,
+        _say(
+            "the animation never ends (generators only); running until Ctrl-C. "
+            "Give --duration to stop by itself."
         )
-
-    run_dir = (
-        Path(args.out)
-        if args.out
-        else (Path(rig.telemetry.out_dir) / f"{rig.name}-{time.strftime('%Y%m%d-%H%M%S')}")
-    )
+    for line in _track_warnings(rig, targets, args.duration):
+        _say(f"warning: {line}")
+    try:
+        run_dir = make_run_dir(args.out, rig.telemetry.out_dir, rig.name)
+    except UsageError as exc:
+        _say(str(exc))
+        return EXIT_USAGE
     try:
         bus = DynamixelBus.open(
             port,
@@ -114,9 +189,23 @@ def run(args: argparse.Namespace) -> int:
             read_mode=rig.bus.read.value,
             latency_timer_ms=rig.bus.latency_timer_ms,
         )
-    except DynamixelError as exc:
-        print(f"hilsim run: cannot open {rig.bus.port}: {exc}", file=sys.stderr)
-        return 3
+    except (DynamixelError, ValueError, OSError) as exc:
+        _say(f"cannot open {rig.bus.port}: {exc}")
+        _remove_if_empty(run_dir)
+        return EXIT_USAGE
+    try:
+        return _run_on_bus(args, rig, bus, targets, run_dir)
+    finally:
+        bus.close()
+
+
+def _run_on_bus(args, rig, bus, targets, run_dir: Path) -> int:
+    from drivers.dynamixel.errors import DynamixelError, StartupMismatch
+    from hilsim.loop import HilLoop, StopFlag
+    from hilsim.rig import TelemetryFailurePolicy
+    from hilsim.telemetry import TelemetryWriter, WriterFailedError
+    from hilsim.wiring import bus_capacity_problem, expectations
+
     stop = StopFlag()
     previous = {
         s: signal.signal(s, lambda signum, _f: stop.request(signum))
@@ -125,90 +214,180 @@ def run(args: argparse.Namespace) -> int:
     try:
         latency_ms = bus.link.latency_timer_ms
         try:
-            # A previous run's "hold" exit leaves the Bus Watchdog to trip once the host is
-            # gone; we are the host again, so clear it (writing 0) before checking the rest.
-            with contextlib.suppress(DynamixelError):  # an absent servo: check() names it
-                bus.disarm_watchdog()
+            # A previous run's "hold" exit leaves the Bus Watchdog armed; once that host is
+            # gone it trips. We are the host again: clear it, and say so.
+            tripped = bus.clear_watchdog_trips()
+            notes = []
+            if tripped:
+                notes.append(
+                    f"servo(s) {', '.join(map(str, tripped))}: Bus Watchdog had tripped (a "
+                    "previous run's hold exit, or another program that stopped); cleared"
+                )
+                _say(notes[-1])
             report = bus.check(expectations(rig, latency_ms))
         except StartupMismatch as exc:
-            print(
-                f"hilsim run: the servos on {rig.bus.port} do not match {rig.path}:\n{exc}",
-                file=sys.stderr,
-            )
+            _say(f"the servos on {rig.bus.port} do not match {rig.path}:\n{exc}")
+            _remove_if_empty(run_dir)
             return EXIT_USAGE
-        except DynamixelError as exc:
-            print(f"hilsim run: start-up check failed on {rig.bus.port}: {exc}", file=sys.stderr)
-            return 3
+        except (DynamixelError, ValueError) as exc:
+            _say(f"start-up check failed on {rig.bus.port}: {exc}")
+            _remove_if_empty(run_dir)
+            return EXIT_USAGE
+        for note in report.notes:
+            _say(f"note: {note}")
+        notes += report.notes
         problem = bus_capacity_problem(rig, report, latency_ms)
         if problem:
-            print(f"hilsim run: {rig.path}: {problem}", file=sys.stderr)
+            _say(f"{rig.path}: {problem}")
+            _remove_if_empty(run_dir)
             return EXIT_USAGE
-        telemetry = TelemetryWriter(
-            run_dir,
-            rig.joint_names,
-            servo_ids=rig.servo_ids,
-            flush_interval_s=rig.telemetry.flush_interval_s,
-            config_text=rig.text,
-            # virtual time outruns any disk: wait for the writer rather than drop rows
-            overflow="block" if bus.clock.virtual else "drop",
-        )
+        if stop.signum is not None:
+            _say(f"stopped by signal {stop.signum} during the start-up check: nothing moved")
+            _remove_if_empty(run_dir)
+            return for_signal(stop.signum)
+        try:
+            telemetry = TelemetryWriter(
+                run_dir,
+                rig.joint_names,
+                servo_ids=rig.servo_ids,
+                flush_interval_s=rig.telemetry.flush_interval_s,
+                config_text=rig.text,
+                # virtual time outruns any disk: wait for the writer rather than drop rows
+                overflow="block" if bus.clock.virtual else "drop",
+            )
+        except (OSError, ValueError) as exc:
+            _say(f"cannot write telemetry to {run_dir}: {exc}")
+            return EXIT_USAGE
+        for note in notes:  # what the start-up found and changed, in the run's record too
+            telemetry.event("startup", note)
         mode = "virtual time" if bus.clock.virtual else "real time"
-        print(
-            f"hilsim run: {rig.name}: {len(rig.joints)} joints on {rig.bus.port} at "
-            f"{rig.loop.rate_hz:g} Hz ({mode}) -> {run_dir}",
-            file=sys.stderr,
+        _say(
+            f"{rig.name}: {len(rig.joints)} joints on {rig.bus.port} at "
+            f"{rig.loop.rate_hz:g} Hz ({mode}) -> {run_dir}"
         )
-        loop = HilLoop(
-            rig,
-            bus,
-            targets,
-            telemetry,
-            duration_s=args.duration,
-            stop=stop,
-            on_status=None if bus.clock.virtual else _status_printer(rig.loop.rate_hz),
-        )
-        wall0 = time.perf_counter()
-        result = loop.run()
-        wall = time.perf_counter() - wall0
-        summary = telemetry.close(
-            {
-                "exit_code": result.exit_code,
-                "exit_reason": result.reason,
-                "wall_s": wall,
-                "clock": mode,
-                "port": rig.bus.port,
-                "read_mode": bus.read_mode.value,
-                "loop": result.summary,
-            }
-        )
+        try:
+            loop = HilLoop(
+                rig,
+                bus,
+                targets,
+                telemetry,
+                duration_s=args.duration,
+                stop=stop,
+                on_status=None if bus.clock.virtual else _status_printer(rig.loop.rate_hz),
+            )
+            wall0 = time.perf_counter()
+            result = loop.run()
+            wall = time.perf_counter() - wall0
+        except BaseException:
+            _close_quietly(telemetry, {"exit_code": 1, "exit_reason": "crashed"})
+            raise
+        exit_code, reason = result.exit_code, result.reason
+        summary_in = {
+            "exit_code": exit_code,
+            "exit_reason": reason,
+            "exit_policy": result.summary.get("exit_policy"),
+            "exit_policy_confirmed": result.summary.get("exit_policy_confirmed"),
+            "wall_s": wall,
+            "clock": mode,
+            "port": rig.bus.port,
+            "read_mode": bus.read_mode.value,
+            "loop": result.summary,
+        }
+        try:
+            summary = telemetry.close(summary_in)
+        except WriterFailedError as exc:
+            cause = exc.__cause__ or exc
+            _say(f"telemetry could not be written to {run_dir}: {cause}")
+            if telemetry.error_traceback:
+                print(telemetry.error_traceback.rstrip(), file=sys.stderr)
+            if rig.telemetry.on_failure is TelemetryFailurePolicy.STOP and exit_code == 0:
+                exit_code, reason = int(ExitCode.FAULT), f"telemetry: {cause}"
+            summary = {"telemetry": {"error": repr(cause)}}
     finally:
         for s, handler in previous.items():
             signal.signal(s, handler)
-        bus.close()
-    if sys.stderr.isatty():
+    if sys.stderr.isatty() and not bus.clock.virtual:
         sys.stderr.write("\n")
-    print(
-        f"hilsim run: {result.reason} after {result.ticks} ticks "
+    _say(
+        f"{reason} after {result.ticks} ticks "
         f"({result.ticks / rig.loop.rate_hz:.2f} s of show in {wall:.2f} s); "
-        f"exit policy: {result.summary.get('exit_policy', '?')}",
-        file=sys.stderr,
+        f"{result.summary.get('exit_policy', '?')}"
     )
+    _print_stats(summary, result, rig)
+    print(f"  telemetry: {run_dir}", file=sys.stderr)
+    if exit_code == ExitCode.OK and (verdict := _verdict(summary, result)):
+        _say(f"verdict: {verdict}")
+    if not args.no_plots and "ticks" in summary:  # a summary was written: the run reads back
+        try:
+            from hilsim.plots import plot_run
+
+            for path in plot_run(run_dir):
+                print(f"  plot: {path}", file=sys.stderr)
+        except Exception as exc:  # plots are a convenience: never change the show's verdict
+            _say(f"plots not drawn: {type(exc).__name__}: {exc}")
+    _say(f"exit code {exit_code}")
+    return exit_code
+
+
+def _track_warnings(rig, targets, duration_s: float | None) -> list[str]:
+    """Targets beyond a joint's limits or speed, found at load (joint, time, value)."""
+    from hilsim.track_check import check_tracks
+
+    warnings = check_tracks(targets, rig.joints, rig.loop.period_s, duration_s=duration_s)
+    return [str(w) for w in warnings]
+
+
+def _print_stats(summary: dict, result, rig) -> None:
     lat = summary.get("lateness_us") or {}
 
     def us(key: str) -> str:
         value = lat.get(key)
         return "n/a" if value is None else f"{value:.0f} us"
 
+    stalls = result.summary.get("host_stalls") or {}
     print(
         f"  lateness p50 {us('p50')}, p99 {us('p99')}, max {us('max')}; "
         f"overruns {result.summary.get('overruns', 0)}; "
-        f"comm errors {sum((summary.get('comm_errors') or {}).values())}",
+        f"comm errors {sum((summary.get('comm_errors') or {}).values())}; "
+        f"host stalls {stalls.get('count', 0)} (max {stalls.get('max_ms', 0):.0f} ms)"
+        + (
+            f"; watchdog recoveries {result.summary['recoveries']}"
+            if result.summary.get("recoveries")
+            else ""
+        ),
         file=sys.stderr,
     )
-    print(f"  telemetry: {run_dir}", file=sys.stderr)
-    if not args.no_plots:
-        from hilsim.plots import plot_run
 
-        for path in plot_run(run_dir):
-            print(f"  plot: {path}", file=sys.stderr)
-    return result.exit_code
+
+def _verdict(summary: dict, result) -> str | None:
+    """One line when a completed show was not healthy (overruns, failed reads, lost rows)."""
+    ticks = max(int(summary.get("ticks") or result.ticks or 0), 1)
+    problems = []
+    overruns = int(result.summary.get("overruns", 0))
+    if overruns > VERDICT_OVERRUN_SHARE * ticks:
+        problems.append(f"{overruns / ticks:.0%} of ticks overran (the host is too busy?)")
+    comm = sum((summary.get("comm_errors") or {}).values())
+    if comm > VERDICT_COMM_SHARE * ticks * len(summary.get("comm_errors") or {1: 0}):
+        problems.append(f"{comm} failed reads (check wiring, power and Return Delay Time)")
+    tel = summary.get("telemetry") or {}
+    if tel.get("rows_dropped"):
+        problems.append(f"{tel['rows_dropped']} telemetry rows dropped (disk too slow)")
+    if tel.get("error"):
+        problems.append(f"telemetry failed ({tel['error']}): the run is not fully recorded")
+    if not problems:
+        return None
+    return "the show completed, but " + "; ".join(problems)
+
+
+def _close_quietly(telemetry, summary: dict) -> None:
+    try:
+        telemetry.close(summary, timeout_s=2.0)
+    except Exception as exc:
+        _say(f"telemetry not closed cleanly: {exc}")
+
+
+def _remove_if_empty(path: Path) -> None:
+    """A run directory this process made for a run that never started is removed again."""
+    if path in _CREATED:
+        with contextlib.suppress(OSError):
+            path.rmdir()

@@ -177,11 +177,10 @@ def read_run(run_dir: str | os.PathLike[str]) -> Run:
     columns = {name: data[:, k].copy() for k, name in enumerate(names)}
 
     tick = columns["tick"]
+    missing = 0
     if tick.size > 1:
         steps = np.diff(tick)
         missing = int(np.sum(steps[steps > 1] - 1))
-        if missing:
-            warnings.append(f"{TELEMETRY_CSV}: {missing} tick(s) missing (rows dropped?)")
         if np.any(steps < 1):
             warnings.append(f"{TELEMETRY_CSV}: tick numbers are not increasing")
 
@@ -215,6 +214,18 @@ def read_run(run_dir: str | os.PathLike[str]) -> Run:
             warnings.append(f"{SUMMARY_JSON}: unreadable ({exc})")
     else:
         warnings.append(f"no {SUMMARY_JSON} (the run did not close cleanly, or is still running)")
+    if missing:
+        # ticks the loop caught up on after an overrun have no row (nothing was sent or read)
+        loop = (summary or {}).get("loop") or {}
+        skipped = loop.get("skipped_ticks") if isinstance(loop, dict) else None
+        dropped = missing - skipped if isinstance(skipped, int) else missing
+        if isinstance(skipped, int) and skipped:
+            warnings.append(
+                f"{TELEMETRY_CSV}: {min(skipped, missing)} tick(s) skipped by the loop "
+                "(simulated without bus traffic to catch up after overruns)"
+            )
+        if dropped > 0:
+            warnings.append(f"{TELEMETRY_CSV}: {dropped} tick(s) missing (rows dropped?)")
     tel = summary.get("telemetry") if summary else None
     if isinstance(tel, dict):
         if tel.get("rows_dropped"):

@@ -12,13 +12,14 @@ takes no lock and allocates nothing but a row view. A row is handed to the write
 values known only at the end of the tick (overrun, the telemetry stage's own time) can still be
 filled in with :meth:`~TelemetryWriter.amend`. The writer thread drains the ring every few tens of
 ms, formats rows in small chunks (yielding the GIL between chunks of ~50 µs, so the loop thread is
-not held off), writes them, flushes every ``flush_interval_s`` and ``os.fsync``-s on fault events
-and at close. The ring is single-producer/single-consumer: the loop only advances the head, the
-writer only the tail; CPython's GIL orders the row stores before the head store. When the ring is
-full (disk stalled) the row is dropped and counted (``overflow="drop"``, the real-time default) or
-record waits for space (``overflow="block"``, for virtual-time runs that must be lossless). Dropped
-rows are reported as an event, in the summary and by :func:`~hilsim.runs.read_run`; the statistics
-still cover them.
+not held off), writes them, flushes every ``flush_interval_s``, and ``os.fsync``-s every
+``fsync_interval_s``, on start, fault, signal and exit-policy events and at close (a power cut loses
+at most the last ``fsync_interval_s``). The ring is single-producer/single-consumer: the loop only
+advances the head, the writer only the tail; CPython's GIL orders the row stores before the head
+store. When the ring is full (disk stalled) the row is dropped and counted (``overflow="drop"``, the
+real-time default) or record waits for space (``overflow="block"``, for virtual-time runs that must
+be lossless). Dropped rows are reported as an event, in the summary and by
+:func:`~hilsim.runs.read_run`; the statistics still cover them.
 
 Exceptions::
 
@@ -54,6 +55,7 @@ import os
 import queue
 import threading
 import time
+import traceback
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any, Literal, TextIO
@@ -77,7 +79,7 @@ from hilsim.telemetry_format import (
 )
 
 #: event kinds that are fsync-ed by default (``event(..., fsync=None)``)
-FSYNC_KINDS: frozenset[str] = frozenset({"fault", "signal", "stop"})
+FSYNC_KINDS: frozenset[str] = frozenset({"start", "fault", "signal", "stop", "exit_policy"})
 
 _EXACT = "%.17g"  # round-trips every float64; also prints integral floats as integers
 _MICROS = "%.3f"
@@ -103,6 +105,7 @@ def _row_format(n: int) -> str:
         *[_MICROS] * len(STAGES),
         _EXACT,  # overrun
         _EXACT,  # comm_errors
+        _MICROS,  # host_stall_us
     ]
     return ",".join(fields) + "\n"
 
@@ -148,7 +151,7 @@ class TelemetryWriter:
     holds one run). ``joint_names`` become column suffixes (no commas, quotes or newlines);
     ``servo_ids`` (same order) name the servos in the summary's ``comm_errors``. ``queue_size``
     ring rows absorb a disk stall of ``queue_size / rate`` seconds (16384 rows: 16 s at 1 kHz;
-    ``8 * (10 + 6 * n_joints)`` bytes a row, 7.6 MB for 8 joints). ``overflow`` picks what a full
+    ``8 * (11 + 6 * n_joints)`` bytes a row, 7.6 MB for 8 joints). ``overflow`` picks what a full
     ring does: ``"drop"`` (count the row, return False: never blocks) or ``"block"`` (wait for the
     writer: lossless, for virtual-time runs). ``config_text`` is copied to ``run_dir/config_name``.
 
@@ -168,6 +171,7 @@ class TelemetryWriter:
         *,
         servo_ids: Sequence[Any] | None = None,
         flush_interval_s: float = 0.5,
+        fsync_interval_s: float = 2.0,
         queue_size: int = 16384,
         overflow: Literal["drop", "block"] = "drop",
         config_text: str | None = None,
@@ -185,6 +189,9 @@ class TelemetryWriter:
         self.joint_names = names
         self.columns: tuple[str, ...] = tuple(csv_columns(names))
         self.flush_interval_s = float(flush_interval_s)
+        if not fsync_interval_s > 0.0:
+            raise ValueError(f"fsync_interval_s must be > 0, got {fsync_interval_s!r}")
+        self.fsync_interval_s = float(fsync_interval_s)
         self.queue_size = int(queue_size)
         self.overflow = overflow
         self.max_pending_events = int(max_pending_events)
@@ -226,6 +233,8 @@ class TelemetryWriter:
         # shared state
         self._failed = False
         self._error: BaseException | None = None
+        #: the writer thread's traceback when it died (also in summary.json), else None
+        self.error_traceback: str | None = None
         self._summary: dict[str, Any] = {}
         self._written_summary: dict[str, Any] | None = None
         self._finished = False
@@ -273,6 +282,7 @@ class TelemetryWriter:
         t_telemetry_us: float,
         overrun: bool,
         comm_errors: int,
+        host_stall_us: float = 0.0,
     ) -> bool:
         """Queue one tick's row; return True if queued, False if dropped (ring full, disk stalled).
 
@@ -280,8 +290,8 @@ class TelemetryWriter:
         its buffers): ``target``, ``sim_x``, ``cmd``, ``present`` in rad, ``sim_v`` in rad/s,
         ``present`` NaN where there was no valid read, ``status`` :class:`ReadStatus` codes. Times
         in s since run start; stage times in µs (NaN if not known yet: see :meth:`amend`);
-        ``comm_errors`` cumulative. Never blocks with ``overflow="drop"``; a dropped row still
-        counts in :attr:`stats`.
+        ``comm_errors`` cumulative; ``host_stall_us`` the host's own stall in this tick. Never
+        blocks with ``overflow="drop"``; a dropped row still counts in :attr:`stats`.
 
         Raises :class:`WriterFailedError` if the writer thread has died, and
         :class:`TelemetryError` after :meth:`close`.
@@ -323,6 +333,7 @@ class TelemetryWriter:
         row[k + 3] = t_telemetry_us
         row[k + 4] = overrun
         row[k + 5] = comm_errors
+        row[k + 6] = host_stall_us
         self._cursor = (head << 1) | 1  # publish the previous row, this one pending
         return True
 
@@ -522,7 +533,7 @@ class TelemetryWriter:
 
     def _run(self) -> None:
         try:
-            last_flush = _monotonic()
+            last_flush = last_fsync = _monotonic()
             while True:
                 try:
                     items = [self._inbox.get(timeout=self._poll_s)]
@@ -547,9 +558,13 @@ class TelemetryWriter:
                 if sync:
                     self._drain_rows()  # rows handed over while events were written
                 now = _monotonic()
+                if now - last_fsync >= self.fsync_interval_s:
+                    sync = True  # a power cut loses at most this much
                 if sync or now - last_flush >= self.flush_interval_s:
                     self._flush_files(fsync=sync)
                     last_flush = now
+                    if sync:
+                        last_fsync = now
                 for w in waiters:
                     w.set()
                 if stop:
@@ -557,6 +572,7 @@ class TelemetryWriter:
                     return
         except BaseException as exc:
             self._error = exc
+            self.error_traceback = traceback.format_exc()
             self._failed = True
             self._space.set()
             # wake anyone waiting in flush()
@@ -644,6 +660,7 @@ class TelemetryWriter:
             "queue_size": self.queue_size,
             "overflow": self.overflow,
             "error": None if self._error is None else repr(self._error),
+            "error_traceback": self.error_traceback,
         }
 
     def _write_summary(self) -> None:

@@ -24,6 +24,10 @@ A run directory (written by :class:`hilsim.telemetry.TelemetryWriter`, read back
     t_sim_us  t_safety_us  t_bus_us  t_telemetry_us    per-stage wall time of this tick, µs
     overrun                    1 if the tick missed its deadline, else 0
     comm_errors                cumulative communication errors on the bus
+    host_stall_us              time the host itself stalled in or before this tick (the process
+                               was not running: a GC pause, a busy neighbour, SIGSTOP), µs;
+                               0 on a healthy tick. A tick with a stall is "host-late": its read
+                               failures are not blamed on a servo.
 
 Times, targets, spring state, commands and present positions are written with ``%.17g`` (every
 float64 round-trips exactly); µs columns with ``%.3f`` (ns resolution); integer columns as integers;
@@ -48,7 +52,12 @@ JOINT_FIELDS: tuple[str, ...] = ("target", "sim_x", "sim_v", "cmd", "present", "
 #: loop stages timed every tick; column ``t_<stage>_us``
 STAGES: tuple[str, ...] = ("sim", "safety", "bus", "telemetry")
 #: columns after the per-joint blocks
-TAIL_COLUMNS: tuple[str, ...] = (*(f"t_{s}_us" for s in STAGES), "overrun", "comm_errors")
+TAIL_COLUMNS: tuple[str, ...] = (
+    *(f"t_{s}_us" for s in STAGES),
+    "overrun",
+    "comm_errors",
+    "host_stall_us",
+)
 
 
 class TelemetryError(Exception):

@@ -246,6 +246,8 @@ def test_non_finite_from_the_integrator_never_reaches_the_wire(emulated, tmp_pat
     rig, result, run = run_loop(bus, path, tmp_path / "run", patch=poison)
     assert result.exit_code == EXIT_FAULT and "tail" in result.reason
     assert run.n_ticks == 100  # the poisoned tick stops before its row: it is in the events
+    (safety,) = [e for e in run.events if e["kind"] == "safety"][-1:]
+    assert any(math.isnan(v) for v in safety["sim_x"])  # the offending state is kept
     assert np.all(np.isfinite(run.joint("cmd")))
     for sid, goals in wire_goals(bus).items():
         lo, hi = limits_in_ticks(rig)[sid]
@@ -296,14 +298,18 @@ def test_limits_hold_on_the_wire_for_any_keyframes(emulated, tmp_path_factory, k
 # ------------------------------------------------------------------ the bus fails
 def test_stale_reads_never_become_positions(emulated, tmp_path):
     _bus, path = emulated(faults="drop:id=2,rate=0.2")
-    assert run_cli(path, tmp_path / "run", "--duration", "2") == 0
+    code = run_cli(path, tmp_path / "run", "--duration", "2")
     run = read_run(tmp_path / "run")
+    assert run.summary["exit_reason"] == "end of show"
+    # the exit policy retries each step 4x; a servo losing 1 reply in 5 may still fail 4x in a
+    # row (this seed does): then exit 4, naming that servo and no other
+    policy = next(e for e in run.events if e["kind"] == "exit_policy")
+    assert (code, policy["unconfirmed"] if code else []) in ((0, []), (4, [2]))
     status, present = run.joint("status"), run.joint("present")
     stale = status != 0
     assert stale[:, 1].sum() > 20  # the fault did strike
     assert np.all(np.isnan(present[stale]))
     assert np.all(np.isfinite(present[~stale]))
-    assert run.summary["exit_code"] == 0
 
 
 def fault_time(run, bus, t_bus: float) -> float:
@@ -401,7 +407,12 @@ def test_signals_apply_the_exit_policy_and_keep_telemetry(tmp_path, signum, code
     assert run.summary["exit_code"] == code
     assert not run.truncated  # the signal may land before the first tick: 0 rows is fine
     policy = [e for e in run.events if e["kind"] == "exit_policy"]
-    assert policy and "4 servo(s) confirmed" in policy[0]["message"]
+    signals = [e for e in run.events if e["kind"] == "signal"]
+    assert len(signals) == 1
+    if policy:  # the signal landed once torque was on: the exit policy ran and held all four
+        assert "4 servo(s) confirmed" in policy[0]["message"]
+    else:  # it landed during the start-up: nothing was energised, so nothing to undo
+        assert "nothing was energised" in signals[0]["message"]
 
 
 def test_realtime_scheduling_refused_is_a_warning_not_a_crash(monkeypatch):

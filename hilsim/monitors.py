@@ -1,0 +1,208 @@
+"""What the loop watches besides its clock: the host's own stalls, servo silence, following
+error, and when to read each servo's health. Pure bookkeeping: no I/O, no clock of its own, so
+every rule here is tested on numbers alone.
+
+**A host stall is not servo silence.** The loop measures how long the *host* was not running
+in each tick (:class:`HostStalls`): lateness past a deadline it slept to, work outside the bus
+far beyond its usual cost, and gaps between the driver's polls while it waited for a reply
+(``ServoBus.host_stall_s``). A servo is declared silent (:class:`SilenceBudget`) only when
+it failed at least :data:`MIN_FAILED_READS` reads in a row that were not host-late *and* the
+time since its last good reading, minus the host's stalls in that time, exceeds the budget.
+
+**A frozen figure is a fault.** :class:`FollowingMonitor` compares each joint's present
+position with its command: beyond the joint's tolerance for longer than its time, the show
+stops ("following error"). :class:`HealthSchedule` spreads health reads (torque, hardware
+error, Bus Watchdog, RAM reset) over ticks that have time to spare, round robin.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from drivers.servo_bus import HealthPart
+
+#: consecutive failed, not host-late reads before a servo can be declared silent
+MIN_FAILED_READS = 3
+#: host time beyond the usual that counts as a stall (s): below it is scheduling noise
+STALL_ALLOWANCE_S = 1e-3
+#: stalls at least this long are written to events.jsonl (s)
+STALL_EVENT_S = 10e-3
+#: at most one stall event per this many seconds of wall time; the rest are counted in it
+STALL_EVENT_INTERVAL_S = 1.0
+#: a round of health reads (one per servo) takes about this (s) when ticks have time to
+#: spare; rounds alternate state and watchdog, so a cut torque is found within two rounds
+HEALTH_PERIOD_S = 0.04
+#: a gap on the bus of at least this fraction of the Bus Watchdog period makes the loop check
+#: every servo before it sends the next goals (the servo's 20 ms timer is coarse)
+WATCHDOG_GAP_FRACTION = 0.5
+
+
+@dataclass
+class HostStalls:
+    """The host's own stalls: per tick, and books for the summary.
+
+    ``tick_stall`` is given, per tick (clock seconds): the tick's start lateness, whether the
+    previous tick finished on time (only then is lateness the host's: after an overrun the
+    lateness is the overrun's), the tick's work outside the bus, and the driver's poll gaps
+    during its bus transactions. Work is compared with the smallest of the last
+    ``window`` ticks', so a heavy but steady integration is cost, not a stall.
+    """
+
+    window: int = 64
+    total_s: float = 0.0
+    count: int = 0
+    max_s: float = 0.0
+    _work: np.ndarray = field(init=False, repr=False)
+    _i: int = field(default=0, init=False, repr=False)
+
+    def __post_init__(self) -> None:
+        self._work = np.full(self.window, np.inf)
+
+    def tick_stall(
+        self, lateness_s: float, previous_on_time: bool, work_s: float, poll_gaps_s: float
+    ) -> float:
+        """This tick's host stall (s), 0.0 for a healthy tick; updates the books."""
+        usual = float(self._work.min())
+        self._work[self._i % self.window] = work_s
+        self._i += 1
+        stall = max(poll_gaps_s, 0.0)
+        if previous_on_time and lateness_s > STALL_ALLOWANCE_S:
+            stall += lateness_s
+        if math.isfinite(usual) and work_s - usual > STALL_ALLOWANCE_S:
+            stall += work_s - usual
+        if stall > STALL_ALLOWANCE_S:
+            self.total_s += stall
+            self.count += 1
+            self.max_s = max(self.max_s, stall)
+            return stall
+        return 0.0
+
+    def as_dict(self) -> dict[str, float | int]:
+        return {
+            "count": self.count,
+            "total_ms": round(self.total_s * 1e3, 3),
+            "max_ms": round(self.max_s * 1e3, 3),
+        }
+
+
+class SilenceBudget:
+    """Per servo: how long it has really been silent, not counting the host's stalls.
+
+    ``update`` is called every tick for every servo with whether its read was OK, the clock
+    time, the cumulative host stall time, and whether this tick was host-late. It returns the
+    servo's silent time (s) when that exceeds ``budget_s`` and the servo has failed at least
+    :data:`MIN_FAILED_READS` reads in a row that were not host-late; else None.
+    """
+
+    def __init__(self, n: int, budget_s: float, min_failed: int = MIN_FAILED_READS) -> None:
+        self.budget_s = float(budget_s)
+        self.min_failed = int(min_failed)
+        self._last_ok = [0.0] * n
+        self._stall_at_ok = [0.0] * n
+        self._failed = [0] * n
+
+    def start(self, t: float, stall_total_s: float = 0.0) -> None:
+        for i in range(len(self._last_ok)):
+            self.ok(i, t, stall_total_s)
+
+    def ok(self, i: int, t: float, stall_total_s: float) -> None:
+        self._last_ok[i] = t
+        self._stall_at_ok[i] = stall_total_s
+        self._failed[i] = 0
+
+    def failed(self, i: int, t: float, stall_total_s: float, host_late: bool) -> float | None:
+        if not host_late:
+            self._failed[i] += 1
+        silent = self.silent_s(i, t, stall_total_s)
+        if self._failed[i] >= self.min_failed and silent > self.budget_s:
+            return silent
+        return None
+
+    def silent_s(self, i: int, t: float, stall_total_s: float) -> float:
+        """Time since servo ``i``'s last good reading, less the host's stalls since then."""
+        return (t - self._last_ok[i]) - (stall_total_s - self._stall_at_ok[i])
+
+    def failed_reads(self, i: int) -> int:
+        return self._failed[i]
+
+
+@dataclass(frozen=True)
+class FollowingError:
+    joint: int
+    error_rad: float
+    duration_s: float
+
+
+class FollowingMonitor:
+    """Commanded vs present per joint: beyond ``tolerance_rad`` for longer than ``time_s``.
+
+    Time is counted in ticks of show time (``period_s`` each) over ticks with a valid reading;
+    a tick without one neither adds nor resets. :meth:`reset` forgets a joint (after a
+    recovery it rejoins from where it is).
+    """
+
+    def __init__(
+        self, tolerance_rad: Sequence[float], time_s: Sequence[float], period_s: float
+    ) -> None:
+        self.tolerance = [float(t) for t in tolerance_rad]
+        self.limit_ticks = [max(1, math.ceil(t / period_s - 1e-9)) for t in time_s]
+        self.period_s = float(period_s)
+        self._count = [0] * len(self.tolerance)
+
+    def update(self, present: Sequence[float], cmd: Sequence[float]) -> FollowingError | None:
+        """One tick (joint frame, rad; NaN present = no reading). The first joint over its
+        time, or None."""
+        count = self._count
+        for j, (p, c) in enumerate(zip(present, cmd, strict=True)):
+            if p != p:  # NaN: no reading this tick
+                continue
+            err = abs(p - c)
+            if err > self.tolerance[j]:
+                count[j] += 1
+                if count[j] >= self.limit_ticks[j]:
+                    return FollowingError(j, err, count[j] * self.period_s)
+            else:
+                count[j] = 0
+        return None
+
+    def reset(self, j: int) -> None:
+        self._count[j] = 0
+
+
+class HealthSchedule:
+    """Round robin over the servos: which one to read next, and whether it is time.
+
+    A round (one read per servo) takes about ``period_s`` (the interval between reads is
+    ``period_s / n``), but reads happen only on a tick whose remaining time covers the read
+    (the caller checks the spare time), so the tick rate is kept; a read that had no room
+    waits for the next tick that has.
+    """
+
+    def __init__(self, n: int, period_s: float = HEALTH_PERIOD_S) -> None:
+        self.n = n
+        self.interval_s = period_s / n
+        self._next = 0
+        self._round = 0
+        self._due = -math.inf
+        self.reads = 0
+        self.deferred = 0
+
+    def due(self, t: float) -> bool:
+        return t >= self._due
+
+    def take(self, t: float) -> tuple[int, HealthPart]:
+        """The servo to read now (its index) and what to read: rounds alternate between its
+        state (torque, hardware error) and its Bus Watchdog, each short enough to fit in
+        the spare part of a tick. Schedules the next read."""
+        i = self._next
+        part = HealthPart.STATE if self._round % 2 == 0 else HealthPart.WATCHDOG
+        self._next = (i + 1) % self.n
+        if self._next == 0:
+            self._round += 1
+        self._due = t + self.interval_s
+        self.reads += 1
+        return i, part

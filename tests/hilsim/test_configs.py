@@ -1,0 +1,29 @@
+"""Every rig shipped in configs/ runs on the set-up the README recommends (emulated here): four
+XM430-W350 at 1 Mbps, Return Delay Time 0, a U2D2 with its latency timer at 1 ms."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from hilsim.cli import main
+from hilsim.runs import read_run
+
+REPO = Path(__file__).resolve().parents[2]
+U2D2 = "dxlsim://?ids=1-4&model=XM430-W350&rdt_us=0&latency_ms=1"
+
+
+@pytest.mark.parametrize("rig", sorted((REPO / "configs").glob("*.toml")), ids=lambda p: p.name)
+def test_shipped_rig_runs_on_the_recommended_setup(rig, tmp_path, capsys):
+    out = tmp_path / "run"
+    code = main(
+        ["run", str(rig), "--port", U2D2, "--virtual-time", "--no-plots", "--duration", "2",
+         "--out", str(out)]
+    )  # fmt: skip
+    err = capsys.readouterr().err
+    assert code == 0, err
+    run = read_run(out)
+    assert run.summary["exit_policy_confirmed"] is True
+    assert run.summary["overruns"] == 0
+    assert run.summary["loop"]["health_reads"] > 0  # the tick has room to check the servos
