@@ -410,8 +410,12 @@ class HilLoop:
         self.silence.start(t0)
         self._comm_errors = 0
         next_status = perf() + 0.5
-        on_time = True
-        tail_s = 0.0
+        # host-stall accounting per iteration: wall time less sleep, bus calls and catch-up
+        prev_actual: float | None = None
+        prev_excluded = 0.0
+        prev_ok = False
+        health_s: float | None = None  # the last health read's bus time, if one went well
+        gaps_mark = bus.host_stall_s
         limits_every = max(1, round(1.0 / period))  # clamps are logged once a second at most
         next_limits_tick = limits_every
         self._limits_seen: dict[str, dict[str, int]] = {}
@@ -420,11 +424,15 @@ class HilLoop:
             if self._stopping():
                 break
             t_sched = t0 + k * period
+            t_top = clock.now()
             t_actual = clock.wait_until(t_sched, slack)
+            # late from a sleep it had to take: the host was not running (else it was behind)
+            sleep_late = t_actual - t_sched if t_top < t_sched else 0.0
+            work = None if prev_actual is None else t_top - prev_actual - prev_excluded
+            excluded = 0.0  # this iteration's time in bus calls and catch-up: not host work
             t_sim = k * period
             self._k = k
             c0 = perf()
-            gaps0 = bus.host_stall_s
             # -- safety: the only way to the wire
             event = safety.filter(x, cmd)
             if event is not None:
@@ -438,13 +446,12 @@ class HilLoop:
                 self._event("safety", str(event), tick=k, t=t_sim, fsync=True, **state)
                 if event.fatal:
                     raise LoopFaultError(f"safety: {event}")
-            checked_s = 0.0
             if self._watchdog_s:  # a long silence on the bus: have the servos stopped?
                 gap = clock.now() - self._last_bus_t
                 if gap >= WATCHDOG_GAP_FRACTION * self._watchdog_s:
                     t_check = clock.now()
                     self._after_bus_silence(gap, k)
-                    checked_s = clock.now() - t_check
+                    excluded += clock.now() - t_check
             np.multiply(cmd, direction, out=goal)
             goal += home
             tb = clock.now()
@@ -457,19 +464,28 @@ class HilLoop:
                 raise LoopFaultError(f"bus: {exc}") from exc
             c2 = perf()
             tc = clock.now()
+            excluded += tc - tb
             self._last_bus_t = tb  # the servos' watchdog counts from the last packet they got
             np.subtract(reading.positions, home, out=present)
             present *= direction
             self.targets.sample(t_sim, self.u, self.du)
             c3 = perf()
-            # the host's own stall: late wake-up, work outside the bus (this tick's head and
-            # the previous tick's tail) beyond its usual cost, poll gaps inside the bus
+            # the host's own stall in or just before this tick: a late wake-up, the last
+            # iteration's host work beyond its usual cost, poll gaps or a bus call beyond its
+            # usual time
+            # (a bus call is judged only after two clean reads: after a failed one the next
+            # request waits out the rest of its chain; a virtual clock has no host stalls)
+            all_ok = not reading.status.any()
             stall = self.stalls.tick_stall(
-                t_actual - t_sched,
-                on_time,
-                tb - t_actual - checked_s + tail_s,
-                bus.host_stall_s - gaps0,
+                sleep_late,
+                work,
+                bus.host_stall_s - gaps_mark,
+                tc - tb if all_ok and prev_ok and not clock.virtual else None,
+                None if clock.virtual else health_s,
             )
+            health_s = None
+            prev_ok = all_ok
+            gaps_mark = bus.host_stall_s
             self._record(k, t_sim, t_actual - t0, reading.status, c1 - c0, c2 - c1, stall)
             c4 = perf()
             # -- faults that stop the show, raised once the tick is in telemetry
@@ -484,7 +500,6 @@ class HilLoop:
             c5 = perf()
             k += 1
             t_end = clock.now()
-            tail_s = t_end - tc
             late = t_end > t0 + k * period
             if self._recording:
                 self.telemetry.amend(
@@ -495,7 +510,7 @@ class HilLoop:
                 )
             self._check_integration_keeps_up((c5 - c4) / period, t_end)
             recent[k % 512] = (t_actual - t_sched) * 1e6
-            on_time = not late
+            t_extra = clock.now()  # catch-up and the health read: not host work
             if late:
                 self.stats["overruns"] += 1
                 if stop_on_overrun:
@@ -505,9 +520,9 @@ class HilLoop:
                     )
                 k = self._catch_up(k, t0, t_end, n_ticks)
             elif n_ticks is None or k < n_ticks:
-                self._maybe_read_health(t0 + k * period - t_end, t_end, k - 1)
-                if clock.now() > t0 + k * period:  # the read found a silent servo (timeout)
-                    on_time = False  # the next tick's lateness is the bus's, not the host's
+                health_s = self._maybe_read_health(t0 + k * period - t_end, t_end, k - 1)
+            excluded += clock.now() - t_extra
+            prev_actual, prev_excluded = t_actual, excluded
             if k >= next_limits_tick:  # once a second: what the filter did, a corrupt reply
                 next_limits_tick = k + limits_every
                 self._log_safety_limits(k - 1, t_sim)
@@ -706,22 +721,25 @@ class HilLoop:
             )
 
     # ------------------------------------------------------------------ health
-    def _maybe_read_health(self, spare_s: float, t: float, k: int) -> None:
-        """One servo's health, round robin, if this tick has time to spare for it."""
+    def _maybe_read_health(self, spare_s: float, t: float, k: int) -> float | None:
+        """One servo's health, round robin, if this tick has time to spare for it; returns
+        the read's bus time when it went well (the host-stall books judge it)."""
         sched = self.health
         if not sched.due(t):
-            return
+            return None
         if spare_s < HEALTH_MARGIN * self.bus.health_read_s + HEALTH_SPARE_S:
             sched.deferred += 1
-            return
+            return None
         i, part = sched.take(t)
         sent = self.clock.now()
         try:
             health = self.bus.read_health(self.rig.servo_ids[i], part)
         except ServoBusError:
-            return  # a failed read says nothing new: the per-tick reads keep the budget
+            return None  # a failed read says nothing new: the per-tick reads keep the budget
+        took = self.clock.now() - sent
         self._last_bus_t = max(self._last_bus_t, sent)
         self._handle_health(i, health, k, explained=self._last_long_gap_t > self._last_health_ok[i])
+        return took
 
     def _after_bus_silence(self, gap_s: float, k: int) -> None:
         """The bus was quiet for a good part of the Bus Watchdog period (a host stall): check

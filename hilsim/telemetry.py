@@ -572,9 +572,9 @@ class TelemetryWriter:
                     return
         except BaseException as exc:
             self._error = exc
-            self.error_traceback = traceback.format_exc()
-            self._failed = True
+            self._failed = True  # first: the loop must see the death at its next record()
             self._space.set()
+            self.error_traceback = traceback.format_exc()  # read after join() (close)
             # wake anyone waiting in flush()
             with contextlib.suppress(queue.Empty):
                 while True:

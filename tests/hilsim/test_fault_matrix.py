@@ -29,6 +29,7 @@ import os
 import re
 import shutil
 import signal
+import time
 import types
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -1357,6 +1358,26 @@ def capture_writer(monkeypatch) -> dict:
     return got
 
 
+def writer_dies_by(emu, got: dict, t_bus: float) -> None:
+    """Make the telemetry writer meet the full disk by bus time ``t_bus`` and be dead before
+    the loop goes on: at the first Sync Write from then on, flush it, and wait until its death
+    is registered (it is a real thread, and it may also have died on its own just now: in
+    virtual time the loop would notice only after many ticks)."""
+
+    def hook(data: bytes) -> None:
+        writer = got.get("writer")  # None during the start-up check
+        if writer is None or writer.failed:
+            return
+        if emu.bus.clock.now() >= t_bus and data[7] == INST.SYNC_WRITE:
+            with contextlib.suppress(Exception):
+                writer.flush(timeout_s=30)
+            deadline = time.monotonic() + 10
+            while not writer.failed and time.monotonic() < deadline:
+                time.sleep(0.001)
+
+    emu.hook_writes(hook)
+
+
 def test_row_28_writer_thread_death_is_a_safe_stop_never_silent(emulated, monkeypatch, capsys):
     disk = _Disk(free=20_000)  # the header and a few dozen rows fit
     opener = TelemetryWriter._open
@@ -1369,12 +1390,7 @@ def test_row_28_writer_thread_death_is_a_safe_stop_never_silent(emulated, monkey
     got = capture_writer(monkeypatch)
     emu = emulated()
 
-    def hook(data: bytes) -> None:  # make sure the writer has met the full disk by 0.6 s
-        if emu.bus.clock.now() >= 0.6 and data[7] == INST.SYNC_WRITE and not disk.hit:
-            with contextlib.suppress(Exception):
-                got["writer"].flush(timeout_s=30)
-
-    emu.hook_writes(hook)
+    writer_dies_by(emu, got, 0.6)
     assert emu.run() == ExitCode.FAULT
     err = capsys.readouterr().err
     assert disk.hit and "No space left on device" in err
@@ -1474,12 +1490,7 @@ def test_row_30_disk_full_is_a_safe_stop_reported_on_stderr(emulated, monkeypatc
     got = capture_writer(monkeypatch)
     emu = emulated()
 
-    def hook(data: bytes) -> None:  # make sure the writer has met the full disk by 0.6 s
-        if emu.bus.clock.now() >= 0.6 and data[7] == INST.SYNC_WRITE and not disk.hit:
-            with contextlib.suppress(Exception):
-                got["writer"].flush(timeout_s=30)
-
-    emu.hook_writes(hook)
+    writer_dies_by(emu, got, 0.6)
     assert emu.run() == ExitCode.FAULT  # default telemetry.on_failure = "stop"
     err = capsys.readouterr().err
     assert disk.hit
