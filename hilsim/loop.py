@@ -413,8 +413,6 @@ class HilLoop:
         # host-stall accounting per iteration: wall time less sleep, bus calls and catch-up
         prev_actual: float | None = None
         prev_excluded = 0.0
-        prev_ok = False
-        health_s: float | None = None  # the last health read's bus time, if one went well
         gaps_mark = bus.host_stall_s
         limits_every = max(1, round(1.0 / period))  # clamps are logged once a second at most
         next_limits_tick = limits_every
@@ -471,20 +469,9 @@ class HilLoop:
             self.targets.sample(t_sim, self.u, self.du)
             c3 = perf()
             # the host's own stall in or just before this tick: a late wake-up, the last
-            # iteration's host work beyond its usual cost, poll gaps or a bus call beyond its
-            # usual time
-            # (a bus call is judged only after two clean reads: after a failed one the next
-            # request waits out the rest of its chain; a virtual clock has no host stalls)
-            all_ok = not reading.status.any()
-            stall = self.stalls.tick_stall(
-                sleep_late,
-                work,
-                bus.host_stall_s - gaps_mark,
-                tc - tb if all_ok and prev_ok and not clock.virtual else None,
-                None if clock.virtual else health_s,
-            )
-            health_s = None
-            prev_ok = all_ok
+            # iteration's host work beyond its usual cost, and what the driver saw of the host
+            # not running inside its bus calls (the health read's too)
+            stall = self.stalls.tick_stall(sleep_late, work, bus.host_stall_s - gaps_mark)
             gaps_mark = bus.host_stall_s
             self._record(k, t_sim, t_actual - t0, reading.status, c1 - c0, c2 - c1, stall)
             c4 = perf()
@@ -520,7 +507,7 @@ class HilLoop:
                     )
                 k = self._catch_up(k, t0, t_end, n_ticks)
             elif n_ticks is None or k < n_ticks:
-                health_s = self._maybe_read_health(t0 + k * period - t_end, t_end, k - 1)
+                self._maybe_read_health(t0 + k * period - t_end, t_end, k - 1)
             excluded += clock.now() - t_extra
             prev_actual, prev_excluded = t_actual, excluded
             if k >= next_limits_tick:  # once a second: what the filter did, a corrupt reply
@@ -721,25 +708,22 @@ class HilLoop:
             )
 
     # ------------------------------------------------------------------ health
-    def _maybe_read_health(self, spare_s: float, t: float, k: int) -> float | None:
-        """One servo's health, round robin, if this tick has time to spare for it; returns
-        the read's bus time when it went well (the host-stall books judge it)."""
+    def _maybe_read_health(self, spare_s: float, t: float, k: int) -> None:
+        """One servo's health, round robin, if this tick has time to spare for it."""
         sched = self.health
         if not sched.due(t):
-            return None
+            return
         if spare_s < HEALTH_MARGIN * self.bus.health_read_s + HEALTH_SPARE_S:
             sched.deferred += 1
-            return None
+            return
         i, part = sched.take(t)
         sent = self.clock.now()
         try:
             health = self.bus.read_health(self.rig.servo_ids[i], part)
         except ServoBusError:
-            return None  # a failed read says nothing new: the per-tick reads keep the budget
-        took = self.clock.now() - sent
+            return  # a failed read says nothing new: the per-tick reads keep the budget
         self._last_bus_t = max(self._last_bus_t, sent)
         self._handle_health(i, health, k, explained=self._last_long_gap_t > self._last_health_ok[i])
-        return took
 
     def _after_bus_silence(self, gap_s: float, k: int) -> None:
         """The bus was quiet for a good part of the Bus Watchdog period (a host stall): check

@@ -58,61 +58,31 @@ class HostStalls:
     count: int = 0
     max_s: float = 0.0
     _work: np.ndarray = field(init=False, repr=False)
-    _bus: np.ndarray = field(init=False, repr=False)
-    _health: np.ndarray = field(init=False, repr=False)
     _i: int = field(default=0, init=False, repr=False)
-    _j: int = field(default=0, init=False, repr=False)
-    _h: int = field(default=0, init=False, repr=False)
 
     def __post_init__(self) -> None:
         self._work = np.full(self.window, np.inf)
-        self._bus = np.full(self.window, np.inf)
-        self._health = np.full(self.window, np.inf)
 
-    def tick_stall(
-        self,
-        sleep_late_s: float,
-        work_s: float | None,
-        poll_gaps_s: float,
-        bus_s: float | None = None,
-        health_s: float | None = None,
-    ) -> float:
+    def tick_stall(self, sleep_late_s: float, work_s: float | None, poll_gaps_s: float) -> float:
         """This iteration's host stall (s), 0.0 for a healthy one; updates the books.
 
-        ``bus_s``: the tick's bus call (Sync Write + Sync Read), only when every servo
-        answered (with a failed read, the extra time is the timeout's, not the host's). Its
-        excess over the usual catches a stall outside the driver's polls (inside a write,
-        or inside the read that completed the reply); poll gaps and it overlap, so the
-        larger counts. ``health_s``: the last iteration's health read, judged the same way.
+        ``poll_gaps_s``: what the driver measured inside its bus calls (``ServoBus.host_stall_s``
+        differenced): device latency never counts there, only the host not running.
         """
-        stall = 0.0
+        stall = max(poll_gaps_s, 0.0)
         if sleep_late_s > STALL_ALLOWANCE_S:
             stall += sleep_late_s
         if work_s is not None:
-            stall += self._excess(self._work, self._i, work_s)
+            usual = float(self._work.min())
+            self._work[self._i % self.window] = work_s
             self._i += 1
-        in_bus = 0.0
-        if bus_s is not None:
-            in_bus = self._excess(self._bus, self._j, bus_s)
-            self._j += 1
-        if health_s is not None:
-            in_bus += self._excess(self._health, self._h, health_s)
-            self._h += 1
-        stall += max(poll_gaps_s, in_bus, 0.0)
+            if math.isfinite(usual) and work_s - usual > STALL_ALLOWANCE_S:
+                stall += work_s - usual
         if stall > STALL_ALLOWANCE_S:
             self.total_s += stall
             self.count += 1
             self.max_s = max(self.max_s, stall)
             return stall
-        return 0.0
-
-    def _excess(self, ring: np.ndarray, i: int, value: float) -> float:
-        """How far ``value`` exceeds the smallest of the ring's (the usual), beyond the
-        allowance; then ``value`` joins the ring."""
-        usual = float(ring.min())
-        ring[i % self.window] = value
-        if math.isfinite(usual) and value - usual > STALL_ALLOWANCE_S:
-            return value - usual
         return 0.0
 
     def as_dict(self) -> dict[str, float | int]:

@@ -17,9 +17,11 @@ packet code:
   the last :meth:`readPort` started after ``packet_start_time + packet_timeout``; otherwise
   the SDK polls once more and takes whatever arrived. This holds for every transaction
   (tick reads, unicast, broadcast ping): they all poll through here;
-* host stalls are measured: :attr:`host_stall_s` / :attr:`host_stalls` add up the gaps
-  between consecutive polls of one transaction longer than :data:`HOST_STALL_THRESHOLD_S`
-  (the process was not running). Always 0 on a virtual clock;
+* host stalls are measured: :attr:`host_stall_s` / :attr:`host_stalls` add up, within a
+  transaction (from its transmit), the gaps between this port's calls and the time inside
+  one read or write call, where longer than :data:`HOST_STALL_THRESHOLD_S` (the process was
+  not running: waiting for a device is many quick polls, never a gap). Always 0 on a
+  virtual clock;
 * the packet timeout's device allowance is two per-port facts instead of the module
   global ``port_handler.LATENCY_TIMER``: :attr:`latency_timer_ms` (the adapter's latency,
   what a bus-capacity calculation uses) and :attr:`device_allowance_ms` (the least time
@@ -71,10 +73,10 @@ class PortHandler(dynamixel_sdk.PortHandler):
     Attributes
     ----------
     host_stall_s:
-        Cumulative seconds the host was not running while it waited for replies: the sum
-        of the gaps longer than :data:`HOST_STALL_THRESHOLD_S` between consecutive polls
-        of one transaction (from its packet timer's start to its last poll). A counter:
-        difference it around a transaction. 0 on a virtual clock.
+        Cumulative seconds the host was not running during transactions: the gaps
+        between this port's calls and the time inside one read or write call, each where
+        longer than :data:`HOST_STALL_THRESHOLD_S`, from a transaction's transmit to its
+        last poll. A counter: difference it around a transaction. 0 on a virtual clock.
     host_stalls:
         How many such gaps :attr:`host_stall_s` adds up.
     """
@@ -158,9 +160,27 @@ class PortHandler(dynamixel_sdk.PortHandler):
     def _start(self) -> None:
         clock = self.clock
         now = clock.now()
+        self._watch_entry(now)
         self.packet_start_time = now * 1000.0
         self._poll_ms = None
-        self._mark_s = None if clock.virtual else now
+        if not clock.virtual:
+            self._mark_s = now
+
+    # -- host-stall watch: within a transaction, time between this port's calls and inside
+    # one call is host time (waiting for a device is many quick polls, never a gap); more
+    # than HOST_STALL_THRESHOLD_S of it is the process not running
+    def _watch_entry(self, now: float) -> None:
+        mark = self._mark_s
+        if mark is not None and now - mark > HOST_STALL_THRESHOLD_S:
+            self.host_stall_s += now - mark
+            self.host_stalls += 1
+
+    def _watch_exit(self, entry: float) -> None:
+        now = self.clock.now()
+        if now - entry > HOST_STALL_THRESHOLD_S:
+            self.host_stall_s += now - entry
+            self.host_stalls += 1
+        self._mark_s = now
 
     def isPacketTimeout(self) -> bool:
         """True only if the last poll began after the deadline (then the SDK gives up, as
@@ -184,24 +204,33 @@ class PortHandler(dynamixel_sdk.PortHandler):
             # begins at or after the deadline takes what is readable and never waits.
             remaining_ms = self.packet_start_time + self.packet_timeout - now_ms
             self.ser.timeout = remaining_ms * 1e-3 + 1e-6 if remaining_ms > 0.0 else 0
-        else:
-            mark = self._mark_s
-            if mark is not None and now - mark > HOST_STALL_THRESHOLD_S:
-                self.host_stall_s += now - mark
-                self.host_stalls += 1
-            self._mark_s = now
+            try:
+                return self.ser.read(length)
+            except serial.SerialException:
+                self.is_using = False
+                raise
+        self._watch_entry(now)
         try:
             return self.ser.read(length)
         except serial.SerialException:
             self.is_using = False
             raise
+        finally:
+            self._watch_exit(now)
 
     def writePort(self, packet):
+        clock = self.clock
+        entry = None if clock.virtual else clock.now()
+        if entry is not None:
+            self._watch_entry(entry)
         try:
             return self.ser.write(bytes(packet))
         except serial.SerialException:
             self.is_using = False
             raise
+        finally:
+            if entry is not None:
+                self._watch_exit(entry)
 
     def hold_until_quiet(self, t: float) -> None:
         """Replies may still be on the wire until ``t`` (clock seconds), e.g. the rest of
@@ -220,3 +249,6 @@ class PortHandler(dynamixel_sdk.PortHandler):
         except serial.SerialException:
             self.is_using = False
             raise
+        # every transmit begins here: the host-stall watch starts afresh (time before a
+        # transaction is the caller's to account for)
+        self._mark_s = None if self.clock.virtual else self.clock.now()
