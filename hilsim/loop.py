@@ -413,6 +413,7 @@ class HilLoop:
         # host-stall accounting per iteration: wall time less sleep, bus calls and catch-up
         prev_actual: float | None = None
         prev_excluded = 0.0
+        integ_s = math.inf  # the least integrating one tick has cost (clock time)
         gaps_mark = bus.host_stall_s
         limits_every = max(1, round(1.0 / period))  # clamps are logged once a second at most
         next_limits_tick = limits_every
@@ -483,7 +484,9 @@ class HilLoop:
             self._check_reads(reading, tc, stall > 0.0)
             self._check_following(k)
             # -- advance the springs to the next tick (target held over each step)
+            t_int = clock.now()
             self._integrate(t_sim, first_target_sampled=True)
+            integ_s = min(integ_s, clock.now() - t_int)  # the least one tick has cost
             c5 = perf()
             k += 1
             t_end = clock.now()
@@ -497,7 +500,6 @@ class HilLoop:
                 )
             self._check_integration_keeps_up((c5 - c4) / period, t_end)
             recent[k % 512] = (t_actual - t_sched) * 1e6
-            t_extra = clock.now()  # catch-up and the health read: not host work
             if late:
                 self.stats["overruns"] += 1
                 if stop_on_overrun:
@@ -505,10 +507,13 @@ class HilLoop:
                         f"overrun at tick {k - 1}: the tick took {(t_end - t_actual) * 1e3:.2f} ms "
                         f"(period {period * 1e3:g} ms; overrun_policy = 'stop')"
                     )
+                caught_up = k
                 k = self._catch_up(k, t0, t_end, n_ticks)
+                excluded += (k - caught_up) * integ_s  # its cost; a stall in it is the host's
             elif n_ticks is None or k < n_ticks:
+                t_health = clock.now()  # bus time (a stall inside is the driver's to see)
                 self._maybe_read_health(t0 + k * period - t_end, t_end, k - 1)
-            excluded += clock.now() - t_extra
+                excluded += clock.now() - t_health
             prev_actual, prev_excluded = t_actual, excluded
             if k >= next_limits_tick:  # once a second: what the filter did, a corrupt reply
                 next_limits_tick = k + limits_every
