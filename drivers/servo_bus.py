@@ -365,6 +365,13 @@ class ServoBus(ABC):
     corrupt_sample: bytes | None = None
 
     @property
+    def device_wait_s(self) -> float:
+        """Cumulative time (s) spent inside transactions waiting on the servos (host stalls
+        excluded); difference it. What is left of a caller's wall time is its own work.
+        A backend that cannot tell returns 0."""
+        return 0.0
+
+    @property
     def host_stall_s(self) -> float:
         """Cumulative time (s) the host was not running while waiting for replies (the
         process was descheduled between polls); difference it to get one transaction's.

@@ -410,8 +410,10 @@ class HilLoop:
         self.silence.start(t0)
         self._comm_errors = 0
         next_status = perf() + 0.5
-        # host-stall accounting per iteration: wall time less sleep, bus calls and catch-up
+        # host-stall accounting per iteration: wall time less the sleep, the time the driver
+        # waited on the servos, and the catch-up's cost is host work
         prev_actual: float | None = None
+        prev_wait = 0.0
         prev_excluded = 0.0
         integ_s = math.inf  # the least integrating one tick has cost (clock time)
         gaps_mark = bus.host_stall_s
@@ -427,8 +429,13 @@ class HilLoop:
             t_actual = clock.wait_until(t_sched, slack)
             # late from a sleep it had to take: the host was not running (else it was behind)
             sleep_late = t_actual - t_sched if t_top < t_sched else 0.0
-            work = None if prev_actual is None else t_top - prev_actual - prev_excluded
-            excluded = 0.0  # this iteration's time in bus calls and catch-up: not host work
+            waited = bus.device_wait_s
+            work = (
+                None
+                if prev_actual is None
+                else t_top - prev_actual - (waited - prev_wait) - prev_excluded
+            )
+            excluded = 0.0  # this iteration's catch-up cost: not host work
             t_sim = k * period
             self._k = k
             c0 = perf()
@@ -448,9 +455,7 @@ class HilLoop:
             if self._watchdog_s:  # a long silence on the bus: have the servos stopped?
                 gap = clock.now() - self._last_bus_t
                 if gap >= WATCHDOG_GAP_FRACTION * self._watchdog_s:
-                    t_check = clock.now()
                     self._after_bus_silence(gap, k)
-                    excluded += clock.now() - t_check
             np.multiply(cmd, direction, out=goal)
             goal += home
             tb = clock.now()
@@ -463,7 +468,6 @@ class HilLoop:
                 raise LoopFaultError(f"bus: {exc}") from exc
             c2 = perf()
             tc = clock.now()
-            excluded += tc - tb
             self._last_bus_t = tb  # the servos' watchdog counts from the last packet they got
             np.subtract(reading.positions, home, out=present)
             present *= direction
@@ -511,10 +515,8 @@ class HilLoop:
                 k = self._catch_up(k, t0, t_end, n_ticks)
                 excluded += (k - caught_up) * integ_s  # its cost; a stall in it is the host's
             elif n_ticks is None or k < n_ticks:
-                t_health = clock.now()  # bus time (a stall inside is the driver's to see)
                 self._maybe_read_health(t0 + k * period - t_end, t_end, k - 1)
-                excluded += clock.now() - t_health
-            prev_actual, prev_excluded = t_actual, excluded
+            prev_actual, prev_wait, prev_excluded = t_actual, waited, excluded
             if k >= next_limits_tick:  # once a second: what the filter did, a corrupt reply
                 next_limits_tick = k + limits_every
                 self._log_safety_limits(k - 1, t_sim)

@@ -731,6 +731,10 @@ class DynamixelBus(ServoBus):
     def host_stall_s(self) -> float:
         return float(getattr(self._port, "host_stall_s", 0.0))
 
+    @property
+    def device_wait_s(self) -> float:
+        return float(getattr(self._port, "device_wait_s", 0.0))
+
     def _recover_watchdog(self, servo_id: int, goal_rad: float) -> None:
         attempts = 1 + self.retries
         k = self._index[servo_id]

@@ -79,6 +79,10 @@ class PortHandler(dynamixel_sdk.PortHandler):
         last poll. A counter: difference it around a transaction. 0 on a virtual clock.
     host_stalls:
         How many such gaps :attr:`host_stall_s` adds up.
+    device_wait_s:
+        Cumulative seconds spent in transactions other than host stalls: waiting on the
+        device (and the SDK's own code between polls). A caller that takes this from its
+        wall time is left with its own work, where a stall outside the port shows.
     """
 
     def __init__(
@@ -99,6 +103,7 @@ class PortHandler(dynamixel_sdk.PortHandler):
         self.device_allowance_ms = float(device_allowance_ms)
         self.host_stall_s = 0.0
         self.host_stalls = 0
+        self.device_wait_s = 0.0
         self._poll_ms: float | None = None  # when the last poll of this transaction began
         self._mark_s: float | None = None  # stall measurement: the previous poll (s)
         self._quiet_at: float | None = None  # replies may still arrive until then (s)
@@ -160,26 +165,28 @@ class PortHandler(dynamixel_sdk.PortHandler):
     def _start(self) -> None:
         clock = self.clock
         now = clock.now()
-        self._watch_entry(now)
+        self._watch(now, now)
         self.packet_start_time = now * 1000.0
         self._poll_ms = None
-        if not clock.virtual:
-            self._mark_s = now
 
-    # -- host-stall watch: within a transaction, time between this port's calls and inside
-    # one call is host time (waiting for a device is many quick polls, never a gap); more
-    # than HOST_STALL_THRESHOLD_S of it is the process not running
-    def _watch_entry(self, now: float) -> None:
+    # -- the host-stall watch. Within a transaction (from its transmit to its last poll)
+    # time goes to waiting on the device, which is many quick polls, never a gap; a gap
+    # between this port's calls, or one read or write call, longer than
+    # HOST_STALL_THRESHOLD_S is the process not running. The rest is device_wait_s.
+    def _watch(self, entry: float, now: float) -> None:
         mark = self._mark_s
-        if mark is not None and now - mark > HOST_STALL_THRESHOLD_S:
-            self.host_stall_s += now - mark
-            self.host_stalls += 1
-
-    def _watch_exit(self, entry: float) -> None:
-        now = self.clock.now()
-        if now - entry > HOST_STALL_THRESHOLD_S:
-            self.host_stall_s += now - entry
-            self.host_stalls += 1
+        if mark is None:
+            return
+        stall = 0.0
+        if not self.clock.virtual:
+            if entry - mark > HOST_STALL_THRESHOLD_S:
+                stall += entry - mark
+            if now - entry > HOST_STALL_THRESHOLD_S:
+                stall += now - entry
+            if stall:
+                self.host_stall_s += stall
+                self.host_stalls += 1
+        self.device_wait_s += (now - mark) - stall
         self._mark_s = now
 
     def isPacketTimeout(self) -> bool:
@@ -204,33 +211,24 @@ class PortHandler(dynamixel_sdk.PortHandler):
             # begins at or after the deadline takes what is readable and never waits.
             remaining_ms = self.packet_start_time + self.packet_timeout - now_ms
             self.ser.timeout = remaining_ms * 1e-3 + 1e-6 if remaining_ms > 0.0 else 0
-            try:
-                return self.ser.read(length)
-            except serial.SerialException:
-                self.is_using = False
-                raise
-        self._watch_entry(now)
         try:
             return self.ser.read(length)
         except serial.SerialException:
             self.is_using = False
             raise
         finally:
-            self._watch_exit(now)
+            self._watch(now, clock.now())
 
     def writePort(self, packet):
         clock = self.clock
-        entry = None if clock.virtual else clock.now()
-        if entry is not None:
-            self._watch_entry(entry)
+        entry = clock.now()
         try:
             return self.ser.write(bytes(packet))
         except serial.SerialException:
             self.is_using = False
             raise
         finally:
-            if entry is not None:
-                self._watch_exit(entry)
+            self._watch(entry, clock.now())
 
     def hold_until_quiet(self, t: float) -> None:
         """Replies may still be on the wire until ``t`` (clock seconds), e.g. the rest of
@@ -242,13 +240,15 @@ class PortHandler(dynamixel_sdk.PortHandler):
 
     def clearPort(self) -> None:
         quiet, self._quiet_at = self._quiet_at, None
+        start = self.clock.now()
         try:
             if quiet is not None:
-                self.clock.wait_until(quiet)
+                self.clock.wait_until(quiet)  # waiting out a failed chain: device time
             self.ser.reset_input_buffer()
         except serial.SerialException:
             self.is_using = False
             raise
-        # every transmit begins here: the host-stall watch starts afresh (time before a
-        # transaction is the caller's to account for)
-        self._mark_s = None if self.clock.virtual else self.clock.now()
+        # every transmit begins here: the watch starts afresh (time before a transaction
+        # is the caller's to account for)
+        self._mark_s = self.clock.now()
+        self.device_wait_s += self._mark_s - start
