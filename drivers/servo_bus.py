@@ -366,9 +366,9 @@ class ServoBus(ABC):
 
     @property
     def device_wait_s(self) -> float:
-        """Cumulative time (s) spent inside transactions waiting on the servos (host stalls
-        excluded); difference it. What is left of a caller's wall time is its own work.
-        A backend that cannot tell returns 0."""
+        """Cumulative time (s) spent inside transactions (waiting on the servos, and any host
+        stall there, which :attr:`host_stall_s` reports); difference it. What is left of a
+        caller's wall time is its own work. A backend that cannot tell returns 0."""
         return 0.0
 
     @property

@@ -80,9 +80,10 @@ class PortHandler(dynamixel_sdk.PortHandler):
     host_stalls:
         How many such gaps :attr:`host_stall_s` adds up.
     device_wait_s:
-        Cumulative seconds spent in transactions other than host stalls: waiting on the
-        device (and the SDK's own code between polls). A caller that takes this from its
-        wall time is left with its own work, where a stall outside the port shows.
+        Cumulative seconds spent in transactions (transmit to last poll): waiting on the
+        device, the SDK's code between polls, and the host stalls in them (which
+        :attr:`host_stall_s` reports). A caller that takes this from its wall time is left
+        with its own work, where a stall outside the port shows.
     """
 
     def __init__(
@@ -172,7 +173,8 @@ class PortHandler(dynamixel_sdk.PortHandler):
     # -- the host-stall watch. Within a transaction (from its transmit to its last poll)
     # time goes to waiting on the device, which is many quick polls, never a gap; a gap
     # between this port's calls, or one read or write call, longer than
-    # HOST_STALL_THRESHOLD_S is the process not running. The rest is device_wait_s.
+    # HOST_STALL_THRESHOLD_S is the process not running (host_stall_s). All of it is
+    # device_wait_s: the caller's own work is what lies outside.
     def _watch(self, entry: float, now: float) -> None:
         mark = self._mark_s
         if mark is None:
@@ -186,7 +188,7 @@ class PortHandler(dynamixel_sdk.PortHandler):
             if stall:
                 self.host_stall_s += stall
                 self.host_stalls += 1
-        self.device_wait_s += (now - mark) - stall
+        self.device_wait_s += now - mark  # stalls included: host_stall_s reports them
         self._mark_s = now
 
     def isPacketTimeout(self) -> bool:
