@@ -53,14 +53,15 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    parser = build_parser()
-    args = parser.parse_args(argv)
-    if getattr(args, "_run", None) is None:
-        parser.print_help()
-        return 2
     try:
+        parser = build_parser()
+        args = parser.parse_args(argv)
+        if getattr(args, "_run", None) is None:
+            parser.print_help()
+            return 2
         return int(args._run(args))
-    except KeyboardInterrupt:
+    except KeyboardInterrupt:  # Ctrl-C before a command took over SIGINT: nothing had moved
+        print("hilsim: interrupted", file=sys.stderr)
         return 130
 
 

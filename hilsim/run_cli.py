@@ -154,8 +154,6 @@ def _say(message: str) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from drivers.dynamixel.bus import DynamixelBus
-    from drivers.dynamixel.errors import DynamixelError
     from hilsim.rig import RigError, load_rig
     from hilsim.wiring import build_targets
 
@@ -182,6 +180,18 @@ def run(args: argparse.Namespace) -> int:
         _say(str(exc))
         return EXIT_USAGE
     try:
+        return _open_and_run(args, rig, port, targets, run_dir)
+    except KeyboardInterrupt:  # before the signal handlers: nothing was written to a servo
+        _say("interrupted before the show started: nothing moved")
+        _remove_if_empty(run_dir)
+        return int(ExitCode.SIGINT)
+
+
+def _open_and_run(args, rig, port: str, targets, run_dir: Path) -> int:
+    from drivers.dynamixel.bus import DynamixelBus
+    from drivers.dynamixel.errors import DynamixelError
+
+    try:
         bus = DynamixelBus.open(
             port,
             baud=rig.bus.baud,
@@ -190,7 +200,8 @@ def run(args: argparse.Namespace) -> int:
             latency_timer_ms=rig.bus.latency_timer_ms,
         )
     except (DynamixelError, ValueError, OSError) as exc:
-        _say(f"cannot open {rig.bus.port}: {exc}")
+        msg = str(exc)
+        _say(msg if msg.startswith("cannot open") else f"cannot open {rig.bus.port}: {msg}")
         _remove_if_empty(run_dir)
         return EXIT_USAGE
     try:

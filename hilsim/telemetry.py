@@ -669,11 +669,16 @@ class TelemetryWriter:
         summary["telemetry"] = self._telemetry_summary()
         path = self.run_dir / SUMMARY_JSON
         tmp = path.with_name(path.name + ".tmp")
-        with open(tmp, "w", encoding="utf-8") as f:
-            f.write(_dumps(summary, indent=2) + "\n")
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
+        try:
+            with open(tmp, "w", encoding="utf-8") as f:
+                f.write(_dumps(summary, indent=2) + "\n")
+                f.flush()
+                os.fsync(f.fileno())
+            os.replace(tmp, path)
+        except BaseException:
+            with contextlib.suppress(OSError):  # a full disk: leave no empty half-file
+                tmp.unlink()
+            raise
         _fsync_dir(self.run_dir)
         self._written_summary = summary
 
