@@ -33,6 +33,7 @@ from drivers.dynamixel.link import (
 from drivers.dynamixel.port import PortHandler
 from drivers.servo_bus import BusClosed, PresentReading, ReadStatus
 from tests.drivers.conftest import make_bus
+from tests.serial_stub import CannedPort
 
 OK, STALE, ERROR, ALERT = (ReadStatus.OK, ReadStatus.STALE, ReadStatus.ERROR, ReadStatus.ALERT)
 MODES = ["fast", "plain"]
@@ -71,30 +72,6 @@ def servo_ticks(dx: DxlBus, addr: int = 132) -> list[int]:
     """What each emulated servo holds at ``addr`` (4 bytes, signed), read device-side."""
     t = dx.clock.now()
     return [int.from_bytes(s.read(addr, 4, t)[1], "little", signed=True) for s in dx.servos]
-
-
-class CannedPort:
-    """Serial stand-in that answers every (Fast) Sync Read with ``reply`` and lets the
-    virtual clock jump to the timeout when the reply is short."""
-
-    def __init__(self, clock, reply: bytes) -> None:
-        self.clock, self.reply, self.pending, self.timeout = clock, reply, b"", 0
-
-    def write(self, data) -> int:
-        self.pending = self.reply if data[7] in (0x82, 0x8A) else b""
-        return len(data)
-
-    def read(self, n: int) -> bytes:
-        out, self.pending = self.pending[:n], self.pending[n:]
-        if len(out) < n and self.timeout:
-            self.clock.advance(self.timeout)
-        return out
-
-    def reset_input_buffer(self) -> None:
-        pass
-
-    def close(self) -> None:
-        pass
 
 
 def canned(bus: DynamixelBus, reply: bytes) -> None:

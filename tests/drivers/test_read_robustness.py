@@ -40,6 +40,7 @@ from drivers.dynamixel.port import HOST_STALL_THRESHOLD_S
 from drivers.dynamixel.startup import Expectation
 from drivers.servo_bus import PresentReading, ReadStatus
 from tests.drivers.conftest import make_bus
+from tests.serial_stub import CannedPort
 
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 IDS = (1, 2, 3, 4)
@@ -208,37 +209,13 @@ def test_no_host_stall_is_counted_on_a_virtual_clock(opened):
 
 
 # ------------------------------------------------------------------ parsers, fuzzed
-class Canned:
-    """Serial stand-in: answers every Sync Read request with ``stream``; a short read
-    lets the virtual clock jump by the port's timeout."""
-
-    def __init__(self, clock, stream: bytes) -> None:
-        self.clock, self.stream, self.pending, self.timeout = clock, stream, b"", 0
-
-    def write(self, data) -> int:
-        self.pending = self.stream if data[7] in (0x82, 0x8A) else b""
-        return len(data)
-
-    def read(self, n: int) -> bytes:
-        out, self.pending = self.pending[:n], self.pending[n:]
-        if len(out) < n and self.timeout:
-            self.clock.advance(self.timeout)
-        return out
-
-    def reset_input_buffer(self) -> None:
-        pass
-
-    def close(self) -> None:
-        pass
-
-
 def host_reading(read_mode: str, order: tuple[int, ...], stream: bytes) -> PresentReading:
     """What the host makes of ``stream`` as the reply to a Sync Read listing ``order``."""
     with DynamixelBus.open(
         "dxlsim://?ids=1-4&rdt_us=0", baud=BAUD, ids=IDS, read_mode=read_mode
     ) as bus:
         bus._set_order([IDS.index(i) for i in order])
-        bus.link.port.ser = Canned(bus.clock, stream)
+        bus.link.port.ser = CannedPort(bus.clock, stream)
         return bus.read_present()
 
 

@@ -64,6 +64,7 @@ from hilsim.rig import load_rig
 from hilsim.runs import Run, read_run
 from hilsim.targets import TargetSet, Track
 from hilsim.telemetry import TelemetryWriter
+from tests.serial_stub import CannedPort
 
 OK, STALE, ERROR, ALERT = (int(s) for s in ReadStatus)
 BAUD = 1_000_000
@@ -558,7 +559,7 @@ def test_row_06_every_cut_of_a_reply_reads_stale_never_raises(mode):
     bus = DynamixelBus.open(register_bus(name, dx), baud=BAUD, ids=[1, 2, 3], read_mode=mode)
     try:
         for n in range(len(whole)):
-            bus.link.port.ser = _CannedPort(dx.clock, whole[:n])
+            bus.link.port.ser = CannedPort(dx.clock, whole[:n], every_request=True)
             bus._set_order([0, 1, 2])
             r = bus.read_present(PresentReading.empty((1, 2, 3)))
             for k, t in enumerate(ticks):
@@ -570,29 +571,6 @@ def test_row_06_every_cut_of_a_reply_reads_stale_never_raises(mode):
     finally:
         bus.close()
         unregister_bus(name)
-
-
-class _CannedPort:
-    """A serial stand-in answering every request with ``reply`` (then silence until the timeout)."""
-
-    def __init__(self, clock, reply: bytes) -> None:
-        self.clock, self.reply, self.pending, self.timeout = clock, reply, b"", 0
-
-    def write(self, data) -> int:
-        self.pending = self.reply
-        return len(data)
-
-    def read(self, n: int) -> bytes:
-        out, self.pending = self.pending[:n], self.pending[n:]
-        if len(out) < n and self.timeout:
-            self.clock.advance(self.timeout)
-        return out
-
-    def reset_input_buffer(self) -> None:
-        pass
-
-    def close(self) -> None:
-        pass
 
 
 def test_row_07_garbage_before_the_header_is_skipped(emulated):
