@@ -604,8 +604,7 @@ class HilLoop:
         rig = self.rig
         status = reading.status
         if not status.any():  # OK is 0: the common tick stays cheap
-            for i in range(len(status)):
-                self.silence.ok(i, t_now, self.stalls.total_s)
+            self.silence.all_ok(t_now, self.stalls.total_s)
             return
         ids, names = rig.servo_ids, rig.joint_names
         for i, s in enumerate(status):

@@ -110,8 +110,14 @@ class SilenceBudget:
         self._failed = [0] * n
 
     def start(self, t: float, stall_total_s: float = 0.0) -> None:
-        for i in range(len(self._last_ok)):
-            self.ok(i, t, stall_total_s)
+        self.all_ok(t, stall_total_s)
+
+    def all_ok(self, t: float, stall_total_s: float) -> None:
+        """Every servo read well at ``t`` (the common tick: one call, no loop per servo)."""
+        n = len(self._last_ok)
+        self._last_ok[:] = [t] * n
+        self._stall_at_ok[:] = [stall_total_s] * n
+        self._failed[:] = [0] * n
 
     def ok(self, i: int, t: float, stall_total_s: float) -> None:
         self._last_ok[i] = t
