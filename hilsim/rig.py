@@ -65,7 +65,7 @@ from enum import StrEnum
 from pathlib import Path
 from typing import Any
 
-from drivers.dynamixel.control_table import BAUD_RATES, MODEL_NAMES, model_number, series
+from drivers.protocol2.control_table import BAUD_RATES, MODEL_NAMES, model_number, series
 from drivers.servo_bus import ExitPolicy  # hold | relax: the bus carries it out
 from hilsim.integrators import INTEGRATORS
 from hilsim.springs import Spring

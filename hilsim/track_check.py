@@ -37,8 +37,8 @@ from typing import Protocol
 
 import numpy as np
 
-from hilsim.animation_csv import CsvCurve
 from hilsim.targets import FloatArray, TargetSet, Track
+from hilsim.targets.csv_file import CsvCurve
 
 #: default span over which endless generators are checked (s)
 HORIZON_S = 60.0

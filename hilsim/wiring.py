@@ -6,10 +6,10 @@ from pathlib import Path
 
 from drivers.dynamixel.startup import Expectation, StartupReport
 from drivers.dynamixel.startup import ReadMode as BusReadMode
-from hilsim.animation_csv import CsvAnimation
-from hilsim.bench.model import cycle_bytes, cycle_time_s
+from drivers.protocol2.wire_time import cycle_bytes, cycle_time_s
 from hilsim.rig import ReadMode, Rig, RigError
 from hilsim.targets import TargetSet, track_from_spec
+from hilsim.targets.csv_file import CsvAnimation
 
 #: Fraction of a tick the bus transaction may take; the rest is for the host.
 BUS_SHARE_OF_TICK = 0.8
@@ -43,8 +43,8 @@ def return_delay_budget_us(rig: Rig, latency_timer_ms: float = 0.0) -> float:
 def bus_capacity_problem(rig: Rig, report: StartupReport, latency_timer_ms: float) -> str | None:
     """Why this bus cannot carry the rig's tick rate, or None if it can.
 
-    Uses the wire-time model (:mod:`hilsim.bench.model`) with what the start-up check found:
-    the read mode in force, each servo's Return Delay Time, and the adapter latency timer in
+    Uses the wire-time model (:mod:`drivers.protocol2.wire_time`) with what the start-up check
+    found: the read mode in force, each servo's Return Delay Time, and the adapter latency timer in
     force. The bus may use at most ``BUS_SHARE_OF_TICK`` of a tick.
     """
     n = len(rig.joints)

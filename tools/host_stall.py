@@ -31,7 +31,7 @@ import numpy as np
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
-from hilsim.runs import read_run  # noqa: E402
+from hilsim.telemetry.reader import read_run  # noqa: E402
 
 
 def _load() -> float:

@@ -176,7 +176,7 @@ _INT_KEYS = {"count", "nbytes", "bits"}
 
 
 def _parse_ids(text: str) -> frozenset[int]:
-    from drivers.dxlsim.ids import parse_ids
+    from drivers.protocol2.ids import parse_ids
 
     return frozenset(parse_ids(text))
 

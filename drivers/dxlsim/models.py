@@ -26,7 +26,7 @@ from dataclasses import dataclass
 from functools import cached_property
 
 # Protocol and control-table facts shared with the host-side driver live in one place.
-import drivers.dynamixel.control_table as _ct
+import drivers.protocol2.control_table as _ct
 
 PULSES_PER_REV = 4096
 #: Present/Goal/Profile Velocity unit, rev/min.

@@ -20,7 +20,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from enum import IntEnum
 
-from drivers.dynamixel import control_table as _ct
+from drivers.protocol2 import control_table as _ct
 
 # The error numbers are the same at both ends of the wire: one definition, in the driver's data.
 ErrorCode = _ct.StatusError

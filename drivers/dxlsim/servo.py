@@ -61,7 +61,7 @@ from __future__ import annotations
 import math
 from typing import NamedTuple
 
-from drivers.dynamixel.control_table import ALERT_BIT, OperatingMode, StatusError
+from drivers.protocol2.control_table import ALERT_BIT, OperatingMode, StatusError
 
 from .models import (
     EEPROM_END,

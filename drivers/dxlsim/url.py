@@ -30,9 +30,9 @@ import urllib.parse
 from drivers.clock import MonotonicClock, VirtualClock
 from drivers.dxlsim.bus import DxlBus
 from drivers.dxlsim.faults import parse_fault_plan
-from drivers.dxlsim.ids import parse_ids
 from drivers.dxlsim.models import get_model
 from drivers.dxlsim.servo import VirtualServo
+from drivers.protocol2.ids import parse_ids
 
 _KEYS = (
     "ids",

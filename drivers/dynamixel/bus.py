@@ -30,8 +30,6 @@ from typing import TypeVar
 import numpy as np
 
 from drivers.clock import Clock
-from drivers.dynamixel import control_table as ct
-from drivers.dynamixel.control_table import Item, OperatingMode
 from drivers.dynamixel.errors import (
     CommError,
     CommTimeout,
@@ -53,6 +51,8 @@ from drivers.dynamixel.units import (
     rad_to_ticks,
     ticks_to_rad,
 )
+from drivers.protocol2 import control_table as ct
+from drivers.protocol2.control_table import Item, OperatingMode
 from drivers.servo_bus import (
     ExitPolicy,
     ExitReport,
@@ -636,7 +636,7 @@ class DynamixelBus(ServoBus):
 
     def hardware_error_status(self, servo_id: int) -> int:
         """Hardware Error Status (addr 70) of one servo; see
-        :func:`~drivers.dynamixel.control_table.describe_hardware_error`."""
+        :func:`~drivers.protocol2.control_table.describe_hardware_error`."""
         self._check_open()
         return self.link.read_item(servo_id, ct.HARDWARE_ERROR_STATUS)
 

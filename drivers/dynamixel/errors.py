@@ -23,7 +23,7 @@ from __future__ import annotations
 from collections.abc import Iterable
 from dataclasses import dataclass
 
-from drivers.dynamixel.control_table import (
+from drivers.protocol2.control_table import (
     ALERT_BIT,
     ERROR_NUMBER_MASK,
     error_name,

@@ -28,8 +28,6 @@ import dynamixel_sdk as sdk
 import serial
 
 from drivers.clock import Clock
-from drivers.dynamixel import control_table as ct
-from drivers.dynamixel.control_table import Item, check_unicast_id
 from drivers.dynamixel.errors import (
     CommError,
     CommTimeout,
@@ -39,6 +37,8 @@ from drivers.dynamixel.errors import (
     ServoError,
 )
 from drivers.dynamixel.port import SDK_LATENCY_TIMER_MS, PortHandler
+from drivers.protocol2 import control_table as ct
+from drivers.protocol2.control_table import Item, check_unicast_id
 
 #: Adapter latency assumed for a pseudo-terminal (ms). A pty has no latency timer: the
 #: process serving it (``hilsim emulate``) writes each reply byte when it is due and is

@@ -12,9 +12,9 @@ from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 
 from drivers.clock import Clock
-from drivers.dynamixel.control_table import model_name
 from drivers.dynamixel.errors import CommError, ServoError
 from drivers.dynamixel.link import Link
+from drivers.protocol2.control_table import model_name
 
 DEFAULT_BAUDS: tuple[int, ...] = (57_600, 115_200, 1_000_000, 2_000_000, 3_000_000, 4_000_000)
 

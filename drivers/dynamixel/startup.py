@@ -14,8 +14,8 @@ from enum import StrEnum
 
 import numpy as np
 
-from drivers.dynamixel import control_table as ct
-from drivers.dynamixel.control_table import OperatingMode, check_unicast_id
+from drivers.protocol2 import control_table as ct
+from drivers.protocol2.control_table import OperatingMode, check_unicast_id
 
 
 class ReadMode(StrEnum):

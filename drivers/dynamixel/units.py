@@ -17,7 +17,7 @@ import math
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from drivers.dynamixel.control_table import EXTENDED_GOAL_LIMIT, OperatingMode
+from drivers.protocol2.control_table import EXTENDED_GOAL_LIMIT, OperatingMode
 
 TICKS_PER_REV = 4096
 #: The tick that is 0 rad.

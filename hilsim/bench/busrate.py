@@ -3,7 +3,7 @@
 One cycle = ``GroupSyncWrite.txPacket()`` (Goal Position, 4 B) + ``GroupSyncRead.txRxPacket()``
 (plain) or ``.fastSyncRead()`` (Fast) of Present Position, 4 B, as fast as they go. The
 achieved rate is cycles / elapsed time on the bus's clock; the model rate comes from
-:mod:`hilsim.bench.model` with the bus's own Return Delay Times (read from addr 9),
+:mod:`drivers.protocol2.wire_time` with the bus's own Return Delay Times (read from addr 9),
 turnaround and latency timer. On a real clock the gap between them is host time (Python
 packet code, the SDK's busy-poll, the OS); on a virtual clock there is none, so the
 measurement must equal the model.
@@ -23,7 +23,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 from drivers.dynamixel.bench_session import ADDR_RETURN_DELAY, BenchBus, BenchError
-from hilsim.bench.model import DEFAULT_TURNAROUND_S, cycle_time_s
+from drivers.protocol2.wire_time import DEFAULT_TURNAROUND_S, cycle_time_s
 from hilsim.bench.sched import DEFAULT_PRIORITY, SCHED_OTHER, realtime
 
 

@@ -31,7 +31,7 @@ from drivers.dynamixel.bench_session import (
     ADDR_RETURN_DELAY,
     BenchBus,
 )
-from hilsim.bench.model import DEFAULT_TURNAROUND_S, cycle_rate_hz
+from drivers.protocol2.wire_time import DEFAULT_TURNAROUND_S, cycle_rate_hz
 
 #: A latency timer at or above this (ms) is reported; FTDI's default is 16, tuned is 1.
 LATENCY_FLAG_MS = 2.0

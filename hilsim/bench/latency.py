@@ -32,7 +32,7 @@ from drivers.dynamixel.bench_session import (
     goal_bytes,
     position,
 )
-from hilsim.bench.model import DEFAULT_TURNAROUND_S, read_request_bytes, sync_write_bytes
+from drivers.protocol2.wire_time import DEFAULT_TURNAROUND_S, read_request_bytes, sync_write_bytes
 from hilsim.bench.sched import DEFAULT_PRIORITY, percentile, realtime
 
 INST_SYNC_WRITE = 0x83

@@ -12,9 +12,9 @@ from pathlib import Path
 
 import numpy as np
 
+from drivers.protocol2.wire_time import cycle_rate_hz
 from hilsim.bench.busrate import BusRate
 from hilsim.bench.latency import FRACTION_63, LatencyResult
-from hilsim.bench.model import cycle_rate_hz
 from hilsim.bench.report import LoopResult
 
 PLAIN_COLOR, FAST_COLOR = "#d95f02", "#1b9e77"

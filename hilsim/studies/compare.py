@@ -16,11 +16,7 @@ The cases, from the paper (``/work/shared/paper``) and its reference notes:
 
 from __future__ import annotations
 
-import argparse
 import math
-import sys
-import time
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -280,54 +276,3 @@ def summary(results: dict[str, Any]) -> str:
     )
     lines.append(f"{len(PAPER_SLIPS)} slips in the paper are listed in the report.")
     return "\n".join(lines)
-
-
-def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument(
-        "--out",
-        type=Path,
-        default=Path("out/compare"),
-        help="output directory (default: %(default)s)",
-    )
-    parser.add_argument(
-        "--json",
-        type=Path,
-        default=None,
-        help="where to write the numbers (default: OUT/compare.json)",
-    )
-    parser.add_argument(
-        "--quick", action="store_true", help="shorter long run (100 s) and one step size fewer"
-    )
-
-
-def run(args: argparse.Namespace) -> int:
-    import json
-
-    from hilsim.studies.compare_plots import write_figures
-    from hilsim.studies.compare_report import write_report
-
-    started = time.perf_counter()
-    results = run_study(quick=args.quick)
-    out: Path = args.out
-    out.mkdir(parents=True, exist_ok=True)
-    json_path: Path = args.json if args.json is not None else out / "compare.json"
-    json_path.parent.mkdir(parents=True, exist_ok=True)
-    json_path.write_text(json.dumps(results, allow_nan=False) + "\n", encoding="utf-8")
-    figures = write_figures(results, out)
-    report = write_report(results, figures, out, json_path)
-    print(summary(results))
-    print(
-        f"\nwrote {report}, {json_path} and {len(figures)} figures to {out}/ "
-        f"in {time.perf_counter() - started:.1f} s"
-    )
-    return 0
-
-
-def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="hilsim compare", description=HELP)
-    add_arguments(parser)
-    return run(parser.parse_args(argv))
-
-
-if __name__ == "__main__":
-    sys.exit(main())

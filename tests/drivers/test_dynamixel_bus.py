@@ -14,7 +14,6 @@ import serial
 
 from drivers.dxlsim import DxlBus, register_bus, unregister_bus
 from drivers.dxlsim.protocol import encode_fast_status, encode_status
-from drivers.dynamixel import control_table as ct
 from drivers.dynamixel import units
 from drivers.dynamixel.bus import DynamixelBus
 from drivers.dynamixel.errors import (
@@ -31,6 +30,7 @@ from drivers.dynamixel.link import (
     tune_latency_timer,
 )
 from drivers.dynamixel.port import PortHandler
+from drivers.protocol2 import control_table as ct
 from drivers.servo_bus import BusClosed, PresentReading, ReadStatus
 from tests.drivers.conftest import make_bus
 from tests.serial_stub import CannedPort

@@ -8,9 +8,9 @@ import pytest
 
 from drivers.clock import VirtualClock
 from drivers.dxlsim import DxlBus, VirtualServo
-from drivers.dynamixel import control_table as ct
 from drivers.dynamixel.errors import ExitNotConfirmed, StartupMismatch
 from drivers.dynamixel.startup import Expectation, ReadMode
+from drivers.protocol2 import control_table as ct
 from drivers.servo_bus import ExitPolicy
 from tests.drivers.test_dynamixel_bus import bus_opener
 

@@ -10,7 +10,6 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from drivers.dynamixel import control_table as ct
 from drivers.dynamixel import units
 from drivers.dynamixel.errors import (
     CommError,
@@ -25,6 +24,7 @@ from drivers.dynamixel.errors import (
     StartupMismatch,
 )
 from drivers.dynamixel.link import _raise_for
+from drivers.protocol2 import control_table as ct
 from drivers.servo_bus import ExitPolicy, ExitReport, ServoBusError
 
 

@@ -32,12 +32,12 @@ from hypothesis import strategies as st
 from drivers.dxlsim import DxlBus, VirtualServo, register_bus, unregister_bus
 from drivers.dxlsim.faults import Fault, FaultKind, FaultPlan, parse_fault_plan
 from drivers.dxlsim.protocol import HEADER, encode_fast_status, encode_status
-from drivers.dynamixel import control_table as ct
 from drivers.dynamixel import units
 from drivers.dynamixel.bus import DynamixelBus
 from drivers.dynamixel.errors import CommTimeout, CorruptPacket, StartupMismatch
 from drivers.dynamixel.port import HOST_STALL_THRESHOLD_S
 from drivers.dynamixel.startup import Expectation
+from drivers.protocol2 import control_table as ct
 from drivers.servo_bus import PresentReading, ReadStatus
 from tests.drivers.conftest import make_bus
 from tests.serial_stub import CannedPort

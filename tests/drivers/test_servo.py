@@ -23,7 +23,7 @@ from drivers.dxlsim.servo import (
     StatusError,
     VirtualServo,
 )
-from drivers.dynamixel.control_table import HardwareError
+from drivers.protocol2.control_table import HardwareError
 
 DT = 0.001
 OK = 0

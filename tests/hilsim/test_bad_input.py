@@ -9,9 +9,9 @@ import pytest
 import serial
 
 from drivers.dxlsim.url import bus_from_url
-from hilsim import plot_cli
 from hilsim.cli import main
-from hilsim.scan_cli import parse_baud
+from hilsim.cli import main as hilsim_main
+from hilsim.cli.scan import parse_baud
 from tests.hilsim.test_rig import BASE, PAN_SPRING, TILT_SPRING
 from tests.hilsim.test_telemetry import write_synthetic_run
 
@@ -156,7 +156,7 @@ def run_dir(tmp_path_factory: pytest.TempPathFactory) -> pathlib.Path:
     ],
 )
 def test_plot_refuses_bad_options_in_one_line(run_dir, capsys, args, says):
-    assert plot_cli.main([str(run_dir), *args]) == 2
+    assert hilsim_main(["plot", str(run_dir), *args]) == 2
     assert _one_line(capsys.readouterr().err) == f"hilsim plot: {says}"
     assert not (run_dir / "plots").exists()
 
@@ -164,15 +164,15 @@ def test_plot_refuses_bad_options_in_one_line(run_dir, capsys, args, says):
 def test_plot_out_pointing_at_a_file(run_dir, tmp_path, capsys):
     target = tmp_path / "figure.png"
     target.write_bytes(b"x")
-    assert plot_cli.main([str(run_dir), "--out", str(target)]) == 2
+    assert hilsim_main(["plot", str(run_dir), "--out", str(target)]) == 2
     line = _one_line(capsys.readouterr().err)
     assert line == f"hilsim plot: --out {target}: exists and is not a directory"
-    assert plot_cli.main([str(run_dir), "--out", str(target / "sub")]) == 2
+    assert hilsim_main(["plot", str(run_dir), "--out", str(target / "sub")]) == 2
     line = _one_line(capsys.readouterr().err)
     assert line == f"hilsim plot: --out {target / 'sub'}: {target} is not a directory"
 
 
 def test_plot_window_without_ticks_says_what_the_run_covers(run_dir, capsys):
-    assert plot_cli.main([str(run_dir), "--start", "50", "--end", "60"]) == 1
+    assert hilsim_main(["plot", str(run_dir), "--start", "50", "--end", "60"]) == 1
     line = _one_line(capsys.readouterr().err)
     assert line.startswith("hilsim plot: no ticks between 50.0 and 60.0 s; the run covers 0..")

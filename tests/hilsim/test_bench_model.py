@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from hilsim.bench.model import (
+from drivers.protocol2.wire_time import (
     USB_CHUNK,
     cycle_bytes,
     cycle_rate_hz,

@@ -10,13 +10,14 @@ import numpy as np
 import pytest
 
 from drivers.dynamixel.bench_session import emulator_url, open_bus
-from hilsim import bench_cli
 from hilsim.bench import cyclictest
 from hilsim.bench.busrate import measure_bus_rate
 from hilsim.bench.diagnose import diagnose, gather_facts
 from hilsim.bench.latency import measure_latency
 from hilsim.bench.report import BenchReport, LoopResult
 from hilsim.bench.sched import SCHED_FIFO, SchedulerRun, lateness_stats
+from hilsim.cli import bench as bench_cli
+from hilsim.cli import main as hilsim_main
 from tests.hilsim.test_bench_sched import FIFO_SAMPLE
 
 SLOW_URL = "dxlsim://?ids=1-4&baud=57600&rdt_us=500&latency_ms=16&firmware=44"
@@ -120,7 +121,7 @@ def test_cli_end_to_end_on_the_virtual_clock(tmp_path, capsys):
         "--no-plots",
         "--out",
     ]
-    code = bench_cli.main([*args, str(out)])
+    code = hilsim_main(["bench", *args, str(out)])
     assert code == 0
     d = json.loads((out / "bench.json").read_text())
     assert d["loop"] is None  # no loop timing in virtual time
@@ -132,7 +133,7 @@ def test_cli_end_to_end_on_the_virtual_clock(tmp_path, capsys):
 
 def test_cli_diagnoses_a_slow_port(tmp_path, capsys):
     args = ["--clock", "virtual", "--quick", "--no-plots", "--port", SLOW_URL]
-    code = bench_cli.main([*args, "--json", str(tmp_path / "b.json"), "--out", str(tmp_path)])
+    code = hilsim_main(["bench", *args, "--json", str(tmp_path / "b.json"), "--out", str(tmp_path)])
     assert code == 0
     d = json.loads((tmp_path / "b.json").read_text())
     checks = {f["check"] for f in d["diagnosis"]["findings"]}
@@ -153,7 +154,7 @@ def test_cli_bad_port_is_exit_code_1(tmp_path, capsys):
         "123",
         "--out",
     ]
-    code = bench_cli.main([*args, str(tmp_path)])
+    code = hilsim_main(["bench", *args, str(tmp_path)])
     assert code == 1
     assert "does not support" in capsys.readouterr().err
 
@@ -197,7 +198,7 @@ target = { type = "sine", amplitude_deg = 30, frequency_hz = 0.25 }
 
 def test_importing_the_cli_imports_neither_matplotlib_nor_the_sdk():
     code = (
-        "import sys, hilsim.bench_cli, hilsim.cli; hilsim.cli.build_parser(); "
+        "import sys, hilsim.cli.bench, hilsim.cli; hilsim.cli.build_parser(); "
         "bad = {'matplotlib', 'dynamixel_sdk'} & set(sys.modules); assert not bad, bad"
     )
     subprocess.run([sys.executable, "-c", code], check=True)
@@ -206,7 +207,7 @@ def test_importing_the_cli_imports_neither_matplotlib_nor_the_sdk():
 def test_subcommand_is_registered_with_the_contract():
     from hilsim.cli import SUBCOMMANDS, build_parser
 
-    assert SUBCOMMANDS["bench"] == "hilsim.bench_cli"
+    assert SUBCOMMANDS["bench"] == "hilsim.cli.bench"
     assert isinstance(bench_cli.HELP, str) and bench_cli.HELP
     args = build_parser().parse_args(["bench", "--quick", "--port", "dxlsim://?ids=1"])
     assert args._run is bench_cli.run and args.quick and args.sched == "auto"

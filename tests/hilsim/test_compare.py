@@ -9,8 +9,7 @@ from pathlib import Path
 
 import pytest
 
-from hilsim.cli import SUBCOMMANDS
-from hilsim.studies import compare
+from hilsim.cli import SUBCOMMANDS, compare, main
 from hilsim.studies.compare_plots import FIGURES
 
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
@@ -25,12 +24,12 @@ def quick_run(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path, str
 
     buffer = io.StringIO()
     with contextlib.redirect_stdout(buffer):
-        assert compare.main(["--out", str(out), "--json", str(json_path), "--quick"]) == 0
+        assert main(["compare", "--out", str(out), "--json", str(json_path), "--quick"]) == 0
     return out, json_path, buffer.getvalue()
 
 
 def test_compare_is_a_registered_subcommand() -> None:
-    assert SUBCOMMANDS["compare"] == "hilsim.studies.compare"
+    assert SUBCOMMANDS["compare"] == "hilsim.cli.compare"
     for attr in ("HELP", "add_arguments", "run"):
         assert hasattr(compare, attr)
 
@@ -69,7 +68,7 @@ def test_compare_prints_a_summary(quick_run) -> None:
     assert "rk4" in printed and "report.md" in printed
 
 
-@pytest.mark.parametrize("module", ["hilsim", "hilsim.studies.compare"])
+@pytest.mark.parametrize("module", ["hilsim", "hilsim.studies.compare", "hilsim.cli.compare"])
 def test_importing_does_not_import_matplotlib_or_the_sdk(module: str) -> None:
     code = (
         f"import sys, {module}; "

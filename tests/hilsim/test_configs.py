@@ -8,7 +8,7 @@ from pathlib import Path
 import pytest
 
 from hilsim.cli import main
-from hilsim.runs import read_run
+from hilsim.telemetry.reader import read_run
 
 REPO = Path(__file__).resolve().parents[2]
 U2D2 = "dxlsim://?ids=1-4&model=XM430-W350&rdt_us=0&latency_ms=1"

@@ -40,7 +40,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 import hilsim.loop as loop_mod
-import hilsim.telemetry as tm
+import hilsim.telemetry.writer as tm
 import hilsim.wiring as wiring
 from drivers.clock import VirtualClock
 from drivers.dxlsim import DxlBus, VirtualServo, register_bus, unregister_bus
@@ -61,9 +61,9 @@ from drivers.servo_bus import PresentReading, ReadStatus
 from hilsim.cli import main
 from hilsim.exit_codes import ExitCode
 from hilsim.rig import load_rig
-from hilsim.runs import Run, read_run
 from hilsim.targets import TargetSet, Track
 from hilsim.telemetry import TelemetryWriter
+from hilsim.telemetry.reader import Run, read_run
 from tests.serial_stub import CannedPort
 
 OK, STALE, ERROR, ALERT = (int(s) for s in ReadStatus)

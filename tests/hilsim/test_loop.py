@@ -26,10 +26,10 @@ from drivers.dynamixel.units import rad_to_ticks
 from hilsim.cli import main
 from hilsim.loop import EXIT_FAULT, HilLoop
 from hilsim.rig import load_rig
-from hilsim.runs import read_run
 from hilsim.springs import Spring
 from hilsim.targets import TargetSet, Track
 from hilsim.telemetry import TelemetryWriter
+from hilsim.telemetry.reader import read_run
 from hilsim.wiring import build_targets
 
 REPO = Path(__file__).resolve().parents[2]

@@ -1,4 +1,4 @@
-"""``hilsim plot`` and :mod:`hilsim.plots` on synthetic runs."""
+"""``hilsim plot`` and :mod:`hilsim.telemetry.plots` on synthetic runs."""
 
 from __future__ import annotations
 
@@ -11,10 +11,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from hilsim import plot_cli
-from hilsim.runs import read_run
+from hilsim.cli import main as hilsim_main
+from hilsim.cli import plot as plot_cli
 from hilsim.telemetry import TelemetryWriter
-from hilsim.telemetry_format import TELEMETRY_CSV
+from hilsim.telemetry.format import TELEMETRY_CSV
+from hilsim.telemetry.reader import read_run
 from tests.hilsim.test_telemetry import write_synthetic_run
 
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
@@ -54,7 +55,7 @@ def test_plot_out_dir_and_window(
     synthetic_run: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     out_dir = tmp_path / "figs"
-    assert plot_cli.main([str(synthetic_run), "--out", str(out_dir), "--start", "1",
+    assert hilsim_main(["plot", str(synthetic_run), "--out", str(out_dir), "--start", "1",
                           "--end", "2.5", "--dpi", "50"]) == 0  # fmt: skip
     printed = [Path(line) for line in capsys.readouterr().out.splitlines()]
     assert printed == [out_dir / n for n in NAMES]
@@ -97,7 +98,7 @@ def test_damaged_virtual_time_run_still_plots(
 
 
 def test_plot_run_accepts_a_loaded_run(synthetic_run: Path, tmp_path: Path) -> None:
-    from hilsim.plots import plot_run
+    from hilsim.telemetry.plots import plot_run
 
     _assert_pngs(plot_run(read_run(synthetic_run), tmp_path, dpi=50))
 
@@ -113,7 +114,7 @@ def test_registered_as_hilsim_plot(synthetic_run: Path, tmp_path: Path) -> None:
 
 def test_importing_does_not_import_matplotlib() -> None:
     code = (
-        "import sys, hilsim, hilsim.telemetry, hilsim.plots, hilsim.plot_cli\n"
+        "import sys, hilsim, hilsim.telemetry, hilsim.telemetry.plots, hilsim.cli.plot\n"
         "assert 'matplotlib' not in sys.modules, 'matplotlib imported'\n"
     )
     root = Path(__file__).resolve().parents[2]
@@ -169,7 +170,7 @@ def _shaded(ax) -> list[tuple[float, float]]:
 
 
 def test_joint_limits_come_from_the_rig_copy(tmp_path: Path) -> None:
-    from hilsim.plots import joint_limits_deg, soft_start_s
+    from hilsim.telemetry.plots import joint_limits_deg, soft_start_s
 
     run = _write_run(tmp_path / "a", config_text=RIG_TEXT, summary={})
     assert joint_limits_deg(run) == {"arm": (-40.0, 40.0), "still": (-10.5, 10.0)}
@@ -185,7 +186,7 @@ def test_joint_limits_come_from_the_rig_copy(tmp_path: Path) -> None:
 
 
 def test_joint_plot_draws_the_limits_and_shades_where_safety_acted(tmp_path: Path) -> None:
-    from hilsim.plots import joints_figure
+    from hilsim.telemetry.plots import joints_figure
 
     summary = {"safety_limits": {"position": {"arm": 100, "still": 0}, "speed": {"arm": 0}}}
     run = _write_run(tmp_path, config_text=RIG_TEXT, summary=summary)
@@ -205,7 +206,7 @@ def test_joint_plot_draws_the_limits_and_shades_where_safety_acted(tmp_path: Pat
 
 
 def test_a_quiet_window_keeps_a_readable_y_axis(tmp_path: Path) -> None:
-    from hilsim.plots import MIN_SPAN_DEG, joints_figure
+    from hilsim.telemetry.plots import MIN_SPAN_DEG, joints_figure
 
     # no rig copy: no limits to show, so at least MIN_SPAN_DEG; tiny noise must not fill the axis
     run = _write_run(tmp_path / "a", config_text=None, summary={}, noise=1e-72)
@@ -221,7 +222,7 @@ def test_a_quiet_window_keeps_a_readable_y_axis(tmp_path: Path) -> None:
 def test_virtual_time_runs_say_lateness_and_timing_are_not_measured(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    import hilsim.plots as plots
+    import hilsim.telemetry.plots as plots
 
     figures = {}
     save = plots._save

@@ -457,7 +457,7 @@ def test_binary_csv_names_the_csv_file_and_line(tmp_path):
 
 
 def test_csv_with_nul_bytes_is_refused(tmp_path):
-    from hilsim.animation_csv import CsvAnimation, CsvFormatError
+    from hilsim.targets.csv_file import CsvAnimation, CsvFormatError
 
     path = tmp_path / "anim.csv"
     path.write_bytes(b"time_s,pan\n0,0\x00\n")

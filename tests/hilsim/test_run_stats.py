@@ -7,8 +7,8 @@ import json
 import numpy as np
 import pytest
 
-from hilsim.run_stats import RunStats
 from hilsim.safety import COUNTER_KINDS, SafetyFilter
+from hilsim.telemetry.stats import RunStats
 
 NAMES = ("pan", "tilt", "jaw")
 

@@ -10,7 +10,6 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from hilsim.animation_csv import CsvAnimation, CsvCurve, CsvFormatError
 from hilsim.targets import (
     EASINGS,
     Hold,
@@ -21,6 +20,7 @@ from hilsim.targets import (
     TargetSet,
     track_from_spec,
 )
+from hilsim.targets.csv_file import CsvAnimation, CsvCurve, CsvFormatError
 
 CONFIGS = Path(__file__).resolve().parents[2] / "configs"
 

@@ -19,17 +19,17 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from drivers.servo_bus import ReadStatus
-from hilsim import telemetry as tm
-from hilsim.run_stats import RunStats, summarize
-from hilsim.runs import NotARunError, RunFormatError, read_run
 from hilsim.telemetry import TelemetryWriter, WriterFailedError
-from hilsim.telemetry_format import (
+from hilsim.telemetry import writer as tm
+from hilsim.telemetry.format import (
     EVENTS_JSONL,
     SUMMARY_JSON,
     TELEMETRY_CSV,
     TelemetryError,
     csv_columns,
 )
+from hilsim.telemetry.reader import NotARunError, RunFormatError, read_run
+from hilsim.telemetry.stats import RunStats, summarize
 
 JOINTS = ("neck_pan", "neck_tilt", "jaw")
 WAIT_S = 10.0  # upper bound on any wait for the writer thread; reached only on failure

@@ -9,9 +9,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from hilsim.animation_csv import CsvCurve
 from hilsim.rig import load_rig
 from hilsim.targets import Hold, Keyframes, Sine, TargetSet
+from hilsim.targets.csv_file import CsvCurve
 from hilsim.track_check import TrackWarning, _sample, check_tracks
 from hilsim.wiring import build_targets
 

@@ -20,7 +20,7 @@ from types import MappingProxyType
 import numpy as np
 import numpy.typing as npt
 
-from hilsim.targets import FloatArray, Track, _frozen, _times_values
+from hilsim.targets.tracks import FloatArray, Track, frozen_array, times_values
 
 #: header names accepted for the CSV time column (case-insensitive)
 TIME_COLUMNS = ("time_s", "time", "t")
@@ -56,7 +56,7 @@ class CsvCurve(Track):
     _slope: list[float] = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
-        t, v = _times_values(self.times_s, self.values_rad)
+        t, v = times_values(self.times_s, self.values_rad)
         object.__setattr__(self, "times_s", t)
         object.__setattr__(self, "values_rad", v)
         object.__setattr__(self, "_t", t.tolist())
@@ -152,8 +152,8 @@ class CsvAnimation:
         if not rows:
             raise CsvFormatError(path, 2, "no data rows after the header")
         data = np.array(rows, dtype=np.float64)
-        columns = {name: _frozen(np.radians(data[:, j])) for j, name in enumerate(header) if j}
-        return cls(path=path, times_s=_frozen(data[:, 0]), columns=MappingProxyType(columns))
+        columns = {name: frozen_array(np.radians(data[:, j])) for j, name in enumerate(header) if j}
+        return cls(path=path, times_s=frozen_array(data[:, 0]), columns=MappingProxyType(columns))
 
     @property
     def names(self) -> tuple[str, ...]:

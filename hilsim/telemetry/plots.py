@@ -1,7 +1,7 @@
 """Figures of one run directory (PNG): joint positions, tick lateness, per-stage timing.
 
 Matplotlib is imported inside the functions, through its object-oriented API (``Figure`` on an Agg
-canvas: no pyplot, no global backend switch), so ``import hilsim.plots`` stays cheap.
+canvas: no pyplot, no global backend switch), so ``import hilsim.telemetry.plots`` stays cheap.
 
 * :func:`plot_joints`  one row per joint: target, spring (sim_x), commanded and present position
   in degrees against time; reads that were not OK are drawn as a coloured rug along the bottom of
@@ -34,8 +34,8 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from drivers.servo_bus import ReadStatus
-from hilsim.runs import Run, read_run
-from hilsim.telemetry_format import STAGES
+from hilsim.telemetry.format import STAGES
+from hilsim.telemetry.reader import Run, read_run
 
 if TYPE_CHECKING:
     from matplotlib.figure import Figure

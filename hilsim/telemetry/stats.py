@@ -26,7 +26,7 @@ import numpy as np
 import numpy.typing as npt
 
 from drivers.servo_bus import ReadStatus
-from hilsim.telemetry_format import STAGES, check_joint_names
+from hilsim.telemetry.format import STAGES, check_joint_names
 
 #: percentiles reported in the summary, as (key, q)
 PERCENTILES: tuple[tuple[str, float], ...] = (("p50", 50.0), ("p99", 99.0), ("p99.9", 99.9))

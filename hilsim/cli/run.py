@@ -330,7 +330,7 @@ def _run_on_bus(args, rig, bus, targets, run_dir: Path) -> int:
         _say(f"verdict: {verdict}")
     if not args.no_plots and "ticks" in summary:  # a summary was written: the run reads back
         try:
-            from hilsim.plots import plot_run
+            from hilsim.telemetry.plots import plot_run
 
             for path in plot_run(run_dir):
                 print(f"  plot: {path}", file=sys.stderr)

@@ -20,7 +20,7 @@ _BAUD_RE = re.compile(r"\s*(\d+(?:\.\d+)?)\s*([kKmM]?)\s*(?:bps|bit/s)?\s*", re.
 
 
 def _supported_bauds() -> tuple[int, ...]:
-    from drivers.dynamixel.control_table import BAUD_RATES
+    from drivers.protocol2.control_table import BAUD_RATES
 
     return tuple(sorted(BAUD_RATES.values()))
 
@@ -68,9 +68,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from drivers.dxlsim.ids import parse_ids
     from drivers.dynamixel.errors import DynamixelError
     from drivers.dynamixel.scan import scan
+    from drivers.protocol2.ids import parse_ids
 
     try:
         ids = parse_ids(args.ids) if args.ids else None

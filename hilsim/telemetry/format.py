@@ -1,7 +1,7 @@
 """The run directory's format, shared by the writer and the reader: file names, CSV columns.
 
 A run directory (written by :class:`hilsim.telemetry.TelemetryWriter`, read back by
-:func:`hilsim.runs.read_run`) holds::
+:func:`hilsim.telemetry.reader.read_run`) holds::
 
     telemetry.csv    one row per tick (columns below), header on the first line
     events.jsonl     one JSON object per line: start/stop, faults, warnings, signals, dropped rows
@@ -62,7 +62,7 @@ TAIL_COLUMNS: tuple[str, ...] = (
 
 class TelemetryError(Exception):
     """Base class of the errors raised writing (:mod:`hilsim.telemetry`) or reading
-    (:mod:`hilsim.runs`) a run directory."""
+    (:mod:`hilsim.telemetry.reader`) a run directory."""
 
 
 def csv_columns(joint_names: Sequence[str]) -> list[str]:

@@ -1,15 +1,15 @@
 """Run telemetry writer: a per-tick CSV, events and a summary, written by a background thread.
 
 The run directory's files, CSV columns and number formats are described in
-:mod:`hilsim.telemetry_format`; the statistics behind the summary are in :mod:`hilsim.run_stats`;
-:func:`hilsim.runs.read_run` reads a run back.
+:mod:`hilsim.telemetry.format`; the statistics behind the summary are in
+:mod:`hilsim.telemetry.stats`; :func:`hilsim.telemetry.reader.read_run` reads a run back.
 
 **Real-time contract.** :meth:`TelemetryWriter.record` copies the tick's numbers into a slot of a
 preallocated ring (a float64 array, one row per slot) and into the run statistics
-(:class:`~hilsim.run_stats.RunStats`, preallocated chunks), and returns; it never touches the disk,
-takes no lock and allocates nothing but a row view. A row is handed to the writer thread when the
-*next* row is recorded (or at :meth:`~TelemetryWriter.flush`/:meth:`~TelemetryWriter.close`), so
-values known only at the end of the tick (overrun, the telemetry stage's own time) can still be
+(:class:`~hilsim.telemetry.stats.RunStats`, preallocated chunks), and returns; it never touches the
+disk, takes no lock and allocates nothing but a row view. A row is handed to the writer thread when
+the *next* row is recorded (or at :meth:`~TelemetryWriter.flush`/:meth:`~TelemetryWriter.close`),
+so values known only at the end of the tick (overrun, the telemetry stage's own time) can still be
 filled in with :meth:`~TelemetryWriter.amend`. The writer thread drains the ring every few tens of
 ms, formats rows in small chunks (yielding the GIL between chunks of ~50 µs, so the loop thread is
 not held off), writes them, flushes every ``flush_interval_s``, and ``os.fsync``-s every
@@ -19,18 +19,18 @@ advances the head, the writer only the tail; CPython's GIL orders the row stores
 store. When the ring is full (disk stalled) the row is dropped and counted (``overflow="drop"``, the
 real-time default) or record waits for space (``overflow="block"``, for virtual-time runs that must
 be lossless). Dropped rows are reported as an event, in the summary and by
-:func:`~hilsim.runs.read_run`; the statistics still cover them.
+:func:`~hilsim.telemetry.reader.read_run`; the statistics still cover them.
 
 Exceptions::
 
-    TelemetryError                  (hilsim.telemetry_format) base of the writer's and reader's
+    TelemetryError                  (hilsim.telemetry.format) base of the writer's and reader's
      │                              errors
      ├── WriterFailedError          the writer thread died (disk full, I/O error) or stalled at
      │                              close; raised by the next record()/flush()/close(); __cause__
      │                              holds the original error
-     ├── NotARunError               (hilsim.runs) read_run: no telemetry.csv in the directory
+     ├── NotARunError               (reader) read_run: no telemetry.csv in the directory
      │                              (also a FileNotFoundError)
-     └── RunFormatError             (hilsim.runs) read_run: the CSV header is not a telemetry
+     └── RunFormatError             (reader) read_run: the CSV header is not a telemetry
                                     header (also a ValueError)
 
 Loop usage::
@@ -64,8 +64,7 @@ import numpy as np
 import numpy.typing as npt
 
 from drivers.clock import Slack
-from hilsim.run_stats import RunStats
-from hilsim.telemetry_format import (
+from hilsim.telemetry.format import (
     CONFIG_NAME,
     EVENTS_JSONL,
     HEAD_COLUMNS,
@@ -77,6 +76,7 @@ from hilsim.telemetry_format import (
     check_joint_names,
     csv_columns,
 )
+from hilsim.telemetry.stats import RunStats
 
 #: event kinds that are fsync-ed by default (``event(..., fsync=None)``)
 FSYNC_KINDS: frozenset[str] = frozenset({"start", "fault", "signal", "stop", "exit_policy"})

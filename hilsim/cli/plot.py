@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import argparse
 import sys
-from collections.abc import Sequence
 
 HELP = "plot a run directory: joint positions (deg), tick lateness and per-stage timing (PNG)"
 #: --dpi bounds: a legible thumbnail .. print resolution (a 16-joint figure at 300 dpi is already
@@ -61,7 +60,7 @@ def _option_problem(args: argparse.Namespace) -> str | None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from hilsim.runs import NotARunError, RunFormatError, read_run
+    from hilsim.telemetry.reader import NotARunError, RunFormatError, read_run
 
     problem = _option_problem(args)
     if problem:
@@ -93,7 +92,7 @@ def run(args: argparse.Namespace) -> int:
             file=sys.stderr,
         )
         return 1
-    from hilsim.plots import plot_run
+    from hilsim.telemetry.plots import plot_run
 
     out = getattr(args, "out", None)
     try:
@@ -105,14 +104,3 @@ def run(args: argparse.Namespace) -> int:
     for path in paths:
         print(path)
     return 0
-
-
-def main(argv: Sequence[str] | None = None) -> int:
-    """Run ``hilsim plot`` on its own (``python -m hilsim.plot_cli RUN_DIR``)."""
-    parser = argparse.ArgumentParser(prog="hilsim plot", description=HELP)
-    add_arguments(parser)
-    return run(parser.parse_args(argv))
-
-
-if __name__ == "__main__":
-    sys.exit(main())

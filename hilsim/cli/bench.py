@@ -65,7 +65,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def build_plan(args: argparse.Namespace, argv_text: str = "hilsim bench"):
     """The :class:`~hilsim.bench.runner.BenchPlan` for parsed arguments (may load the rig)."""
-    from drivers.dxlsim.ids import parse_ids
+    from drivers.protocol2.ids import parse_ids
     from hilsim.bench.runner import BenchPlan, BusTarget
 
     quick = bool(args.quick)
@@ -173,14 +173,3 @@ def _url_baud(port: str) -> int | None:
         return None
     values = urllib.parse.parse_qs(urllib.parse.urlsplit(port).query).get("baud")
     return int(values[-1]) if values else None
-
-
-def main(argv: list[str] | None = None) -> int:
-    """Run as ``python -m hilsim.bench_cli`` (before ``hilsim bench`` is registered)."""
-    parser = argparse.ArgumentParser(prog="hilsim bench", description=HELP)
-    add_arguments(parser)
-    return run(parser.parse_args(argv))
-
-
-if __name__ == "__main__":
-    sys.exit(main())

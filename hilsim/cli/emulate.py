@@ -18,9 +18,9 @@ import sys
 from drivers.clock import MonotonicClock
 from drivers.dxlsim.bus import DxlBus
 from drivers.dxlsim.faults import FaultSpecError, parse_fault_plan
-from drivers.dxlsim.ids import parse_ids
 from drivers.dxlsim.pty_server import PtyServer
 from drivers.dxlsim.servo import VirtualServo
+from drivers.protocol2.ids import parse_ids
 
 HELP = "serve an emulated Dynamixel bus on a pseudo-terminal (path printed first)"
 #: Adapter latency a host should count for this pty on top of ``--latency-ms`` (ms): the

@@ -1,6 +1,6 @@
 """Reading a run back: :func:`read_run` loads a run directory into a :class:`Run`.
 
-The directory's format is in :mod:`hilsim.telemetry_format`. A run being written, or cut short by
+The directory's format is in :mod:`hilsim.telemetry.format`. A run being written, or cut short by
 a crash, still loads: what was tolerated is listed in ``Run.warnings``.
 """
 
@@ -16,7 +16,7 @@ from typing import Any
 
 import numpy as np
 
-from hilsim.telemetry_format import (
+from hilsim.telemetry.format import (
     CONFIG_NAME,
     EVENTS_JSONL,
     HEAD_COLUMNS,

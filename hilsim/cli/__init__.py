@@ -20,12 +20,12 @@ from collections.abc import Sequence
 
 #: subcommand name -> module implementing it
 SUBCOMMANDS: dict[str, str] = {
-    "run": "hilsim.run_cli",
-    "scan": "hilsim.scan_cli",
-    "plot": "hilsim.plot_cli",
-    "bench": "hilsim.bench_cli",
-    "emulate": "drivers.dxlsim.emulate_cli",
-    "compare": "hilsim.studies.compare",
+    "run": "hilsim.cli.run",
+    "scan": "hilsim.cli.scan",
+    "plot": "hilsim.cli.plot",
+    "bench": "hilsim.cli.bench",
+    "emulate": "hilsim.cli.emulate",
+    "compare": "hilsim.cli.compare",
 }
 
 

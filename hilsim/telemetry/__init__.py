@@ -1,0 +1,27 @@
+"""A run's telemetry: written during the show, read back and drawn after it.
+
+==========  =====================================================================================
+``format``  the run directory: file names, CSV columns, number formats (writer and reader share it)
+``ring``    the lock-free single-producer ring of tick rows between the loop and the writer thread
+``writer``  :class:`TelemetryWriter`: the CSV, ``events.jsonl``, fsync, ``summary.json``
+``stats``   :class:`RunStats`: the one book of per-tick facts behind the summary
+``reader``  :func:`read_run`: a run directory back as arrays
+``plots``   the PNGs of a run (matplotlib imported inside the functions)
+==========  =====================================================================================
+
+Importing this package imports neither matplotlib nor numpy's plotting helpers.
+"""
+
+from hilsim.telemetry.format import TelemetryError
+from hilsim.telemetry.reader import NotARunError, Run, RunFormatError, read_run
+from hilsim.telemetry.writer import TelemetryWriter, WriterFailedError
+
+__all__ = [
+    "NotARunError",
+    "Run",
+    "RunFormatError",
+    "TelemetryError",
+    "TelemetryWriter",
+    "WriterFailedError",
+    "read_run",
+]
