@@ -1,27 +1,20 @@
-"""Fixed-step integrators that advance a bank of damped springs in place.
+"""Fixed-step integrators that advance a bank of damped springs in place: how to step.
 
 Each joint obeys x' = v, v' = a with a = (k·(u − x) + b·u' − c·v) / m (see :mod:`hilsim.springs`).
-Four methods, chosen by name::
-
-    "euler"                explicit Euler           order 1, 1 evaluation per step
-    "semi_implicit_euler"  symplectic Euler         order 1, 1 evaluation (v first, then x)
-    "midpoint"             explicit midpoint        order 2, 2 evaluations
-    "rk4"                  classical Runge–Kutta    order 4, 4 evaluations
+Four methods, chosen by name (:data:`INTEGRATORS`; each class has its ``order`` and
+``evals_per_step``): "euler" (explicit Euler, order 1), "semi_implicit_euler" (symplectic Euler,
+order 1), "midpoint" (explicit midpoint, order 2) and "rk4" (classical Runge–Kutta, order 4).
 
 The explicit Runge–Kutta methods are data: a Butcher tableau (class attributes ``A``, ``B``, ``C``,
-``order``, as in scipy's ``_ivp/rk.py``) drives one generic step. Semi-implicit Euler is not a
-Runge–Kutta method and has its own step.
+``order``) drives one generic step. Semi-implicit Euler is not a Runge–Kutta method and has its
+own step. Their stability (how much a step amplifies a free spring) is
+:mod:`hilsim.stability_algebra`; tableaux, orders and stability boundaries: ``docs/numerics.md``.
 
 State is two float64 arrays shaped ``(n,)``, positions x and velocities v, updated in place; all
 buffers are allocated when the integrator is built, none in :meth:`Integrator.step`. A small bank
 (n ≤ ``small_bank_limit``, 16) steps in pure Python on floats, because numpy spends ~1 µs per
 ufunc call and a step is a few dozen calls; a large bank steps with ``out=`` ufuncs. Both paths
 perform the same floating-point operations in the same order, so they give bit-identical results.
-
-Stability (for the free spring, u = 0): an RK method multiplies each eigen-mode by its stability
-function R(z), z = h·λ, every step; the mode grows when |R(z)| > 1. Semi-implicit Euler has no
-scalar R; its one-step update matrix M(h) is analysed instead
-(:meth:`SemiImplicitEuler.amplification`).
 """
 
 from __future__ import annotations
@@ -34,7 +27,8 @@ from typing import ClassVar
 import numpy as np
 import numpy.typing as npt
 
-from hilsim.springs import FloatArray, Spring, oscillator_eigenvalues
+from hilsim._types import FloatArray
+from hilsim.springs import Spring
 
 #: u(t), u'(t) for every joint at time t (floats or arrays broadcastable to ``(n,)``; rad, rad/s).
 Target = Callable[[float], tuple[npt.ArrayLike, npt.ArrayLike]]
@@ -53,8 +47,7 @@ class Integrator(ABC):
     """A fixed-step method bound to one spring bank, with its buffers preallocated.
 
     Build one with :func:`make_integrator`; call :meth:`step` every tick. ``vectorized`` forces the
-    numpy path (True) or the pure-Python path (False); by default banks of up to
-    ``small_bank_limit`` springs use pure Python.
+    numpy path (True) or the pure-Python path (False); by default small banks use pure Python.
     """
 
     name: ClassVar[str]
@@ -64,7 +57,7 @@ class Integrator(ABC):
     evals_per_step: ClassVar[int]
     #: the fraction c of the step at which each evaluation samples the target
     stage_times: ClassVar[tuple[float, ...]]
-    #: largest bank that steps in pure Python (numerics.md: pure Python wins below ~16 springs)
+    #: largest bank that steps in pure Python (docs/numerics.md: pure Python wins below ~16)
     small_bank_limit: ClassVar[int] = 16
 
     def __init__(self, spring: Spring, *, vectorized: bool | None = None) -> None:
@@ -72,12 +65,11 @@ class Integrator(ABC):
         self.spring = spring
         self.n = n
         self.vectorized = n > self.small_bank_limit if vectorized is None else bool(vectorized)
-        m = np.reshape(spring.m, n)
-        w2 = np.reshape(spring.k, n) / m
+        w2 = np.reshape(spring.w2, n)
         self._w2 = w2
-        self._bm = np.reshape(spring.b, n) / m
+        self._bm = np.reshape(spring.bm, n)
         self._neg_w2 = -w2
-        self._neg_cm = -np.reshape(spring.c, n) / m
+        self._neg_cm = -np.reshape(spring.cm, n)
         self._has_b = bool(np.any(self._bm != 0.0))
         self._w2_l: list[float] = w2.tolist()
         self._bm_l: list[float] = self._bm.tolist()
@@ -149,33 +141,6 @@ class Integrator(ABC):
             self._step_arrays(x, v, h, t0 + i * h, target)
             xs_a[i + 1], vs_a[i + 1] = x, v
         return xs_a, vs_a
-
-    # -- stability (free spring) ------------------------------------------------------------------
-
-    @classmethod
-    @abstractmethod
-    def growth(cls, z: npt.ArrayLike) -> npt.NDArray[np.float64]:
-        """ρ² − 1 for an oscillator mode with h·λ = z (complex): > 0 means it grows every step.
-
-        For an RK method this is |R(z)|² − 1. It is what the stability regions and the stability
-        guard test (≤ 0 is stable), computed without cancelling against the leading 1.
-        """
-
-    @classmethod
-    @abstractmethod
-    def spectral_growth(
-        cls, h: npt.ArrayLike, w2: npt.ArrayLike, cm: npt.ArrayLike
-    ) -> npt.NDArray[np.float64]:
-        """ρ(M)² − 1 of the one-step update matrix M for the free spring x'' = −w2·x − cm·x'.
-
-        Broadcasts over h (s), w2 = k/m (1/s²) and cm = c/m (1/s). ≤ 0: no mode grows.
-
-        Rounding floor: the value is computed in float64 from terms of size ~(h·|λ|)², so it
-        is resolved to about 1e-16·(h·|λ|)². Where the true growth is smaller than that (an
-        undamped spring at a tiny step: RK4 loses −(hω)⁶/72 per step, −1e-26 at hω = 1e-4)
-        the sign is rounding noise. The stability guard never asks there: it scans from
-        h·|λ| = 0.005 up.
-        """
 
     # -- hooks ------------------------------------------------------------------------------------
 
@@ -259,7 +224,6 @@ class RungeKutta(Integrator):
     C: ClassVar[FloatArray]
     _rows: ClassVar[tuple[_Combo | None, ...]]
     _weights: ClassVar[_Combo]
-    _poly: ClassVar[FloatArray]
 
     def __init_subclass__(cls, **kwargs: object) -> None:
         super().__init_subclass__(**kwargs)
@@ -277,12 +241,6 @@ class RungeKutta(Integrator):
         if weights is None:
             raise TypeError(f"{cls.__name__}: B must not be all zero")
         cls._weights = weights
-        # R(z) = 1 + Σ_k (Bᵀ·A^(k−1)·1) z^k for an explicit method: a polynomial of degree ≤ s
-        poly, vec = [1.0], np.ones(s)
-        for _ in range(s):
-            poly.append(float(cls.B @ vec))
-            vec = cls.A @ vec
-        cls._poly = np.array(poly)
 
     def __init__(self, spring: Spring, *, vectorized: bool | None = None) -> None:
         super().__init__(spring, vectorized=vectorized)
@@ -291,48 +249,10 @@ class RungeKutta(Integrator):
         self._D = np.empty((2, n))  # h·Σ a·K, the increment to a stage state or to the step
         self._T = np.empty((2, n))
         self._S = np.empty((2, n))  # stage state [x, v]
-        self._kx = [0.0] * s  # the list path's slopes, reused across springs and steps
-        self._kv = [0.0] * s
+        self._kx, self._kv = [0.0] * s, [0.0] * s  # the list path's slopes, reused throughout
         self._scaled_h = math.nan
         self._hrows = self._rows
         self._hweights = self._weights
-
-    @classmethod
-    def stability_polynomial(cls) -> FloatArray:
-        """Coefficients of R(z), lowest degree first (RK4: 1, 1, 1/2, 1/6, 1/24)."""
-        return cls._poly.copy()
-
-    @classmethod
-    def stability_function(cls, z: npt.ArrayLike) -> npt.NDArray[np.complex128]:
-        """R(z), z = h·λ (complex, any shape): one step multiplies the mode e^(λt) by R(h·λ).
-
-        The method is stable for that mode when |R(z)| ≤ 1. Euler: 1 + z; midpoint: 1 + z + z²/2;
-        RK4: 1 + z + z²/2 + z³/6 + z⁴/24.
-        """
-        z = np.asarray(z, dtype=np.complex128)
-        out = np.full(z.shape, cls._poly[-1], dtype=np.complex128)
-        for coeff in cls._poly[-2::-1]:
-            out = out * z + coeff
-        return out
-
-    @classmethod
-    def growth(cls, z: npt.ArrayLike) -> npt.NDArray[np.float64]:
-        z = np.asarray(z, dtype=np.complex128)
-        # |1 + w|² − 1 = 2·Re(w) + |w|² with w = R(z) − 1, so small growth is not lost to rounding
-        w = np.full(z.shape, cls._poly[-1], dtype=np.complex128)
-        for coeff in cls._poly[-2:0:-1]:
-            w = w * z + coeff
-        w = w * z
-        return 2.0 * w.real + (w.real**2 + w.imag**2)
-
-    @classmethod
-    def spectral_growth(
-        cls, h: npt.ArrayLike, w2: npt.ArrayLike, cm: npt.ArrayLike
-    ) -> npt.NDArray[np.float64]:
-        # M = R(h·J): its eigenvalues are R(h·λ) for the two eigenvalues λ of J
-        lam = oscillator_eigenvalues(w2, cm)
-        g = cls.growth(np.asarray(h, dtype=np.float64)[..., np.newaxis] * lam)
-        return g.max(axis=-1)
 
     def _scaled(self, h: float) -> None:
         # the real-time loop steps with one h; scale the tableau by it once, not every step
@@ -444,77 +364,14 @@ class SemiImplicitEuler(Integrator):
     Order 1, one evaluation per step, and symplectic: on an undamped spring it does not drift in
     energy but keeps it within O(h·ω) of the true value for ever, which is why game engines
     (Bullet, Box2D) use it. It is not a Runge–Kutta method (it treats x and v differently), so it
-    has no scalar stability function; see :meth:`amplification`.
+    has no scalar stability function; see
+    :func:`hilsim.stability_algebra.semi_implicit_euler_amplification`.
     """
 
     name = "semi_implicit_euler"
     order = 1
     evals_per_step = 1
     stage_times = (0.0,)
-
-    @staticmethod
-    def update_matrix(theta: npt.ArrayLike, zeta: npt.ArrayLike) -> FloatArray:
-        """One free step M in the scaled state (x, v/ω₀), shape ``broadcast + (2, 2)``.
-
-        With θ = h·ω₀ and damping ratio ζ::
-
-            M = [[1 − θ²,  θ·(1 − 2ζθ)],
-                 [−θ,      1 − 2ζθ    ]]      trace 2 − θ² − 2ζθ, det 1 − 2ζθ
-        """
-        theta = np.asarray(theta, dtype=np.float64)
-        zeta = np.asarray(zeta, dtype=np.float64)
-        theta, zeta = np.broadcast_arrays(theta, zeta)
-        damp = 1.0 - 2.0 * zeta * theta
-        out = np.empty((*theta.shape, 2, 2))
-        out[..., 0, 0] = 1.0 - theta**2
-        out[..., 0, 1] = theta * damp
-        out[..., 1, 0] = -theta
-        out[..., 1, 1] = damp
-        return out
-
-    @classmethod
-    def amplification(cls, theta: npt.ArrayLike, zeta: npt.ArrayLike) -> FloatArray:
-        """Spectral radius ρ of :meth:`update_matrix` for θ = h·ω₀ and damping ratio ζ.
-
-        This plays the role of |R(z)|: after many steps the free spring's amplitude scales as ρ per
-        step, so ρ ≤ 1 is stable. While the eigenvalues are a complex pair, ρ = √(1 − 2ζθ) exactly:
-        undamped (ζ = 0) gives ρ = 1 for every θ < 2, i.e. no numerical gain or loss of amplitude,
-        only a phase error. Stability ends where an eigenvalue reaches −1:
-        θ* = 2·(√(1 + ζ²) − ζ) (θ* = 2 undamped, ≈ 0.83 critically damped).
-        """
-        theta = np.asarray(theta, dtype=np.float64)
-        damp = 2.0 * np.asarray(zeta, dtype=np.float64) * theta
-        return np.sqrt(cls._growth_td(2.0 - theta**2 - damp, 1.0 - damp) + 1.0)
-
-    @staticmethod
-    def _growth_td(trace: npt.ArrayLike, det: npt.ArrayLike) -> FloatArray:
-        """ρ² − 1 for a real 2×2 matrix from its trace and determinant."""
-        trace = np.asarray(trace, dtype=np.float64)
-        det = np.asarray(det, dtype=np.float64)
-        disc = 0.25 * trace**2 - det
-        root = np.sqrt(np.abs(disc))
-        real_rho = np.maximum(np.abs(0.5 * trace + root), np.abs(0.5 * trace - root))
-        # a complex pair has |μ|² = det exactly; keeping that form makes undamped growth exactly 0
-        return np.where(disc < 0.0, det - 1.0, real_rho**2 - 1.0)
-
-    @classmethod
-    def growth(cls, z: npt.ArrayLike) -> npt.NDArray[np.float64]:
-        """ρ² − 1 for the underdamped spring whose eigenvalue pair is (z, z̄)/h, z = h·λ.
-
-        Then θ² = |z|² and 2ζθ = −2·Re z, so trace M = 2 + 2·Re z − |z|² and det M = 1 + 2·Re z.
-        This maps semi-implicit Euler's stability onto the same h·λ plane as the RK methods; it
-        describes the oscillator, not a scalar test equation.
-        """
-        z = np.asarray(z, dtype=np.complex128)
-        return cls._growth_td(2.0 + 2.0 * z.real - np.abs(z) ** 2, 1.0 + 2.0 * z.real)
-
-    @classmethod
-    def spectral_growth(
-        cls, h: npt.ArrayLike, w2: npt.ArrayLike, cm: npt.ArrayLike
-    ) -> npt.NDArray[np.float64]:
-        h = np.asarray(h, dtype=np.float64)
-        hc = h * np.asarray(cm, dtype=np.float64)
-        return cls._growth_td(2.0 - h**2 * np.asarray(w2, dtype=np.float64) - hc, 1.0 - hc)
 
     def _step_lists(
         self, x: list[float], v: list[float], h: float, t: float, target: TargetLike

@@ -13,8 +13,9 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
+from hilsim._types import FloatArray
 from hilsim.integrators import TargetLike, get_method
-from hilsim.springs import FloatArray, Spring
+from hilsim.springs import Spring
 
 #: a run longer than this many steps is almost surely a unit slip in h (ms for s)
 MAX_STEPS = 50_000_000

@@ -25,7 +25,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-FloatArray = npt.NDArray[np.float64]
+from hilsim._types import FloatArray
 
 
 def _parameter(name: str, value: Any, *, lower: float, strict: bool) -> FloatArray:
@@ -92,7 +92,9 @@ class Spring:
 
     Derived quantities (all of shape :attr:`shape`): ``natural_frequency`` ω₀ = √(k/m) rad/s,
     ``damping_ratio`` ζ = c / (2√(k·m)), ``decay_rate`` γ = c / (2m) 1/s, ``damped_frequency``
-    ω_d = √(ω₀² − γ²) rad/s (0 when ζ ≥ 1), ``eigenvalues`` λ₁,₂ = −γ ± √(γ² − ω₀²).
+    ω_d = √(ω₀² − γ²) rad/s (0 when ζ ≥ 1), ``eigenvalues`` λ₁,₂ = −γ ± √(γ² − ω₀²). The rates
+    the integrators and the stability guard work with are named once: ``w2`` = k/m (= ω₀², 1/s²),
+    ``cm`` = c/m (= 2γ, 1/s) and ``bm`` = b/m (1/s).
     """
 
     m: npt.ArrayLike
@@ -176,9 +178,24 @@ class Spring:
     # -- physics ----------------------------------------------------------------------------------
 
     @property
+    def w2(self) -> FloatArray:
+        """k/m in 1/s² (= ω₀²): the stiffness per unit mass, x'' = −w2·x − cm·x' for u = 0."""
+        return self.k / self.m
+
+    @property
+    def cm(self) -> FloatArray:
+        """c/m in 1/s (= 2γ): the damping per unit mass."""
+        return self.c / self.m
+
+    @property
+    def bm(self) -> FloatArray:
+        """b/m in 1/s: the target-velocity feed-forward per unit mass."""
+        return self.b / self.m
+
+    @property
     def natural_frequency(self) -> FloatArray:
         """ω₀ = √(k/m) in rad/s."""
-        return np.sqrt(self.k / self.m)
+        return np.sqrt(self.w2)
 
     @property
     def damping_ratio(self) -> FloatArray:
@@ -193,15 +210,15 @@ class Spring:
     @property
     def damped_frequency(self) -> FloatArray:
         """ω_d = √(ω₀² − γ²) = ω₀·√(1 − ζ²) in rad/s for ζ < 1; 0 when critically or overdamped."""
-        return np.sqrt(np.maximum(self.k / self.m - self.decay_rate**2, 0.0))
+        return np.sqrt(np.maximum(self.w2 - self.decay_rate**2, 0.0))
 
     @property
     def system_matrix(self) -> FloatArray:
         """J = [[0, 1], [−k/m, −c/m]], shape ``shape + (2, 2)``: d/dt [x, v] = J·[x, v] (u = 0)."""
         out = np.zeros((*self.shape, 2, 2))
         out[..., 0, 1] = 1.0
-        out[..., 1, 0] = -self.k / self.m
-        out[..., 1, 1] = -self.c / self.m
+        out[..., 1, 0] = -self.w2
+        out[..., 1, 1] = -self.cm
         return out
 
     @property
@@ -212,7 +229,7 @@ class Spring:
         imaginary). Overdamped: two negative reals, the small one from Vieta (λ₁λ₂ = k/m) so it
         keeps full precision when γ ≫ ω₀.
         """
-        return oscillator_eigenvalues(self.k / self.m, self.c / self.m)
+        return oscillator_eigenvalues(self.w2, self.cm)
 
     def energy(self, x: npt.ArrayLike, v: npt.ArrayLike, u: npt.ArrayLike = 0.0) -> FloatArray:
         """Mechanical energy ½·m·v² + ½·k·(x − u)² (J), broadcast over x, v (e.g. ``(T, n)``).
@@ -248,7 +265,7 @@ class Spring:
         """
         t = np.asarray(t, dtype=np.float64)[(...,) + (np.newaxis,) * len(self.shape)]
         gamma = self.decay_rate
-        w2 = self.k / self.m
+        w2 = self.w2
         q = w2 - gamma**2
         w = np.sqrt(np.abs(q))
         # decay·C and decay·S per regime; the overdamped pair is written with e^(−(γ−s)t) and

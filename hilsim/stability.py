@@ -7,7 +7,8 @@ critically or overdamped) and leaves the stability region at some radius r*. A r
 h·|λ| ≤ r* for every spring; otherwise n substeps of h/n are needed, n = the smallest integer with
 h/n ≤ r*/|λ|.
 
-Boundaries are computed numerically from each method's growth function, so they are right for damped
+Boundaries are computed numerically from each method's growth function
+(:mod:`hilsim.stability_algebra`), so they are right for damped
 springs, whose rays are not the axes the textbooks tabulate: a scan of r on a grid finds the first
 unstable radius, and bisection pins the crossing to rounding. The growth is evaluated as
 |R|² − 1 = 2·Re(R − 1) + |R − 1|², which keeps its sign even when |R| is within 1e-15 of 1.
@@ -30,8 +31,10 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
+from hilsim._types import FloatArray
 from hilsim.integrators import Integrator, get_method
-from hilsim.springs import FloatArray, Spring
+from hilsim.springs import Spring
+from hilsim.stability_algebra import growth, spectral_growth
 
 #: scan limit in h·|λ|: explicit methods with up to four stages are unstable well before 10
 R_MAX = 10.0
@@ -93,7 +96,7 @@ def stability_boundary(method: str | type[Integrator], angle: npt.ArrayLike) -> 
         r* (same shape as ``angle``); 0.0 when the method is unstable arbitrarily close to 0 along
         the ray, inf when stable out to :data:`R_MAX`. RK4: 2√2 ≈ 2.8284 at π/2, ≈ 2.7853 at π.
         For semi-implicit Euler the ray is read as an underdamped spring's eigenvalue pair
-        (see :meth:`SemiImplicitEuler.growth`): 2 at π/2.
+        (see :func:`hilsim.stability_algebra.growth`): 2 at π/2.
     """
     cls = get_method(method)
     angle_arr = np.asarray(angle, dtype=np.float64)
@@ -104,14 +107,14 @@ def stability_boundary(method: str | type[Integrator], angle: npt.ArrayLike) -> 
     re[np.abs(re) < 1e-12] = 0.0
     im[np.abs(im) < 1e-12] = 0.0
     direction = re + 1j * im
-    r_star = _first_crossing(lambda r: cls.growth(r * direction), direction.size)
+    r_star = _first_crossing(lambda r: growth(cls, r * direction), direction.size)
     return float(r_star[0]) if angle_arr.ndim == 0 else r_star.reshape(angle_arr.shape)
 
 
 def _coefficients(spring: Spring) -> tuple[FloatArray, FloatArray, FloatArray]:
     n = spring.n
-    w2 = np.reshape(spring.k / spring.m, n)
-    cm = np.reshape(spring.c / spring.m, n)
+    w2 = np.reshape(spring.w2, n)
+    cm = np.reshape(spring.cm, n)
     lam_max = np.abs(np.reshape(spring.eigenvalues, (n, 2))).max(axis=1)
     return w2, cm, lam_max
 
@@ -123,7 +126,7 @@ def critical_step(spring: Spring, method: str | type[Integrator] = "rk4") -> Flo
     """
     cls = get_method(method)
     w2, cm, lam_max = _coefficients(spring)
-    r_star = _first_crossing(lambda r: cls.spectral_growth(r / lam_max, w2, cm), spring.n)
+    r_star = _first_crossing(lambda r: spectral_growth(cls, r / lam_max, w2, cm), spring.n)
     return r_star / lam_max
 
 
@@ -260,8 +263,8 @@ def check_stability(
         # scanned range (every method here is unstable beyond R_MAX) and does not grow the mode
         h_lambda = step * lam_max
         with np.errstate(over="ignore", invalid="ignore"):  # far outside: inf/nan, i.e. grows
-            growth = cls.spectral_growth(step, w2, cm)
-        return (h_star > 0.0) & (h_lambda <= R_MAX) & ~grows(growth, h_lambda)
+            g = spectral_growth(cls, step, w2, cm)
+        return (h_star > 0.0) & (h_lambda <= R_MAX) & ~grows(g, h_lambda)
 
     stable = stable_at(float(h))
     h_min = float(h_star.min())

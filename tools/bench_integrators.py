@@ -4,7 +4,7 @@ Prints µs per step and million spring-steps per second for every method, on the
 integrator picks by itself (pure Python up to ``small_bank_limit`` springs, numpy above) and, with
 ``--both``, on the other path too, which shows where the crossover lies.
 
-Goals (issue 2): ≤ 10 µs per RK4 step for one spring (the 1 kHz loop), ≥ 30 M spring-steps/s at
+Goals: ≤ 10 µs per RK4 step for one spring (the 1 kHz loop), ≥ 30 M spring-steps/s at
 100 000 springs. Timings are the best of several repeats; other load on the machine only slows them.
 
     python tools/bench_integrators.py [--both] [--sizes 1 16 1000 100000] [--methods rk4 euler]

@@ -4,7 +4,8 @@ Computes every number first (:func:`run_study`, plain numpy, JSON-ready), then w
 figures (:mod:`hilsim.studies.compare_plots`) and a Markdown report
 (:mod:`hilsim.studies.compare_report`), and prints a short summary.
 
-The cases, from the paper (``/work/shared/paper``) and its reference notes:
+The cases come from the design paper, "Simulation of Realistic Motion in Computer Graphics Using
+Runge-Kutta Methods"; ``docs/numerics.md`` lists them with the reference results:
 
 * dy/dt = y, y(0) = 1, one step h = 0.1: Euler 1.1, RK4 1.10517, e^0.1.
 * undamped spring m = 1, k = 10, x0 = 1: RK4 with h = 10/999 (1000 points on [0, 10], which is what
@@ -25,6 +26,7 @@ from hilsim.integrators import INTEGRATORS, RungeKutta, rk_solve
 from hilsim.simulate import simulate
 from hilsim.springs import Spring
 from hilsim.stability import critical_step, stability_boundary
+from hilsim.stability_algebra import stability_polynomial
 
 HELP = "Reproduce the RK4 paper's examples and compare Euler, semi-implicit Euler, midpoint, RK4."
 
@@ -43,7 +45,8 @@ PAPER_TABLE: tuple[tuple[float, float, float], ...] = (
 )
 PAPER_OMEGA_D = 3.84
 
-#: where the paper's text and its mathematics disagree (numerics.md); the study follows the maths
+#: where the paper's text and its mathematics disagree (docs/numerics.md); the study follows
+#: the mathematics
 PAPER_SLIPS: tuple[str, ...] = (
     "The literature review writes the RK4 update with weights (k1 + 2k2 + 3k3 + k4)·h/6; "
     "the correct weights are (k1 + 2k2 + 2k3 + k4)·h/6 (they must sum to 6).",
@@ -55,7 +58,7 @@ PAPER_SLIPS: tuple[str, ...] = (
     "RK4's local error is given as O(h⁴); it is O(h⁵) per step and O(h⁴) global.",
 )
 
-#: numerics.md's reference results, shown next to ours in the report
+#: the reference results of docs/numerics.md, shown next to ours in the report
 REFERENCE: dict[str, dict[str, float]] = {
     "max_error": {
         "euler": 1.31e-1,
@@ -122,7 +125,7 @@ def undamped_table() -> dict[str, Any]:
         ours = (f"{traj.t[i]:.5f}", f"{traj.x[i]:.6f}", f"{traj.v[i]:.6f}")
         paper = (f"{pt:.5f}", f"{px:.6f}", f"{pv:.6f}")
         rows.append({"t": ours[0], "x": ours[1], "v": ours[2], "matches_paper": ours == paper})
-    exact = np.cos(math.sqrt(UNDAMPED["k"] / UNDAMPED["m"]) * traj.t)
+    exact = np.cos(float(spring.natural_frequency) * traj.t)
     return {
         "h": h,
         "n_points": len(traj.t),
@@ -194,14 +197,10 @@ def energy_drift(t_long: float) -> dict[str, Any]:
         series[name] = _floats(np.abs(rel[1:]).reshape(-1, window).max(axis=1))
     # Euler's update is a rotation scaled by √(1 + h²k/m): energy gains exactly that factor² a step
     n_steps = round(t_long / h)
-    out["euler_closed_form"] = math.expm1(n_steps * math.log1p(h**2 * spring_w2(spring)))
+    out["euler_closed_form"] = math.expm1(n_steps * math.log1p(h**2 * float(spring.w2)))
     out["t_window_end"] = _floats(h * window * np.arange(1, len(series["rk4"]) + 1))
     out["series"] = series
     return out
-
-
-def spring_w2(spring: Spring) -> float:
-    return float(spring.k / spring.m)
 
 
 def stability_numbers() -> dict[str, Any]:
@@ -218,7 +217,7 @@ def stability_numbers() -> dict[str, Any]:
             n: _floats(stability_boundary(n, np.radians(angles))) for n in INTEGRATORS
         },
         "polynomials": {
-            n: _floats(c.stability_polynomial())
+            n: _floats(stability_polynomial(c))
             for n, c in INTEGRATORS.items()
             if issubclass(c, RungeKutta)
         },

@@ -12,6 +12,7 @@ from typing import Any
 import numpy as np
 
 from hilsim.integrators import INTEGRATORS
+from hilsim.stability_algebra import growth, stability_function
 
 COLORS = {
     "euler": "tab:red",
@@ -61,9 +62,9 @@ def stability_regions(results: dict[str, Any], path: Path) -> Path:
     fig = _figure(figsize=(15, 6.8))
     axes = fig.subplots(1, 4, sharex=True, sharey=True)
     for ax, name in zip(axes, INTEGRATORS, strict=True):
-        growth = INTEGRATORS[name].growth(z)
-        ax.contourf(xx, yy, growth, levels=[-np.inf, 0.0], colors=[COLORS[name]], alpha=0.35)
-        ax.contour(xx, yy, growth, levels=[0.0], colors=[COLORS[name]], linewidths=1.5)
+        g = growth(name, z)
+        ax.contourf(xx, yy, g, levels=[-np.inf, 0.0], colors=[COLORS[name]], alpha=0.35)
+        ax.contour(xx, yy, g, levels=[0.0], colors=[COLORS[name]], linewidths=1.5)
         ax.axhline(0.0, color="0.4", lw=0.6)
         ax.axvline(0.0, color="0.4", lw=0.6)
         imag, real = st["imag_axis"][name], st["neg_real_axis"][name]
@@ -113,7 +114,7 @@ def stability_regions(results: dict[str, Any], path: Path) -> Path:
 def rk4_fig1(results: dict[str, Any], path: Path) -> Path:
     st = results["stability"]
     xx, yy, z = _plane([-4.0, 2.0, -4.0, 4.0], 601, 801)
-    magnitude = np.abs(INTEGRATORS["rk4"].stability_function(z))
+    magnitude = np.abs(stability_function("rk4", z))
     fig = _figure(figsize=(7, 7.5))
     ax = fig.subplots()
     filled = ax.contourf(

@@ -48,7 +48,7 @@ Exact solution x = e^(−γt)·(cos ω_d t + (γ/ω_d)·sin ω_d t), γ = c/2m =
 Max error: damped spring, h = 0.01 s, over [0, 10] s. Order: log₂ of the error ratio when h is
 halved from {pair0:g} to {pair1:g} s. Energy: relative error (E − E₀)/E₀ of the undamped spring
 (k = 10 N/m, h = 0.01 s) at 10 s and at {t_long:g} s; the last column is its largest magnitude over
-the whole run. Reference values (numerics.md) in brackets.
+the whole run. Reference values (docs/numerics.md) in brackets.
 
 | method | evals/step | max error | order | ΔE/E₀ 10 s | ΔE/E₀ {t_long:g} s | max \\|ΔE/E₀\\| |
 |---|---|---|---|---|---|---|
@@ -115,7 +115,7 @@ def render(results: dict[str, Any], json_rel: str, json_name: str) -> str:
     full = en["t_long"] == 1000.0  # the 1000 s references only apply to the full run
 
     def long_ref(n: str) -> str:
-        # numerics.md's "bounded ≈ 1.6e-2" for semi-implicit Euler is its largest error
+        # docs/numerics.md's "bounded ≈ 1.6e-2" for semi-implicit Euler is its largest error
         return f" [{ref['energy_1000s'][n]:+.3g}]" if full and n != "semi_implicit_euler" else ""
 
     def max_ref(n: str) -> str:

@@ -1,7 +1,7 @@
 """Wire timing of the emulated bus, measured through the unmodified SDK on the virtual clock.
 
-Every expectation is computed from the wire-time model in dynamixel.md: 10 bits per
-byte, each servo's Return Delay Time, the turnaround, and the USB latency timer.
+Every expectation is computed from the wire-time model (drivers/protocol2/wire_time.py): 10 bits
+per byte, each servo's Return Delay Time, the turnaround, and the USB latency timer.
 """
 
 from __future__ import annotations
@@ -58,7 +58,7 @@ def test_single_transaction_time(opened, baud, rdt_us, latency_ms):
     assert rx.t_end - tx.t_start == pytest.approx(expected - latency_ms * 1e-3, abs=1e-9)
 
 
-# Theoretical loop rates from dynamixel.md (RDT = 0, t_proc = 0), plain / fast, Hz.
+# Theoretical loop rates of the wire-time model (RDT = 0, t_proc = 0), plain / fast, Hz.
 TABLE = {
     (1, 1_000_000): (2041, 2000),
     (4, 1_000_000): (893, 1087),
@@ -100,7 +100,7 @@ def test_cycle_time_matches_wire_model_table(opened, n, baud, fast):
 
 @pytest.mark.parametrize(("fast", "expected_hz"), [(False, 321), (True, 704)])
 def test_factory_return_delay_rates(opened, fast, expected_hz):
-    """dynamixel.md: with RDT 500 µs at 1 Mbps, N = 4: 321 / 704 Hz."""
+    """With the factory Return Delay Time (500 µs) at 1 Mbps, N = 4: 321 / 704 Hz."""
     ids = (1, 2, 3, 4)
     bus = make_bus(ids, rdt_us=500.0, turnaround_us=0.0)
     s = opened(bus)

@@ -58,7 +58,7 @@ def test_golden_fast_sync_read_reply():
         (0, 4, 1023, True),
     ]
     assert encode_fast_status([(e, i, d) for e, i, d, _ in blocks]) == frame
-    assert len(frame) == 8 + 3 * (4 + 4)  # dynamixel.md: 8 + N(X+4)
+    assert len(frame) == 8 + 3 * (4 + 4)  # Fast Sync Read reply: 8 + N(X+4) bytes
 
 
 def test_fast_reply_block_crc_detects_corruption():
@@ -74,7 +74,7 @@ def test_crc_known_value():
 
 
 def test_stuffing_example_and_lengths():
-    # -131073 as int32 little endian is FF FF FD FF: needs stuffing (dynamixel.md).
+    # -131073 as int32 little endian is FF FF FD FF: needs stuffing (FF FF FD -> FF FF FD FD).
     params = bytes([116, 0]) + (-131073).to_bytes(4, "little", signed=True)
     frame = encode_instruction(1, Instruction.WRITE, params)
     assert b"\xff\xff\xfd\xfd" in frame[7:]

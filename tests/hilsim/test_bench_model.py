@@ -1,4 +1,4 @@
-"""The wire-time model against dynamixel.md's byte counts and rate tables."""
+"""The wire-time model against the Protocol 2.0 packet sizes and the theoretical rate table."""
 
 from __future__ import annotations
 
@@ -15,7 +15,8 @@ from drivers.protocol2.wire_time import (
     sync_write_bytes,
 )
 
-# dynamixel.md, theoretical loop rate (RDT = 0, t_proc = 0), plain / fast, Hz.
+# Theoretical loop rate, 10 bits per byte of 28 + 21N (plain) or 36 + 14N (fast) bytes
+# (RDT = 0, t_proc = 0), plain / fast, Hz.
 TABLE = {
     (1, 57_600): (118, 115),
     (4, 57_600): (51, 63),
@@ -40,7 +41,7 @@ TABLE = {
 def test_cycle_bytes_are_the_reference_formulas(n):
     assert cycle_bytes(n, fast=False) == 28 + 21 * n
     assert cycle_bytes(n, fast=True) == 36 + 14 * n
-    # and the packet sizes they are made of (dynamixel.md, multi-servo packets, X = 4)
+    # and the packet sizes they are made of (Protocol 2.0 multi-servo packets, X = 4)
     assert sync_write_bytes(n) == 14 + 5 * n
     assert read_request_bytes(n) == 14 + n
     assert read_reply_bytes(n, fast=False) == 15 * n
@@ -55,7 +56,7 @@ def test_theoretical_rate_table(n, baud):
 
 
 def test_factory_return_delay_at_1m_with_4_servos():
-    """dynamixel.md: RDT 500 µs at 1 Mbps, N = 4: 321 / 704 Hz."""
+    """The factory Return Delay Time (500 µs) at 1 Mbps, N = 4: 321 / 704 Hz."""
     kw = dict(return_delay_s=500e-6, turnaround_s=0.0)
     assert round(cycle_rate_hz(4, 1_000_000, False, **kw)) == 321
     assert round(cycle_rate_hz(4, 1_000_000, True, **kw)) == 704

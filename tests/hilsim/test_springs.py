@@ -48,6 +48,15 @@ def test_paper_damped_spring_frequencies() -> None:
     assert float(s.decay_rate) == 0.25
 
 
+def test_rates_per_unit_mass_are_named_once() -> None:
+    s = Spring(m=[2.0, 4.0], c=[0.5, 1.0], k=[10.0, 3.0], b=[0.2, -0.4])
+    np.testing.assert_array_equal(s.w2, [5.0, 0.75])
+    np.testing.assert_array_equal(s.cm, [0.25, 0.25])
+    np.testing.assert_array_equal(s.bm, [0.1, -0.1])
+    np.testing.assert_allclose(s.natural_frequency**2, s.w2, rtol=1e-15)  # ω₀² = k/m
+    np.testing.assert_array_equal(s.system_matrix[:, 1], np.stack([-s.w2, -s.cm], axis=-1))
+
+
 def test_damped_frequency_is_zero_from_critical_damping_on() -> None:
     s = Spring(m=1.0, c=[2.0, 5.0], k=1.0)
     np.testing.assert_array_equal(s.damped_frequency, [0.0, 0.0])
