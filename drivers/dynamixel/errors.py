@@ -15,7 +15,7 @@
           └── ExitNotConfirmed         the exit policy could not be confirmed on some servos
 
 dynamixel-sdk's integer result codes become these in exactly one place,
-``drivers.dynamixel.link._raise_for``; nothing above the driver ever sees ``-3001``.
+:func:`drivers.dynamixel.sdk_result.raise_for`; nothing above the driver ever sees ``-3001``.
 """
 
 from __future__ import annotations

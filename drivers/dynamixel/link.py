@@ -2,8 +2,8 @@
 
 :class:`Link` - ping, read, write, reboot, broadcast ping - returns values or raises;
 used by :class:`~drivers.dynamixel.bus.DynamixelBus` (start-up check, torque, watchdog,
-exit policy) and :func:`drivers.dynamixel.scan.scan`. :func:`_raise_for` is the one place
-SDK result codes and status error numbers become exceptions; :func:`tune_latency_timer`
+exit policy) and :func:`drivers.dynamixel.scan.scan`. Result codes become exceptions in
+:func:`drivers.dynamixel.sdk_result.raise_for`; :func:`tune_latency_timer`
 lowers a Linux USB adapter's latency timer when the port opens, and
 :func:`device_allowance_ms` says how much more a packet timeout must allow for a device
 that is not such an adapter (a pty served by another process, an unknown device).
@@ -28,23 +28,15 @@ import dynamixel_sdk as sdk
 import serial
 
 from drivers.clock import Clock
-from drivers.dynamixel.errors import (
-    CommError,
-    CommTimeout,
-    CorruptPacket,
-    PortBusy,
-    PortGone,
-    ServoError,
-)
+from drivers.dynamixel.errors import CorruptPacket, PortGone
 from drivers.dynamixel.port import SDK_LATENCY_TIMER_MS, PortHandler
+from drivers.dynamixel.sdk_result import CORRUPT, OK, SERIAL_ERRORS, TIMEOUT, port_gone, raise_for
 from drivers.protocol2 import control_table as ct
 from drivers.protocol2.control_table import Item, check_unicast_id
+from drivers.protocol2.wire_time import PTY_LATENCY_MS
 
-#: Adapter latency assumed for a pseudo-terminal (ms). A pty has no latency timer: the
-#: process serving it (``hilsim emulate``) writes each reply byte when it is due and is
-#: woken within ~0.1-1 ms on a quiet host. This is what a bus-capacity check should count;
-#: the scheduling tail under load is :data:`UNCHARACTERISED_DEVICE_ALLOWANCE_MS`'s business.
-PTY_LATENCY_MS = 1.0
+# A pty's adapter latency is wire_time.PTY_LATENCY_MS; the scheduling tail under load is
+# UNCHARACTERISED_DEVICE_ALLOWANCE_MS's business.
 #: The least device allowance in the packet timeout (``2·latency`` is raised to this, ms)
 #: for a device that is not a known USB adapter: a pty served by a process that may be
 #: descheduled under CPU load, a CDC-ACM board, any other device. It is the SDK's stock
@@ -56,69 +48,15 @@ UNCHARACTERISED_DEVICE_ALLOWANCE_MS = 2.0 * SDK_LATENCY_TIMER_MS
 
 T = TypeVar("T")
 
-_OK = sdk.COMM_SUCCESS
-_TIMEOUT = sdk.COMM_RX_TIMEOUT
-_CORRUPT = sdk.COMM_RX_CORRUPT
-_RESULT_TEXT = {
-    sdk.COMM_TX_FAIL: "the instruction packet could not be sent",
-    sdk.COMM_RX_FAIL: "no status packet could be received",
-    sdk.COMM_TX_ERROR: "the instruction packet is malformed",
-    sdk.COMM_RX_WAITING: "a status packet is still arriving",
-    sdk.COMM_NOT_AVAILABLE: "the instruction is not available",
-}
-_SERIAL_ERRORS = (serial.SerialException, OSError)
 #: Sysfs directory of Linux usb-serial devices (FTDI adapters such as the U2D2).
 SYSFS_USB_SERIAL = Path("/sys/bus/usb-serial/devices")
 
 
-def _raise_for(
-    result: int, error: int, servo_id: int | None, what: str, rx: list[int] | None = None
-) -> None:
-    """The one place SDK result codes and status error numbers become exceptions.
-
-    Returns quietly when ``result`` is success and the error number (ERR bits 0-6) is 0;
-    an Alert bit alone is not an error of the instruction. A :class:`CorruptPacket` gets
-    ``complete``: True when ``rx`` (what the SDK received) is a whole status packet from
-    ``servo_id`` - valid header, that ID, all LEN bytes - whose CRC fails (line noise, or
-    two servos answering at once), False when the reply was cut short or never framed
-    (late, truncated, garbage).
-    """
-    if result == _OK:
-        if error & ct.ERROR_NUMBER_MASK:
-            raise ServoError(servo_id if servo_id is not None else -1, error, what)
-        return
-    who = "broadcast" if servo_id is None else f"servo {servo_id}"
-    if result == _TIMEOUT:
-        raise CommTimeout(f"{who}: no reply to {what} (timeout)", servo_id=servo_id, what=what)
-    if result == _CORRUPT:
-        exc = CorruptPacket(f"{who}: corrupt reply to {what}", servo_id=servo_id, what=what)
-        exc.complete = _complete_reply(rx, servo_id)
-        raise exc
-    if result == sdk.COMM_PORT_BUSY:
-        raise PortBusy(
-            f"{who}: port busy during {what} (an earlier transaction never finished)",
-            servo_id=servo_id,
-            what=what,
-        )
-    text = _RESULT_TEXT.get(result, f"communication failed ({result})")
-    raise CommError(f"{who}: {text} ({what})", servo_id=servo_id, what=what)
-
-
-def _complete_reply(rx: list[int] | None, servo_id: int | None) -> bool:
-    """``rx`` is a whole status packet from ``servo_id``: header, ID, INST, every LEN byte."""
-    return (
-        rx is not None
-        and servo_id is not None
-        and len(rx) >= 11
-        and rx[:4] == [0xFF, 0xFF, 0xFD, 0x00]
-        and rx[4] == servo_id
-        and rx[7] == 0x55
-        and len(rx) == (rx[5] | rx[6] << 8) + 7
-    )
-
-
-def _gone(exc: BaseException, port_name: str, what: str) -> PortGone:
-    return PortGone(f"{port_name}: adapter gone during {what}: {exc}")
+def latency_timer_path(device: str, sysfs: Path = SYSFS_USB_SERIAL) -> Path:
+    """The sysfs latency-timer file of the USB-serial adapter behind ``device``
+    (``/dev/ttyUSB0`` or a symlink to it): ``<sysfs>/ttyUSB0/latency_timer``. It exists
+    only on Linux, for a usb-serial adapter."""
+    return sysfs / os.path.basename(os.path.realpath(device)) / "latency_timer"
 
 
 # ----------------------------------------------------------------------- latency timer
@@ -129,7 +67,7 @@ class LatencyTimerWarning(RuntimeWarning):
 def _latency_fix(dev: str, ms: int) -> str:
     return (
         f"{dev}: USB latency timer is {ms} ms, so every read waits >= {ms} ms. Lower it:\n"
-        f"  echo 1 | sudo tee /sys/bus/usb-serial/devices/{dev}/latency_timer\n"
+        f"  echo 1 | sudo tee {SYSFS_USB_SERIAL / dev / 'latency_timer'}\n"
         "or for good, a udev rule (/etc/udev/rules.d/99-dynamixel.rules):\n"
         '  ACTION=="add", SUBSYSTEM=="usb-serial", DRIVER=="ftdi_sio", '
         'ATTR{latency_timer}="1"'
@@ -154,7 +92,7 @@ def tune_latency_timer(
     dev = os.path.basename(os.path.realpath(device))
     with contextlib.suppress(AttributeError, ValueError, OSError):
         ser.set_low_latency_mode(True)  # ASYNC_LOW_LATENCY: ftdi_sio then uses 1 ms
-    path = sysfs / dev / "latency_timer"
+    path = latency_timer_path(device, sysfs)
     try:
         ms = int(path.read_text().strip())
     except (OSError, ValueError):
@@ -196,8 +134,7 @@ def device_allowance_ms(
     if getattr(ser, "bus", None) is not None and device.lower().startswith("dxlsim://"):
         return 0.0
     if sys.platform.startswith("linux") and device.startswith("/dev/") and not _is_pty(device):
-        dev = os.path.basename(os.path.realpath(device))
-        if (sysfs / dev / "latency_timer").exists():
+        if latency_timer_path(device, sysfs).exists():
             return 0.0
     return UNCHARACTERISED_DEVICE_ALLOWANCE_MS
 
@@ -207,8 +144,9 @@ class Link:
     """One open port and Protocol 2.0: unicast and broadcast transactions, snake_case.
 
     Every method returns values or raises (:mod:`drivers.dynamixel.errors`): result codes
-    through :func:`_raise_for`, a vanished adapter as :class:`PortGone`. Not for the
-    per-tick path (:class:`~drivers.dynamixel.bus.DynamixelBus` does that leaner).
+    through :func:`~drivers.dynamixel.sdk_result.raise_for`, a vanished adapter as
+    :class:`PortGone`. Not for the per-tick path
+    (:class:`~drivers.dynamixel.bus.DynamixelBus` does that leaner).
     """
 
     def __init__(self, port: PortHandler) -> None:
@@ -241,7 +179,7 @@ class Link:
         _check_baud(ph, baud)
         try:
             ph.setBaudRate(baud)
-        except _SERIAL_ERRORS as exc:
+        except SERIAL_ERRORS as exc:
             if isinstance(exc.__cause__, ValueError):  # a dxlsim:// URL it cannot parse
                 raise ValueError(str(exc)) from exc
             raise PortGone(f"cannot open {port}: {exc}") from exc
@@ -307,8 +245,8 @@ class Link:
     def _call(self, what: str, fn: Callable[..., T], *args: object) -> T:
         try:
             return fn(*args)
-        except _SERIAL_ERRORS as exc:
-            raise _gone(exc, self.name, what) from exc
+        except SERIAL_ERRORS as exc:
+            raise port_gone(exc, self.name, what) from exc
 
     # -- transactions --------------------------------------------------------------
     def ping(self, servo_id: int) -> tuple[int, int]:
@@ -317,7 +255,7 @@ class Link:
         tx = [0] * 10
         tx[4], tx[5], tx[6], tx[7] = servo_id, 3, 0, sdk.INST_PING
         rx, result, error = self._call("Ping", self.ph.txRxPacket, self.port, tx)
-        _raise_for(result, error, servo_id, "Ping", rx)
+        raise_for(result, error, servo_id, "Ping", rx)
         if len(rx) < 14:
             raise CorruptPacket(
                 f"servo {servo_id}: short Ping reply", servo_id=servo_id, what="Ping"
@@ -328,8 +266,8 @@ class Link:
         """Ping every ID at once: ``{id: (model number, firmware)}`` of those that
         answered intact (possibly none)."""
         found, result = self._call("broadcast Ping", self.ph.broadcastPing, self.port)
-        if result not in (_OK, _TIMEOUT, _CORRUPT):  # silence and noise are answers here
-            _raise_for(result, 0, None, "broadcast Ping")
+        if result not in (OK, TIMEOUT, CORRUPT):  # silence and noise are answers here
+            raise_for(result, 0, None, "broadcast Ping")
         return {int(i): (int(m), int(fw)) for i, (m, fw) in found.items()}
 
     def read(self, servo_id: int, addr: int, size: int) -> bytes:
@@ -340,7 +278,7 @@ class Link:
         tx[4], tx[5], tx[6], tx[7] = servo_id, 7, 0, sdk.INST_READ
         tx[8:12] = addr & 0xFF, addr >> 8, size & 0xFF, size >> 8
         rx, result, error = self._call(what, self.ph.txRxPacket, self.port, tx)
-        _raise_for(result, error, servo_id, what, rx)
+        raise_for(result, error, servo_id, what, rx)
         # LEN = INST ERR data CRC(2): a reply of another length (a late one to another
         # request) is not this one's data, whatever its first bytes are
         got = (rx[5] | rx[6] << 8) - 4
@@ -362,7 +300,7 @@ class Link:
         result, error = self._call(
             what, self.ph.writeTxRx, self.port, servo_id, addr, len(data), list(data)
         )
-        _raise_for(result, error, servo_id, what)
+        raise_for(result, error, servo_id, what)
 
     def write_item(self, servo_id: int, item: Item, value: int) -> None:
         self.write(servo_id, item.addr, item.encode(value))
@@ -371,7 +309,7 @@ class Link:
         """Reboot one servo (clears a latched hardware error; RAM back to defaults)."""
         check_unicast_id(servo_id)
         result, error = self._call("Reboot", self.ph.reboot, self.port, servo_id)
-        _raise_for(result, error, servo_id, "Reboot")
+        raise_for(result, error, servo_id, "Reboot")
 
 
 def _check_baud(port: PortHandler, baud: int) -> None:

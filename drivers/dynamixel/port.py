@@ -47,6 +47,20 @@ SDK_LATENCY_TIMER_MS = 16.0
 #: of a 250 Hz tick, a fifth of its read timeout) is the process not running: descheduled
 #: by a busy neighbour, a GC pause, SIGSTOP.
 HOST_STALL_THRESHOLD_S = 1e-3
+#: The package whose ``protocol_dxlsim`` module serves ``dxlsim://`` URLs (the emulator).
+#: Named, never imported here: pyserial imports it when such a URL is opened.
+URL_HANDLER_PACKAGE = "drivers.dxlsim"
+
+
+def register_url_handlers() -> None:
+    """Let :func:`serial.serial_for_url` open ``dxlsim://`` URLs (idempotent).
+
+    pyserial looks a URL's ``<scheme>`` up as ``<package>.protocol_<scheme>`` in each of
+    ``serial.protocol_handler_packages`` and imports it on demand, so the driver only names
+    :data:`URL_HANDLER_PACKAGE` and never imports the emulator itself.
+    """
+    if URL_HANDLER_PACKAGE not in serial.protocol_handler_packages:
+        serial.protocol_handler_packages.append(URL_HANDLER_PACKAGE)
 
 
 class PortHandler(dynamixel_sdk.PortHandler):
@@ -126,7 +140,7 @@ class PortHandler(dynamixel_sdk.PortHandler):
         if self.is_open:
             self.closePort()
         if self.port_name.lower().startswith("dxlsim://"):
-            import drivers.dxlsim  # noqa: F401  (registers dxlsim:// with pyserial, on demand)
+            register_url_handlers()
         self.ser = serial.serial_for_url(
             self.port_name, baudrate=self.baudrate, bytesize=serial.EIGHTBITS, timeout=0
         )

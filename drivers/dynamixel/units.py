@@ -47,6 +47,13 @@ def rad_to_ticks(
     return int(out) if out.ndim == 0 else out
 
 
+def decode_position(raw: int) -> int:
+    """A position register as it comes off the wire (4 bytes little-endian, read as an
+    unsigned int: what the SDK's ``getData``/``read4ByteTxRx`` return) -> signed ticks
+    (two's complement: Goal and Present Position are signed 32-bit)."""
+    return raw - 0x1_0000_0000 if raw & 0x8000_0000 else raw
+
+
 def ticks_to_rad(ticks: ArrayLike) -> NDArray[np.float64] | float:
     """Ticks -> radians (servo frame). Scalar in, float out."""
     x = (np.asarray(ticks, dtype=np.float64) - CENTER_TICK) * RAD_PER_TICK

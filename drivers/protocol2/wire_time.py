@@ -25,8 +25,41 @@ from collections.abc import Sequence
 
 #: Bytes an FTDI adapter passes to the host per USB packet (64 minus 2 status bytes).
 USB_CHUNK = 62
+#: Adapter latency assumed for a pseudo-terminal (ms). A pty has no latency timer: the
+#: process serving it (``hilsim emulate``) writes each reply byte when it is due and is
+#: woken within ~0.1-1 ms on a quiet host. The host counts this for a pty in its bus-capacity
+#: check; the emulator tells its users to put it in their rig.
+PTY_LATENCY_MS = 1.0
 #: Servo turnaround assumed when nothing better is known (AX-12 ≈ 20 µs; not published for X).
 DEFAULT_TURNAROUND_S = 20e-6
+#: Bit times per byte on the wire: 8N1 (start bit, 8 data bits, stop bit).
+BITS_PER_BYTE = 10
+#: Bytes of one unicast Read instruction: header 4, ID, LEN 2, INST, address 2, length 2, CRC 2.
+READ_INSTRUCTION_BYTES = 14
+#: Bytes of a Fast Sync Read reply before the first servo's block: header 4, ID, LEN 2, INST.
+FAST_REPLY_HEADER_BYTES = 8
+
+
+def wire_time_s(n_bytes: int, baud: float) -> float:
+    """Time (s) ``n_bytes`` take on the wire at ``baud`` bit/s."""
+    return BITS_PER_BYTE * n_bytes / baud
+
+
+def status_bytes(data_bytes: int = 0) -> int:
+    """Bytes of one status packet carrying ``data_bytes``: header 4, ID, LEN 2, INST, ERR,
+    the data, CRC 2."""
+    return 11 + data_bytes
+
+
+def fast_block_bytes(data_bytes: int = 4) -> int:
+    """Bytes one servo adds to a Fast Sync Read reply: ERR, ID, the data, CRC 2."""
+    return data_bytes + 4
+
+
+def read_bytes(data_bytes: int) -> int:
+    """Bytes on the wire of one unicast Read of ``data_bytes``: the instruction and the
+    status packet with the data."""
+    return READ_INSTRUCTION_BYTES + status_bytes(data_bytes)
 
 
 def sync_write_bytes(n: int, data_bytes: int = 4) -> int:
@@ -41,7 +74,9 @@ def read_request_bytes(n: int) -> int:
 
 def read_reply_bytes(n: int, fast: bool, data_bytes: int = 4) -> int:
     """Bytes the servos send back: ``n`` status packets (plain) or one Fast Sync Read packet."""
-    return 8 + n * (data_bytes + 4) if fast else n * (11 + data_bytes)
+    if fast:
+        return FAST_REPLY_HEADER_BYTES + n * fast_block_bytes(data_bytes)
+    return n * status_bytes(data_bytes)
 
 
 def cycle_bytes(n: int, fast: bool, data_bytes: int = 4) -> int:

@@ -24,14 +24,15 @@ import statistics
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 
-from drivers.dxlsim.models import get_model
-from drivers.dynamixel.bench_session import (
-    ADDR_FIRMWARE,
-    ADDR_PRESENT_POSITION,
-    ADDR_RETURN_DELAY,
-    BenchBus,
+from drivers.dynamixel.bench_session import BenchBus
+from drivers.dynamixel.link import SYSFS_USB_SERIAL
+from drivers.protocol2 import control_table as ct
+from drivers.protocol2.wire_time import (
+    DEFAULT_TURNAROUND_S,
+    cycle_rate_hz,
+    read_bytes,
+    wire_time_s,
 )
-from drivers.protocol2.wire_time import DEFAULT_TURNAROUND_S, cycle_rate_hz
 
 #: A latency timer at or above this (ms) is reported; FTDI's default is 16, tuned is 1.
 LATENCY_FLAG_MS = 2.0
@@ -41,7 +42,8 @@ LATENCY_INFER_MS = 0.5
 RDT_FLAG_US = 20.0
 #: Below this baud rate (bit/s) the baud rate is reported.
 LOW_BAUD = 1_000_000
-SYSFS_LATENCY = "/sys/bus/usb-serial/devices/{name}/latency_timer"
+#: A USB serial adapter's latency timer, ``{name}`` its device (``ttyUSB0``).
+SYSFS_LATENCY = str(SYSFS_USB_SERIAL / "{name}" / "latency_timer")
 
 
 @dataclass(frozen=True)
@@ -178,14 +180,10 @@ def sysfs_latency(device: str | None) -> tuple[str | None, float | None]:
 def _servo_facts(bb: BenchBus, servo_id: int) -> ServoFacts:
     number = bb.ping(servo_id)
     name = min_fw = None
-    if number is not None:
-        try:
-            model = get_model(number)
-            name, min_fw = model.name, model.fast_read_min_firmware
-        except ValueError:
-            pass
-    fw = bb.read(servo_id, ADDR_FIRMWARE, 1)
-    rdt = bb.read(servo_id, ADDR_RETURN_DELAY, 1)
+    if number is not None:  # the real servo's facts (the control table), not the emulator's
+        name, min_fw = ct.model_name(number), ct.fast_read_min_firmware(number)
+    fw = bb.read_item(servo_id, ct.FIRMWARE_VERSION)
+    rdt = bb.read_item(servo_id, ct.RETURN_DELAY_TIME)  # 2 µs units
     return ServoFacts(servo_id, number, name, fw, min_fw, None if rdt is None else rdt * 2.0)
 
 
@@ -198,15 +196,15 @@ def gather_facts(bb: BenchBus, ids: Sequence[int], *, reads: int = 7) -> BusFact
     read_ms = model_ms = None
     probe = next((s for s in servos if s.return_delay_us is not None), None)
     if probe is not None:
-        clock = bb.clock
+        clock, item = bb.clock, ct.PRESENT_POSITION
         times = []
         for _ in range(reads):
             t0 = clock.now()
-            if bb.read(probe.id, ADDR_PRESENT_POSITION, 4) is not None:
+            if bb.read(probe.id, item.addr, item.size) is not None:
                 times.append(clock.now() - t0)
         if times:
             read_ms = statistics.median(times) * 1e3
-            wire = 10.0 * (14 + 15) / bb.baud  # Read instruction + status with 4 data bytes
+            wire = wire_time_s(read_bytes(item.size), bb.baud)  # Read instruction + status
             model_ms = (wire + probe.return_delay_us * 1e-6 + turnaround_s) * 1e3
     return BusFacts(
         port=bb.url,
@@ -269,7 +267,7 @@ def diagnose(facts: BusFacts) -> Diagnosis:
     if latency_ms >= LATENCY_FLAG_MS:
         better = replace(now, latency_s=1e-3)
         fixed = replace(fixed, latency_s=1e-3)
-        target = facts.sysfs_path or "/sys/bus/usb-serial/devices/ttyUSB0/latency_timer"
+        target = facts.sysfs_path or SYSFS_LATENCY.format(name="ttyUSB0")
         findings.append(
             Finding(
                 "latency_timer",

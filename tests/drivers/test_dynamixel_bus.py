@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import itertools
 import math
+import subprocess
+import sys
 import warnings
 from pathlib import Path
 
@@ -109,6 +111,25 @@ def test_open_rejects_bad_arguments(kw, match):
     args = {"baud": 1_000_000, "ids": [1], **kw}
     with pytest.raises(ValueError, match=match):
         DynamixelBus.open("dxlsim://?ids=1&rdt_us=0", **args)
+
+
+def test_the_driver_opens_dxlsim_urls_without_importing_the_emulator():
+    """port.py names the emulator's package to pyserial; pyserial imports it when a
+    ``dxlsim://`` URL is opened. The driver itself never imports ``drivers.dxlsim``."""
+    code = (
+        "import sys\n"
+        "import drivers.dynamixel.bus, drivers.dynamixel.scan, drivers.dynamixel.bench_session\n"
+        "assert 'drivers.dxlsim' not in sys.modules, 'imported the emulator'\n"
+        "from drivers.dynamixel.link import Link\n"
+        "link = Link.open('dxlsim://?ids=1&rdt_us=0', baud=1_000_000)\n"
+        "print(link.ping(1)[0])\n"
+        "link.close()\n"
+    )
+    done = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, check=False, timeout=60
+    )
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.strip() == "1020"
 
 
 def test_open_bad_url_is_a_value_error_and_missing_device_is_port_gone():

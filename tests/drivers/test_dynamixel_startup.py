@@ -9,7 +9,7 @@ import pytest
 from drivers.clock import VirtualClock
 from drivers.dxlsim import DxlBus, VirtualServo
 from drivers.dynamixel.errors import ExitNotConfirmed, StartupMismatch
-from drivers.dynamixel.startup import Expectation, ReadMode
+from drivers.dynamixel.startup import Expectation, ReadMode, check_servo
 from drivers.protocol2 import control_table as ct
 from drivers.servo_bus import ExitPolicy
 from tests.drivers.test_dynamixel_bus import bus_opener
@@ -82,6 +82,23 @@ def test_passing_check_reports_the_servos(open_bus):
     assert [s.model_name for s in report.servos] == ["XM430-W350"] * 2
     assert any("servo 2: torque already on" in n for n in report.notes)
     assert "servo 2: XM430-W350 fw 46" in str(report)
+
+
+def test_check_servo_returns_its_findings_and_changes_nothing(open_bus):
+    dx = DxlBus(
+        [servo(1, rdt_us=100, min_position_limit=1000, max_position_limit=3000), servo(2)],
+        baud=BAUD,
+        clock=VirtualClock(),
+    )
+    bus, _ = open_bus(dx, read_mode="plain")
+    found = check_servo(bus.link, Expectation(1, "XM430-W350"), attempts=1, fast_required=True)
+    assert found.state is not None and found.state.position_limits == (1000, 3000)
+    assert found.goal_range == (1000, 3000)
+    assert found.return_delay_s == pytest.approx(100e-6)
+    assert [r.item for r in found.rows] == ["Return Delay Time"]
+    silent = check_servo(bus.link, Expectation(9), attempts=2, fast_required=False)
+    assert silent.state is None and silent.goal_range is None and silent.return_delay_s is None
+    assert [(r.item, r.found) for r in silent.rows] == [("answers Ping", "no (timeout)")]
 
 
 def test_auto_mode_falls_back_to_plain_for_old_firmware(open_bus):

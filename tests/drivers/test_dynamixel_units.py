@@ -23,7 +23,7 @@ from drivers.dynamixel.errors import (
     ServoError,
     StartupMismatch,
 )
-from drivers.dynamixel.link import _raise_for
+from drivers.dynamixel.sdk_result import port_gone, raise_for
 from drivers.protocol2 import control_table as ct
 from drivers.servo_bus import ExitPolicy, ExitReport, ServoBusError
 
@@ -35,6 +35,16 @@ def test_centre_and_quarter_turns():
     assert units.rad_to_ticks(-math.pi) == 0
     assert units.ticks_to_rad(2048) == 0.0
     assert units.ticks_to_rad(1024) == pytest.approx(-math.pi / 2)
+
+
+@pytest.mark.parametrize(
+    ("raw", "ticks"),
+    [(0, 0), (2048, 2048), (0x7FFF_FFFF, 2**31 - 1), (0xFFFF_FFFF, -1), (0x8000_0000, -(2**31))],
+)
+def test_decode_position_is_signed_32_bit(raw, ticks):
+    assert units.decode_position(raw) == ticks
+    item = ct.PRESENT_POSITION
+    assert units.decode_position(raw) == item.decode(raw.to_bytes(4, "little"), item.addr)
 
 
 def test_rounding_is_to_nearest_tick():
@@ -171,22 +181,29 @@ def test_hardware_error_text():
 )
 def test_result_codes_become_exceptions(result, exc):
     with pytest.raises(exc) as info:
-        _raise_for(result, 0, 3, "Read 4 B at 132")
+        raise_for(result, 0, 3, "Read 4 B at 132")
     assert type(info.value) is exc
     assert info.value.servo_id == 3 and "servo 3" in str(info.value)
     assert str(result) not in str(info.value)  # callers never see the SDK's codes
 
 
 def test_status_error_numbers_become_servo_errors():
-    _raise_for(sdk.COMM_SUCCESS, 0, 1, "x")  # fine
-    _raise_for(sdk.COMM_SUCCESS, 0x80, 1, "x")  # Alert alone: the instruction worked
+    raise_for(sdk.COMM_SUCCESS, 0, 1, "x")  # fine
+    raise_for(sdk.COMM_SUCCESS, 0x80, 1, "x")  # Alert alone: the instruction worked
     with pytest.raises(ServoError) as info:
-        _raise_for(sdk.COMM_SUCCESS, 0x84, 5, "Write 4 B at 116")
+        raise_for(sdk.COMM_SUCCESS, 0x84, 5, "Write 4 B at 116")
     e = info.value
     assert (e.servo_id, e.error, e.number, e.alert) == (5, 0x84, 4, True)
     assert e.name == "Data Range Error"
     assert "servo 5: Data Range Error (4) on Write 4 B at 116" in str(e)
     assert "Alert" in str(e)
+
+
+def test_port_gone_wraps_the_serial_error():
+    cause = OSError("device reports readiness to read but returned no data")
+    exc = port_gone(cause, "/dev/ttyUSB0", "Sync Read")
+    assert isinstance(exc, PortGone)
+    assert str(exc) == f"/dev/ttyUSB0: adapter gone during Sync Read: {cause}"
 
 
 def test_exception_tree_uses_builtin_bases():
