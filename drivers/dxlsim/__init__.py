@@ -3,7 +3,7 @@
 Three ways in:
 
 * ``serial.serial_for_url("dxlsim://?ids=1-4&model=XM430-W350")`` after ``import drivers.dxlsim``
-  (URL keys: :mod:`drivers.dxlsim.url`), or a bus you built yourself under a name with
+  (URL keys: :class:`drivers.dxlsim.url.DxlsimUrl`), or a bus you built yourself under a name with
   :func:`register_bus` and opened as ``dxlsim://NAME``;
 * :class:`drivers.dynamixel.port.PortHandler` (the dynamixel-sdk adapter) opens the same URLs;
 * ``hilsim emulate`` serves a bus on a pseudo-terminal for unmodified serial programs.
@@ -16,10 +16,11 @@ import serial
 from drivers.dxlsim.bus import DxlBus, TraceRecord
 from drivers.dxlsim.faults import Fault, FaultKind, FaultPlan, parse_fault_plan
 from drivers.dxlsim.servo import VirtualServo
-from drivers.dxlsim.url import bus_from_url, register_bus, unregister_bus
+from drivers.dxlsim.url import DxlsimUrl, bus_from_url, register_bus, unregister_bus
 
 __all__ = [
     "DxlBus",
+    "DxlsimUrl",
     "Fault",
     "FaultKind",
     "FaultPlan",

@@ -44,14 +44,10 @@ from drivers.dxlsim.protocol import (
     encode_status,
 )
 from drivers.dxlsim.servo import VirtualServo
+from drivers.protocol2.wire_time import DEFAULT_TURNAROUND_S, USB_CHUNK
 
 #: A servo drops a half-received instruction packet after this much silence (e-Manual).
 INTER_BYTE_TIMEOUT_S = 1.5e-3
-#: Bytes an FTDI adapter sends to the host in one USB packet (64 minus 2 status bytes).
-USB_CHUNK = 62
-#: Default servo turnaround (instruction end -> reply start, beyond Return Delay Time).
-#: Not published for X series; AX-12 measures ~20 us, MX ~50 us.
-DEFAULT_TURNAROUND_S = 20e-6
 
 Inst = Instruction
 

@@ -253,6 +253,9 @@ _X_TABLE: tuple[tuple[int, int, str, str, int, int, int, bool], ...] = (
     (146, 1, "present_temperature", _R, 0, 0, 255, False),
 )
 
+#: Address of every X-series field by name (the same on every model that has the field).
+X_ADDRESSES: dict[str, int] = {row[2]: row[0] for row in _X_TABLE}
+
 # Which limit field bounds each goal field's own range (± the limit's maximum).
 _GOAL_RANGE_FROM = {
     "goal_pwm": "pwm_limit",

@@ -1,7 +1,8 @@
-"""``dxlsim://`` URLs: build an emulated bus from a URL, or look up one registered by name.
+"""``dxlsim://`` URLs: :class:`DxlsimUrl` owns the grammar, its defaults and the bus it builds.
 
 ``dxlsim://[NAME][?key=value&...]``. With a NAME registered through :func:`register_bus`,
-the port opens that bus (keys are then not allowed). Otherwise a new bus is built:
+the port opens that bus (keys are then not allowed). Otherwise a new bus is built; the
+defaults are :class:`DxlsimUrl`'s field defaults (and nowhere else):
 
 =============== ==================================================== ===============
 key             meaning                                              default
@@ -14,26 +15,40 @@ rdt_us          Return Delay Time in µs (multiple of 2, 0..508)       ``500`` (
 turnaround_us   servo processing time after the Return Delay Time     ``20``
 latency_ms      USB adapter latency timer: 0, 1, 16, ...              ``0``
 clock           ``virtual`` (jumps, never sleeps) or ``real``         ``virtual``
+spin_us         the real clock's spin window (µs), ``clock=real``     the clock's
+                only: sleep until this close to a deadline, then spin
 faults          fault plan, e.g. ``drop:id=2,rate=0.1;unplug:at=3``   none
 seed            seed of the fault plan's generator                    ``0``
 firmware        firmware version reported by every servo              model's default
 trace           ``1`` to keep a timestamped trace of every byte       ``0``
 =============== ==================================================== ===============
+
+``str(DxlsimUrl.parse(url))`` is the normal form: in the order of the table above, the keys
+the URL named and any other key that is not at its default. It parses back to an equal
+:class:`DxlsimUrl`.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import threading
 import urllib.parse
+from collections.abc import Iterable
+from dataclasses import dataclass, field
+from typing import Any
 
-from drivers.clock import MonotonicClock, VirtualClock
+from drivers.clock import DEFAULT_SPIN_S, MonotonicClock, VirtualClock
 from drivers.dxlsim.bus import DxlBus
-from drivers.dxlsim.faults import parse_fault_plan
+from drivers.dxlsim.faults import FaultPlan, parse_fault_plan
 from drivers.dxlsim.models import get_model
 from drivers.dxlsim.servo import VirtualServo
 from drivers.protocol2.ids import parse_ids
+from drivers.protocol2.wire_time import DEFAULT_TURNAROUND_S
 
+#: The host's line rate when a port is opened without one (bit/s).
+DEFAULT_HOST_BAUD = 1_000_000
+CLOCKS = ("virtual", "real")
 _KEYS = (
     "ids",
     "model",
@@ -42,11 +57,14 @@ _KEYS = (
     "turnaround_us",
     "latency_ms",
     "clock",
+    "spin_us",
     "faults",
     "seed",
     "firmware",
     "trace",
 )
+#: characters left readable in a printed URL (the fault grammar's separators)
+_SAFE = ",;:=|-"
 _registry: dict[str, DxlBus] = {}
 _lock = threading.Lock()
 
@@ -65,94 +83,232 @@ def unregister_bus(name: str) -> None:
         _registry.pop(name, None)
 
 
-def bus_from_url(url: str, host_baud: int = 1_000_000) -> DxlBus:
-    """The bus a ``dxlsim://`` URL names or describes. Raises ValueError saying what is wrong."""
-    parts = urllib.parse.urlsplit(url)
-    if parts.scheme.lower() != "dxlsim":
-        raise ValueError(f"not a dxlsim:// URL: {url!r}")
-    query = urllib.parse.parse_qs(parts.query, keep_blank_values=True, strict_parsing=False)
-    name = parts.netloc + parts.path.strip("/")
-    if name:
-        with _lock:
-            bus = _registry.get(name)
-        if bus is None:
-            known = ", ".join(sorted(_registry)) or "none registered"
-            raise ValueError(f"no emulated bus named {name!r} ({known})")
-        if query:
-            raise ValueError(f"{url!r}: a named bus takes no ?keys (configure it in Python)")
-        return bus
-    unknown = sorted(set(query) - set(_KEYS))
-    if unknown:
-        raise ValueError(
-            f"{url!r}: unknown key(s) {', '.join(unknown)}; allowed: {', '.join(_KEYS)}"
-        )
+@dataclass(frozen=True)
+class DxlsimUrl:
+    """One ``dxlsim://`` URL as data: an emulated bus described by its keys, or ``name``.
 
-    def get(key: str, default: str) -> str:
-        return query.get(key, [default])[-1]
+    ``ids`` may be given as text (``"1-4"``). ``baud`` None means the servos run at the
+    host's rate. ``keys`` (the keys the text named: printed even at their defaults) and
+    ``source`` (the text itself, for error messages) do not take part in equality.
+    """
 
-    def bad(key: str, message: str) -> ValueError:
-        """One line naming the URL, the key, the value and what is allowed."""
-        return ValueError(f"{url!r}: {key}: {message}")
+    name: str = ""
+    ids: tuple[int, ...] = (1,)
+    model: str = "XM430-W350"
+    baud: int | None = None
+    rdt_us: float = 500.0
+    turnaround_us: float = DEFAULT_TURNAROUND_S * 1e6
+    latency_ms: float = 0.0
+    clock: str = "virtual"
+    spin_us: float = DEFAULT_SPIN_S * 1e6
+    faults: str = ""
+    seed: int = 0
+    firmware: int | None = None
+    trace: bool = False
+    keys: tuple[str, ...] = field(default=(), compare=False, repr=False)
+    source: str | None = field(default=None, compare=False, repr=False)
 
-    def number(key: str, default: str, kind: type, allowed: str) -> float:
-        text = get(key, default)
-        try:
-            value = kind(text)
-        except ValueError:
-            raise bad(key, f"expected {allowed}, got {text!r}") from None
-        if kind is float and not (math.isfinite(value) and value >= 0.0):
-            raise bad(key, f"expected {allowed}, got {text!r}")
-        return value
+    def __post_init__(self) -> None:
+        ids = parse_ids(self.ids) if isinstance(self.ids, str) else tuple(self.ids)
+        values: dict[str, Any] = {
+            "ids": tuple(int(i) for i in ids),
+            "rdt_us": float(self.rdt_us),
+            "turnaround_us": float(self.turnaround_us),
+            "latency_ms": float(self.latency_ms),
+            "spin_us": float(self.spin_us),
+            "seed": int(self.seed),
+            "trace": bool(self.trace),
+            "clock": str(self.clock).lower(),
+            "baud": None if self.baud is None else int(self.baud),
+            "firmware": None if self.firmware is None else int(self.firmware),
+        }
+        for key, value in values.items():
+            object.__setattr__(self, key, value)
+        if self.clock not in CLOCKS:
+            raise ValueError(f"clock: must be 'virtual' or 'real', got {self.clock!r}")
+        if self.name and (self.keys or any(getattr(self, k) != _DEFAULTS[k] for k in _KEYS)):
+            raise ValueError(f"{self.source or self.name!r}: a named bus takes no ?keys")
 
-    try:
-        ids = parse_ids(get("ids", "1"))
-    except ValueError as exc:
-        message = str(exc)
-        if len(message) > 120:  # "... got [253, 254, ...]": one line, not a screenful
-            message = message[:120] + " …]"
-        raise bad("ids", message) from None
-    servo_baud = int(number("baud", str(host_baud), int, "bit/s as an integer, e.g. 1000000"))
-    rdt_us = number("rdt_us", "500", float, "µs, a multiple of 2 in 0..508")
-    turnaround_us = number("turnaround_us", "20", float, "µs, a finite number >= 0")
-    latency_ms = number("latency_ms", "0", float, "ms, a finite number >= 0 (0, 1, 16, ...)")
-    seed = int(number("seed", "0", int, "an integer"))
-    firmware = query.get("firmware")
-    firmware_v = int(number("firmware", "0", int, "an integer 0..255")) if firmware else None
-    clock_name = get("clock", "virtual").lower()
-    if clock_name not in ("virtual", "real"):
-        raise bad("clock", f"must be 'virtual' or 'real', got {clock_name!r}")
-    model = get("model", "XM430-W350")
-    try:
-        get_model(model)
-    except ValueError as exc:
-        raise bad("model", str(exc)) from None
-    try:
-        faults = parse_fault_plan(get("faults", ""), seed=seed)
-    except ValueError as exc:
-        raise bad("faults", str(exc)) from None
-    clock = VirtualClock() if clock_name == "virtual" else MonotonicClock()
-    t = clock.now()
-    try:
-        servos = [
-            VirtualServo(
-                model, i, baud=servo_baud, return_delay_us=rdt_us, firmware=firmware_v, t=t
+    # --- text ----------------------------------------------------------------------------
+    @classmethod
+    def parse(cls, url: str) -> DxlsimUrl:
+        """The URL as data. Raises ValueError naming the URL, the key, the value and what
+        is allowed (one line)."""
+        parts = urllib.parse.urlsplit(url)
+        if parts.scheme.lower() != "dxlsim":
+            raise ValueError(f"not a dxlsim:// URL: {url!r}")
+        pairs = urllib.parse.parse_qsl(parts.query, keep_blank_values=True)
+        query: dict[str, str] = {}
+        for key, value in pairs:
+            query[key] = value  # the last one wins
+        name = parts.netloc + parts.path.strip("/")
+        if name:
+            if query:
+                raise ValueError(f"{url!r}: a named bus takes no ?keys (configure it in Python)")
+            return cls(name=name, source=url)
+        unknown = sorted(set(query) - set(_KEYS))
+        if unknown:
+            raise ValueError(
+                f"{url!r}: unknown key(s) {', '.join(unknown)}; allowed: {', '.join(_KEYS)}"
             )
-            for i in ids
-        ]
-    except ValueError as exc:  # the model refuses the baud, the Return Delay Time or firmware
-        key = next((k for k in ("baud", "rdt_us", "firmware") if k in str(exc)), "servos")
-        key = "rdt_us" if "return_delay" in str(exc) else key
-        key = "baud" if "bps" in str(exc) else key
-        raise bad(key, str(exc)) from None
-    try:
-        return DxlBus(
-            servos,
-            baud=host_baud,
-            clock=clock,
-            latency_timer_ms=latency_ms,
-            turnaround_us=turnaround_us,
-            faults=faults,
-            trace=get("trace", "0") not in ("0", "", "false", "no"),
-        )
-    except ValueError as exc:
-        raise ValueError(f"{url!r}: {exc}") from None
+
+        def bad(key: str, message: str) -> ValueError:
+            return ValueError(f"{url!r}: {key}: {message}")
+
+        def number(key: str, kind: type, allowed: str) -> Any:
+            text = query[key]
+            try:
+                value = kind(text)
+            except ValueError:
+                raise bad(key, f"expected {allowed}, got {text!r}") from None
+            if kind is float and not (math.isfinite(value) and value >= 0.0):
+                raise bad(key, f"expected {allowed}, got {text!r}")
+            return value
+
+        values: dict[str, Any] = {}
+        if "ids" in query:
+            try:
+                values["ids"] = tuple(parse_ids(query["ids"]))
+            except ValueError as exc:
+                message = str(exc)
+                if len(message) > 120:  # "... got [253, 254, ...]": one line, not a screenful
+                    message = message[:120] + " …]"
+                raise bad("ids", message) from None
+        allowed = {
+            "baud": (int, "bit/s as an integer, e.g. 1000000"),
+            "rdt_us": (float, "µs, a multiple of 2 in 0..508"),
+            "turnaround_us": (float, "µs, a finite number >= 0"),
+            "latency_ms": (float, "ms, a finite number >= 0 (0, 1, 16, ...)"),
+            "spin_us": (float, "µs, a finite number >= 0"),
+            "seed": (int, "an integer"),
+            "firmware": (int, "an integer 0..255"),
+        }
+        for key, (kind, what) in allowed.items():
+            if key in query:
+                values[key] = number(key, kind, what)
+        if "clock" in query:
+            values["clock"] = query["clock"].lower()
+            if values["clock"] not in CLOCKS:
+                raise bad("clock", f"must be 'virtual' or 'real', got {values['clock']!r}")
+        for key in ("model", "faults"):
+            if key in query:
+                values[key] = query[key]
+        if "trace" in query:
+            values["trace"] = query["trace"] not in ("0", "", "false", "no")
+        keys = tuple(dict.fromkeys(key for key, _ in pairs))
+        parsed = cls(**values, keys=keys, source=url)
+        parsed._fault_plan()  # the model and the fault plan are known
+        return parsed
+
+    def __str__(self) -> str:
+        if self.name:
+            return f"dxlsim://{self.name}"
+        items = []
+        for key in _KEYS:
+            value = getattr(self, key)
+            if value is None or (key not in self.keys and value == _DEFAULTS[key]):
+                continue
+            items.append((key, _text(value)))
+        return "dxlsim://?" + urllib.parse.urlencode(items, safe=_SAFE) if items else "dxlsim://"
+
+    def replace(self, **changes: Any) -> DxlsimUrl:
+        """A copy with ``changes``; the keys changed are printed even at their defaults."""
+        keys = self.keys + tuple(k for k in changes if k in _KEYS and k not in self.keys)
+        return dataclasses.replace(self, **changes, keys=keys, source=None)
+
+    # --- the bus -------------------------------------------------------------------------
+    def _where(self) -> str:
+        return self.source if self.source is not None else str(self)
+
+    def _bad(self, key: str, message: str) -> ValueError:
+        """One line naming the URL, the key, the value and what is allowed."""
+        return ValueError(f"{self._where()!r}: {key}: {message}")
+
+    def _fault_plan(self) -> FaultPlan:
+        try:
+            get_model(self.model)
+        except ValueError as exc:
+            raise self._bad("model", str(exc)) from None
+        try:
+            return parse_fault_plan(self.faults, seed=self.seed)
+        except ValueError as exc:
+            raise self._bad("faults", str(exc)) from None
+
+    def build_bus(self, host_baud: int = DEFAULT_HOST_BAUD) -> DxlBus:
+        """The bus this URL names (registered) or describes (new, host side at
+        ``host_baud``). Raises ValueError saying what is wrong."""
+        if self.name:
+            with _lock:
+                bus = _registry.get(self.name)
+                known = ", ".join(sorted(_registry)) or "none registered"
+            if bus is None:
+                raise ValueError(f"no emulated bus named {self.name!r} ({known})")
+            return bus
+        faults = self._fault_plan()
+        try:
+            clock = (
+                VirtualClock() if self.clock == "virtual" else MonotonicClock(self.spin_us / 1e6)
+            )
+        except ValueError as exc:
+            raise self._bad("spin_us", str(exc)) from None
+        t = clock.now()
+        servo_baud = host_baud if self.baud is None else self.baud
+        try:
+            servos = [
+                VirtualServo(
+                    self.model,
+                    i,
+                    baud=servo_baud,
+                    return_delay_us=self.rdt_us,
+                    firmware=self.firmware,
+                    t=t,
+                )
+                for i in self.ids
+            ]
+        except ValueError as exc:  # the model refuses the baud, the Return Delay Time or firmware
+            key = next((k for k in ("baud", "rdt_us", "firmware") if k in str(exc)), "servos")
+            key = "rdt_us" if "return_delay" in str(exc) else key
+            key = "baud" if "bps" in str(exc) else key
+            raise self._bad(key, str(exc)) from None
+        try:
+            return DxlBus(
+                servos,
+                baud=host_baud,
+                clock=clock,
+                latency_timer_ms=self.latency_ms,
+                turnaround_us=self.turnaround_us,
+                faults=faults,
+                trace=self.trace,
+            )
+        except ValueError as exc:
+            raise ValueError(f"{self._where()!r}: {exc}") from None
+
+
+_DEFAULTS = {f.name: f.default for f in dataclasses.fields(DxlsimUrl)}
+
+
+def _text(value: object) -> str:
+    """A field's value as URL text that parses back to it."""
+    if isinstance(value, bool):
+        return "1" if value else "0"
+    if isinstance(value, float):
+        return str(int(value)) if value.is_integer() and abs(value) < 1e15 else repr(value)
+    if isinstance(value, tuple):
+        return _format_ids(value)
+    return str(value)
+
+
+def _format_ids(ids: Iterable[int]) -> str:
+    """``(1, 2, 3, 5)`` -> ``"1-3,5"`` (order kept)."""
+    runs: list[list[int]] = []
+    for i in ids:
+        if runs and i == runs[-1][1] + 1:
+            runs[-1][1] = i
+        else:
+            runs.append([i, i])
+    return ",".join(f"{a}-{b}" if b > a else str(a) for a, b in runs)
+
+
+def bus_from_url(url: str, host_baud: int = DEFAULT_HOST_BAUD) -> DxlBus:
+    """The bus a ``dxlsim://`` URL names or describes. Raises ValueError saying what is wrong."""
+    return DxlsimUrl.parse(url).build_bus(host_baud=host_baud)

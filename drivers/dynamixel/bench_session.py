@@ -5,14 +5,13 @@ The bench (hilsim/bench) times dynamixel-sdk's group objects through this module
 to time exactly what the SDK does. Everything SDK-shaped stays in this module; the others
 get bound methods and plain numbers.
 
-Ports: a device path, a pty, or ``dxlsim://``. A ``dxlsim://?...`` URL that does not say
-``clock=`` is opened on the real clock (the bench measures what this host achieves).
+Ports: a device path, a pty, or ``dxlsim://``, opened as given (the bench chooses an
+emulator's clock in :mod:`hilsim.bench.ports`).
 """
 
 from __future__ import annotations
 
 import os
-import urllib.parse
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -20,54 +19,19 @@ import dynamixel_sdk as sdk
 
 from drivers.clock import Clock
 from drivers.dynamixel.port import PortHandler
+from drivers.dynamixel.sdk_result import OK
+from drivers.dynamixel.units import decode_position
+from drivers.protocol2 import control_table as ct
+from drivers.protocol2.control_table import Item
 
-ADDR_FIRMWARE = 6
-ADDR_RETURN_DELAY = 9
-ADDR_TORQUE = 64
-ADDR_GOAL_POSITION = 116
-ADDR_PRESENT_POSITION = 132
-OK = sdk.COMM_SUCCESS
+#: Addresses :mod:`hilsim.bench` passes to :meth:`BenchBus.read` / :meth:`BenchBus.write1`
+#: (the control table's items; :meth:`BenchBus.read_item` takes the items themselves).
+ADDR_RETURN_DELAY = ct.RETURN_DELAY_TIME.addr
+ADDR_TORQUE = ct.TORQUE_ENABLE.addr
 
 
 class BenchError(RuntimeError):
     """The bus cannot be measured (cannot open, nobody answers, ...); the message says why."""
-
-
-def emulator_url(
-    ids: Sequence[int],
-    baud: int,
-    *,
-    rdt_us: float = 0.0,
-    turnaround_us: float = 20.0,
-    latency_ms: float = 0.0,
-    firmware: int | None = None,
-    clock: str = "real",
-) -> str:
-    """``dxlsim://`` URL of an emulated bus with these servos (all on ``baud``)."""
-    q = {
-        "ids": ",".join(str(i) for i in ids),
-        "baud": str(baud),
-        "rdt_us": f"{rdt_us:g}",
-        "turnaround_us": f"{turnaround_us:g}",
-        "latency_ms": f"{latency_ms:g}",
-        "clock": clock,
-    }
-    if firmware is not None:
-        q["firmware"] = str(firmware)
-    return "dxlsim://?" + urllib.parse.urlencode(q, safe=",")
-
-
-def prepare_url(url: str, *, clock: str = "real", trace: bool = False) -> str:
-    """For a ``dxlsim://?...`` URL: add ``clock=`` when missing and ``trace=1`` when asked.
-    Other ports (and named emulated buses) pass through unchanged."""
-    parts = urllib.parse.urlsplit(url)
-    if parts.scheme.lower() != "dxlsim" or parts.netloc or parts.path.strip("/"):
-        return url
-    query = urllib.parse.parse_qs(parts.query, keep_blank_values=True)
-    query.setdefault("clock", [clock])
-    if trace:
-        query["trace"] = ["1"]
-    return "dxlsim://?" + urllib.parse.urlencode(query, doseq=True, safe=",")
 
 
 class StampedPortHandler(PortHandler):
@@ -132,6 +96,11 @@ class BenchBus:
         value, result, _err = fn(self.port, servo_id, addr)
         return value if result == OK else None
 
+    def read_item(self, servo_id: int, item: Item) -> int | None:
+        """Value of control-table ``item`` (signed where the item is), or None."""
+        value = self.read(servo_id, item.addr, item.size)
+        return None if value is None else item.decode(item.encode(value), item.addr)
+
     def discover_ids(self) -> list[int]:
         """IDs on the bus: the emulator's servos, or a broadcast Ping on hardware (~0.8 s)."""
         if self.bus is not None:
@@ -151,37 +120,41 @@ class BenchBus:
     # -- the group objects the cycle uses ---------------------------------------------------
     def goal_writer(self, goals: dict[int, int]) -> sdk.GroupSyncWrite:
         """A GroupSyncWrite of Goal Position (4 B) holding ``goals`` (ticks by ID)."""
-        writer = sdk.GroupSyncWrite(self.port, self.ph, ADDR_GOAL_POSITION, 4)
+        item = ct.GOAL_POSITION
+        writer = sdk.GroupSyncWrite(self.port, self.ph, item.addr, item.size)
         for servo_id, goal in goals.items():
             writer.addParam(servo_id, goal_bytes(goal))
         return writer
 
     def position_reader(self, ids: Sequence[int]) -> sdk.GroupSyncRead:
         """A GroupSyncRead of Present Position (4 B) from ``ids``, in that order."""
-        reader = sdk.GroupSyncRead(self.port, self.ph, ADDR_PRESENT_POSITION, 4)
+        item = ct.PRESENT_POSITION
+        reader = sdk.GroupSyncRead(self.port, self.ph, item.addr, item.size)
         for servo_id in ids:
             reader.addParam(servo_id)
         return reader
 
     def read_positions(self, ids: Sequence[int]) -> dict[int, int]:
         """Present Position of every servo by one plain Sync Read; BenchError if it fails."""
-        return self._sync_read(ids, ADDR_PRESENT_POSITION, "Present Position")
+        return self._sync_read(ids, ct.PRESENT_POSITION)
 
     def read_goals(self, ids: Sequence[int]) -> dict[int, int]:
         """Goal Position registers (ticks): writing them back changes nothing on the servos."""
-        return self._sync_read(ids, ADDR_GOAL_POSITION, "Goal Position")
+        return self._sync_read(ids, ct.GOAL_POSITION)
 
-    def _sync_read(self, ids: Sequence[int], addr: int, what: str) -> dict[int, int]:
-        reader = sdk.GroupSyncRead(self.port, self.ph, addr, 4)
+    def _sync_read(self, ids: Sequence[int], item: Item) -> dict[int, int]:
+        """``item`` (a 4-byte position) of every servo in ``ids`` by one plain Sync Read."""
+        addr, size = item.addr, item.size
+        reader = sdk.GroupSyncRead(self.port, self.ph, addr, size)
         for servo_id in ids:
             reader.addParam(servo_id)
         result = reader.txRxPacket()
         if result != OK:
             raise BenchError(
-                f"{self.url}: Sync Read of {what} from IDs {list(ids)} failed: "
+                f"{self.url}: Sync Read of {item.name} from IDs {list(ids)} failed: "
                 f"{self.ph.getTxRxResult(result)}"
             )
-        return {i: _signed32(reader.getData(i, addr, 4)) for i in ids}
+        return {i: decode_position(reader.getData(i, addr, size)) for i in ids}
 
 
 def goal_bytes(goal: int) -> list[int]:
@@ -191,24 +164,12 @@ def goal_bytes(goal: int) -> list[int]:
 
 def position(reader: sdk.GroupSyncRead, servo_id: int) -> int:
     """Signed Present Position (ticks) of ``servo_id`` from the reader's last result."""
-    return _signed32(reader.getData(servo_id, ADDR_PRESENT_POSITION, 4))
+    item = ct.PRESENT_POSITION
+    return decode_position(reader.getData(servo_id, item.addr, item.size))
 
 
-def _signed32(value: int) -> int:
-    return value - (1 << 32) if value >= 1 << 31 else value
-
-
-def open_bus(
-    url: str,
-    baud: int,
-    *,
-    clock: str = "real",
-    trace: bool = False,
-    stamped: bool = False,
-) -> BenchBus:
-    """Open ``url`` at ``baud`` through our PortHandler. ``clock``/``trace`` apply to
-    ``dxlsim://?...`` URLs (see :func:`prepare_url`); ``stamped`` records write times."""
-    url = prepare_url(url, clock=clock, trace=trace)
+def open_bus(url: str, baud: int, *, stamped: bool = False) -> BenchBus:
+    """Open ``url`` at ``baud`` through our PortHandler; ``stamped`` records write times."""
     cls = StampedPortHandler if stamped else PortHandler
     port = cls(url)
     try:

@@ -11,11 +11,12 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 from drivers.clock import MonotonicClock
-from drivers.dynamixel.bench_session import BenchError, emulator_url, open_bus
+from drivers.dynamixel.bench_session import BenchError
 from hilsim.bench import cyclictest
 from hilsim.bench.busrate import measure_bus_rate
 from hilsim.bench.diagnose import diagnose, gather_facts
 from hilsim.bench.latency import measure_latency
+from hilsim.bench.ports import emulator_url, open_bus
 from hilsim.bench.report import BenchReport, LoopResult
 from hilsim.bench.sched import DEFAULT_PRIORITY, SCHED_FIFO, measure_scheduler
 

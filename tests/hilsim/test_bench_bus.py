@@ -7,11 +7,12 @@ import itertools
 
 import pytest
 
-from drivers.dynamixel.bench_session import BenchError, emulator_url, open_bus, prepare_url
+from drivers.dynamixel.bench_session import BenchError
 from drivers.protocol2.wire_time import cycle_rate_hz, read_reply_bytes, sync_write_bytes
 from hilsim.bench.busrate import measure_bus_rate, run_cycles
 from hilsim.bench.diagnose import diagnose, gather_facts, sysfs_latency
 from hilsim.bench.latency import measure_latency
+from hilsim.bench.ports import emulator_url, open_bus, prepare_url
 
 CASES = [
     # (servos, baud, rdt_us, turnaround_us, latency_ms)
