@@ -441,7 +441,7 @@ def test_binary_rig_file_is_one_line_naming_the_file(tmp_path):
 
 
 def test_binary_csv_names_the_csv_file_and_line(tmp_path):
-    from hilsim.wiring import build_targets
+    from hilsim.session import build_targets
 
     (tmp_path / "anim.csv").write_bytes(b"time_s,pan\n0,0\n1,\xff\xfe\n")
     text = BASE.replace(
@@ -489,3 +489,34 @@ def test_loading_a_rig_does_not_import_the_sdk():
 
     code = "import hilsim, hilsim.rig, sys; assert 'dynamixel_sdk' not in sys.modules"
     subprocess.run([sys.executable, "-c", code], check=True)
+
+
+def test_read_mode_is_the_drivers():
+    from drivers.dynamixel.startup import ReadMode as BusReadMode
+
+    assert ReadMode is BusReadMode
+
+
+def test_defaults_are_the_dataclass_defaults(tmp_path):
+    from hilsim.rig import JointConfig, LoopConfig, SafetyConfig, TelemetryConfig
+
+    rig = load_rig(write(tmp_path, BASE))
+    assert rig.loop == LoopConfig(rate_hz=500.0)
+    assert rig.safety == SafetyConfig()
+    assert rig.telemetry == TelemetryConfig()
+    assert rig.bus.baud == 1_000_000 and rig.bus.latency_timer_ms is None
+    pan = rig.joints[0]
+    for name in ("model", "home_rad", "direction", "max_speed_rad_s", "max_accel_rad_s2"):
+        assert getattr(pan, name) == JointConfig.__dataclass_fields__[name].default, name
+    assert pan.max_speed_rad_s == pytest.approx(math.radians(180.0))
+    assert pan.max_accel_rad_s2 == pytest.approx(math.radians(3000.0))
+    assert pan.initial_rad is None
+
+
+def test_the_joint_table_lists_every_key_when_refusing_one(tmp_path):
+    text = BASE.replace('name = "pan"', 'name = "pan"\nhome = 3')
+    with pytest.raises(RigError) as info:
+        load_rig(write(tmp_path, text))
+    message = str(info.value)
+    assert "unknown key(s) home in joints[0]; allowed: name, servo_id, model, home_deg," in message
+    assert message.endswith("initial_deg, tracking_tolerance_deg, tracking_time_ms")

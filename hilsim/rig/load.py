@@ -1,0 +1,353 @@
+"""Read and validate a rig file: :func:`load_rig`, one reader per section.
+
+Defaults, bounds and the allowed-key lists come from the fields of :mod:`hilsim.rig.model` and
+:mod:`hilsim.rig.forms` (their :class:`~hilsim.rig.keys.Key` metadata); this module adds only the
+checks that span keys or sections.
+"""
+
+from __future__ import annotations
+
+import math
+import tomllib
+from pathlib import Path
+from typing import Any
+
+from drivers.protocol2.control_table import model_number, series
+from hilsim.integrators import INTEGRATORS
+from hilsim.joint_map import JointMap
+from hilsim.rig.forms import (
+    MAX_DAMPING_RATIO,
+    MAX_FEEDFORWARD,
+    SPRING_HZ_RANGE,
+    WHY_HZ,
+    WHY_Z,
+    AnimatorSpring,
+    PhysicsSpring,
+)
+from hilsim.rig.keys import toml_keys
+from hilsim.rig.model import (
+    KNOWN_MODELS,
+    MAX_STEPS_PER_S,
+    NAME_RE,
+    SERIES_MAX_BAUD,
+    SERVO_ID_RANGE,
+    SUPPORTED_BAUDS,
+    WATCHDOG_MAX_MS,
+    WATCHDOG_UNIT_MS,
+    BusConfig,
+    JointConfig,
+    LoopConfig,
+    Rig,
+    RigError,
+    SafetyConfig,
+    TelemetryConfig,
+)
+from hilsim.rig.reader import Reader, build, finish, read_key, read_table
+from hilsim.springs import Spring
+from hilsim.stability import check_stability
+
+
+# ------------------------------------------------------------------------------------ the springs
+def _spring(r: Reader, name: str) -> Spring:
+    s = r.sub(name, required=True)
+    keys = set(s.table)
+    physics, animation = set(toml_keys(PhysicsSpring)), set(toml_keys(AnimatorSpring))
+    if keys & physics and keys & animation:
+        raise r.fail(
+            name,
+            "give either physics terms (m, c, k[, b]) or animator terms "
+            "(frequency_hz, damping_ratio[, response]), not both",
+        )
+    try:
+        if keys & animation:
+            spring = Spring.from_animation(**read_table(s, AnimatorSpring))
+            finish(s, AnimatorSpring)
+        else:
+            terms = read_table(s, PhysicsSpring)
+            _check_physics_spring(s, **terms)
+            spring = Spring(**terms)
+            finish(s, PhysicsSpring)
+    except ValueError as exc:
+        if isinstance(exc, RigError):
+            raise
+        raise r.fail(name, str(exc)) from None
+    return spring
+
+
+def _check_physics_spring(s: Reader, m: float, c: float, k: float, b: float) -> None:
+    """The animator form's bounds, on m·x'' + c·x' + k·x = k·u + b·u' (keys named)."""
+    # square roots first: k/m or k·m can overflow where their roots do not (inf is refused)
+    f_hz = math.sqrt(k) / math.sqrt(m) / (2.0 * math.pi)
+    critical = 2.0 * math.sqrt(k) * math.sqrt(m)  # 2√(k·m)
+    zeta = c / critical if critical > 0.0 else math.inf
+    f_lo, f_hi = SPRING_HZ_RANGE
+    if not f_lo <= f_hz <= f_hi:
+        raise s.fail(
+            "k",
+            f"the natural frequency √(k/m)/2π = {f_hz:.3g} Hz (k = {k:g}, m = {m:g}) must lie "
+            f"within {f_lo:g}..{f_hi:g} Hz ({WHY_HZ})",
+        )
+    if not zeta <= MAX_DAMPING_RATIO:
+        raise s.fail(
+            "c",
+            f"the damping ratio c/(2√(k·m)) = {zeta:.3g} must be <= {MAX_DAMPING_RATIO:g} "
+            f"({WHY_Z}), got c = {c:g}",
+        )
+    b_max = MAX_FEEDFORWARD * (c + critical)
+    if not abs(b) <= b_max:
+        raise s.fail(
+            "b",
+            f"|b| must be <= {MAX_FEEDFORWARD:g}·(c + 2√(k·m)) = {b_max:.3g} for this spring "
+            f"(a velocity feed-forward stronger than that is a slip), got {b:g}",
+        )
+
+
+# ------------------------------------------------------------------------------------- the joints
+def _joint(path: Path, table: dict[str, Any], index: int) -> JointConfig:
+    r = Reader(path, table, f"joints[{index}]")
+    v: dict[str, Any] = {}  # file values (degrees, ms) by field name
+
+    def key(field_name: str, **extra: Any) -> Any:
+        v[field_name] = read_key(r, JointConfig, field_name, **extra)
+        return v[field_name]
+
+    name = key("name")
+    if not name.isidentifier():
+        raise r.fail(
+            "name", f"use letters, digits and _ (it names telemetry columns), got {name!r}"
+        )
+    servo_id = key("servo_id")
+    id_lo, id_hi = SERVO_ID_RANGE
+    if not id_lo <= servo_id <= id_hi:
+        raise r.fail("servo_id", f"must be {id_lo}..{id_hi}, got {servo_id}")
+    model = key("model")
+    try:
+        model_number(model)
+    except ValueError:
+        raise r.fail(
+            "model",
+            f"unknown servo model {model!r}; known: {', '.join(KNOWN_MODELS)} "
+            "(a -T or -R suffix is fine)",
+        ) from None
+    home = key("home_rad")
+    direction = key("direction")
+    if direction not in (1, -1):
+        raise r.fail("direction", f"must be 1 or -1, got {direction}")
+    lo, hi = key("min_rad"), key("max_rad")
+    if hi <= lo:
+        raise r.fail("max_deg", f"must be greater than min_deg ({lo}), got {hi}")
+    servo = JointMap([home], [direction])  # degrees here: the map is linear
+    for edge, value in (("min_deg", lo), ("max_deg", hi)):
+        servo_deg = servo.servo_angle(0, value)
+        if not -180.0 <= servo_deg <= 180.0:
+            raise r.fail(
+                edge,
+                f"home_deg + direction*{edge} = {servo_deg:g} deg is outside one "
+                "servo turn (-180..180 deg around tick 2048)",
+            )
+    for field_name in ("max_speed_rad_s", "max_accel_rad_s2"):
+        key(field_name)
+    key("tracking_tolerance_rad")
+    key("tracking_time_s")
+    v["spring"] = _spring(r, "spring")
+    key("target", hint='e.g. { type = "keyframes", keys = [[0, 0], [1, 30]] }')
+    initial = key("initial_rad")
+    if initial is not None and not lo <= initial <= hi:
+        raise r.fail("initial_deg", f"must lie within min_deg..max_deg ({lo}..{hi}), got {initial}")
+    finish(r, JointConfig)
+    spring = v.pop("spring")
+    return build(JointConfig, v, spring=spring)
+
+
+# ----------------------------------------------------------------------------------- the sections
+def _bus(top: Reader, port: str | None) -> BusConfig:
+    b = top.sub("bus", required=True)
+    if port is None:
+        port = read_key(b, BusConfig, "port")
+    else:  # the CLI's --port: the file's port is not read
+        b.used.add("port")
+    bauds = ", ".join(str(x) for x in SUPPORTED_BAUDS)
+    values = read_table(b, BusConfig, skip=("port", "baud"))
+    baud = read_key(b, BusConfig, "baud", hint=f"one of {bauds} bit/s")
+    if baud not in SUPPORTED_BAUDS:
+        raise b.fail("baud", f"{baud} bit/s is not a servo baud rate; allowed: {bauds}")
+    finish(b, BusConfig)
+    return build(BusConfig, {"port": port, "baud": baud, **values})
+
+
+def _loop(top: Reader) -> tuple[LoopConfig, int]:
+    """The loop table, and the most substeps its rate allows."""
+    lp = top.sub("loop")
+    values = read_table(lp, LoopConfig, skip=("substeps",))
+    if values["integrator"] not in INTEGRATORS:
+        raise lp.fail(
+            "integrator",
+            f"must be one of {', '.join(INTEGRATORS)}; got {values['integrator']!r}",
+        )
+    rate_hz = values["rate_hz"]
+    max_substeps = max(1, int(MAX_STEPS_PER_S // rate_hz))
+    values["substeps"] = read_key(
+        lp,
+        LoopConfig,
+        "substeps",
+        hi=max_substeps,
+        why=f"at {rate_hz:g} Hz: at most {MAX_STEPS_PER_S:,} integrator steps a second, "
+        "each costs 10-30 us of CPU",
+    )
+    finish(lp, LoopConfig)
+    return build(LoopConfig, values), max_substeps
+
+
+def _check_watchdog(sf: Reader, ms: float) -> None:
+    """0 is off (handled by the caller); else 20..2540 ms in whole 20 ms units."""
+    if not WATCHDOG_UNIT_MS <= ms <= WATCHDOG_MAX_MS:
+        raise sf.fail(
+            "watchdog_ms",
+            f"must be 0 (off) or {WATCHDOG_UNIT_MS:g}..{WATCHDOG_MAX_MS:g} (20 ms units), "
+            f"got {ms:g}",
+        )
+    units = ms / WATCHDOG_UNIT_MS
+    if abs(units - round(units)) > 1e-9:
+        below = max(1, math.floor(units)) * WATCHDOG_UNIT_MS
+        above = min(127, math.ceil(units)) * WATCHDOG_UNIT_MS
+        raise sf.fail(
+            "watchdog_ms",
+            f"must be a multiple of 20 ms (the servo counts in 20 ms units): the nearest are "
+            f"{below:g} and {above:g}, got {ms:g}",
+        )
+
+
+def _safety(top: Reader, loop: LoopConfig) -> SafetyConfig:
+    sf = top.sub("safety")
+    safety = build(SafetyConfig, read_table(sf, SafetyConfig))
+    if safety.watchdog_ms is not None:
+        _check_watchdog(sf, safety.watchdog_ms)
+    if safety.comm_failure_budget_ms < 1000.0 / loop.rate_hz:
+        raise sf.fail(
+            "comm_failure_budget_ms",
+            f"must be at least one tick ({1000.0 / loop.rate_hz:g} ms), "
+            f"got {safety.comm_failure_budget_ms:g}",
+        )
+    finish(sf, SafetyConfig)
+    return safety
+
+
+def _telemetry(top: Reader) -> TelemetryConfig:
+    tl = top.sub("telemetry")
+    telemetry = build(TelemetryConfig, read_table(tl, TelemetryConfig))
+    finish(tl, TelemetryConfig)
+    return telemetry
+
+
+def _joints(top: Reader) -> tuple[JointConfig, ...]:
+    raw_joints = read_key(top, Rig, "joints", hint="one [[joints]] table per joint")
+    if not raw_joints:
+        raise top.fail("joints", "at least one [[joints]] table is needed")
+    joints = []
+    for i, table in enumerate(raw_joints):
+        if not isinstance(table, dict):
+            raise top.fail(f"joints[{i}]", "must be a table ([[joints]])")
+        joints.append(_joint(top.path, table, i))
+    for attr, what in (("name", "joint name"), ("servo_id", "servo_id")):
+        seen: dict[Any, int] = {}
+        for i, j in enumerate(joints):
+            value = getattr(j, attr)
+            if value in seen:
+                raise RigError(
+                    f"{top.path}: joints[{i}].{attr}: {what} {value!r} is already used by "
+                    f"joints[{seen[value]}]"
+                )
+            seen[value] = i
+    return tuple(joints)
+
+
+# --------------------------------------------------------------------------------------- the file
+def _read_toml(path: Path) -> tuple[str, dict[str, Any]]:
+    try:
+        raw = path.read_bytes()
+    except OSError as exc:
+        raise RigError(f"{path}: cannot read rig file: {exc.strerror or exc}") from None
+    try:
+        text = raw.decode("utf-8-sig").replace("\r\n", "\n")
+    except UnicodeDecodeError as exc:
+        line = raw.count(b"\n", 0, exc.start) + 1
+        raise RigError(
+            f"{path}: not a text file: byte {raw[exc.start]:#04x} on line {line} is not UTF-8 "
+            "(a rig file is TOML text)"
+        ) from None
+    try:
+        return text, tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise RigError(f"{path}: not valid TOML: {exc}") from None
+
+
+def _check_stable(path: Path, loop: LoopConfig, max_substeps: int, joints: tuple) -> None:
+    for i, j in enumerate(joints):
+        try:
+            report = check_stability(j.spring, loop.h_s, loop.integrator)
+        except ValueError as exc:  # rates beyond float64: the bounds above should prevent it
+            raise RigError(f"{path}: joints[{i}].spring ({j.name}): {exc}") from None
+        if not report.stable:
+            fix = ""
+            if report.min_substeps is not None or math.isfinite(report.substeps_needed):
+                need = (
+                    report.min_substeps * loop.substeps
+                    if report.min_substeps is not None
+                    else report.substeps_needed * loop.substeps
+                )
+                fix = (
+                    f"\nSet loop.substeps = {need}, or soften the spring."
+                    if need <= max_substeps
+                    else f"\nIt would need loop.substeps = {need:.3g}, but at most "
+                    f"{max_substeps} are allowed at {loop.rate_hz:g} Hz: soften the spring "
+                    "(lower frequency_hz or k, or raise m)."
+                )
+            raise RigError(
+                f"{path}: joints[{i}].spring ({j.name}) at {loop.rate_hz:g} Hz x "
+                f"{loop.substeps} substep(s): {report.message}{fix}"
+            )
+
+
+def load_rig(path: str | Path, *, port: str | None = None) -> Rig:
+    """Read and validate a rig file. ``port`` overrides ``bus.port`` (the CLI's ``--port``).
+
+    Raises :class:`RigError` (a ValueError) naming the file and key on any problem, including
+    a spring that the configured integrator and rate cannot integrate stably.
+    """
+    path = Path(path)
+    text, data = _read_toml(path)
+    top = Reader(path, data, "")
+
+    name = top.get("name", str, path.stem)
+    if not NAME_RE.fullmatch(name):
+        given = "" if "name" in data else ' (the file name; set name = "..." to choose one)'
+        raise top.fail(
+            "name",
+            f"it names the run directory, so use letters, digits, _ - + . and inner spaces "
+            f"(at most 100; no / or .., no leading dot or dash), got {name!r}{given}",
+        )
+    bus = _bus(top, port)
+    loop, max_substeps = _loop(top)
+    safety = _safety(top, loop)
+    telemetry = _telemetry(top)
+    joints = _joints(top)
+    finish(top, Rig)
+
+    for i, j in enumerate(joints):
+        top_baud = SERIES_MAX_BAUD.get(series(j.model.strip().upper()))
+        if top_baud is not None and bus.baud > top_baud:
+            raise RigError(
+                f"{path}: joints[{i}].model: {j.model} ({series(j.model.upper())} series) runs "
+                f"at most {top_baud} bit/s, but bus.baud = {bus.baud}"
+            )
+    _check_stable(path, loop, max_substeps, joints)
+    return Rig(
+        path=path,
+        name=name,
+        bus=bus,
+        loop=loop,
+        safety=safety,
+        telemetry=telemetry,
+        joints=joints,
+        text=text,
+    )

@@ -1,0 +1,447 @@
+"""The rig as data: frozen dataclasses, their policies and bounds. Every angle here is in radians.
+
+Each field read from the rig file carries its :class:`~hilsim.rig.keys.Key` (file name, default,
+unit, bounds, meaning, example) in its metadata: the loader and ``docs/rig.md`` both read it there.
+(``rig_key`` returns a ``dataclasses.field``; ruff's RUF009 cannot know that, hence the noqa.)
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from dataclasses import dataclass, field
+from enum import StrEnum
+from pathlib import Path
+from typing import Any
+
+from drivers.clock import DEFAULT_SPIN_S
+from drivers.dynamixel.startup import ReadMode  # the driver's: the rig names it, the bus obeys it
+from drivers.protocol2.control_table import BAUD_RATES, MODEL_NAMES
+from drivers.servo_bus import ExitPolicy  # hold | relax: the bus carries it out
+from hilsim.integrators import INTEGRATORS
+from hilsim.rig.keys import rig_key
+from hilsim.springs import Spring
+
+
+class RigError(ValueError):
+    """A rig file that cannot be used; the message names the file and the key."""
+
+
+class OverrunPolicy(StrEnum):
+    WARN = "warn"  # count it and carry on from the next deadline in the future
+    STOP = "stop"  # treat an overrun as a fault: safe stop
+
+
+class TelemetryFailurePolicy(StrEnum):
+    """What the show does when the telemetry writer dies (disk full, I/O error)."""
+
+    STOP = "stop"  # a safe stop through the exit policy: a show without a record is a fault
+    CONTINUE = "continue"  # keep the figure moving; the run's record ends where the disk did
+
+
+# ----------------------------------------------------------------------------------------- bounds
+#: The baud rates the servos and the driver support (the driver's control table), ascending.
+SUPPORTED_BAUDS: tuple[int, ...] = tuple(sorted(BAUD_RATES.values()))
+#: X330 servos stop at Baud Rate index 6 (4 Mbps); X430/X540 go to index 7 (4.5 Mbps).
+SERIES_MAX_BAUD = {"X330": BAUD_RATES[6]}
+#: The servo models the driver knows (Model Number table), in table order.
+KNOWN_MODELS: tuple[str, ...] = tuple(MODEL_NAMES.values())
+#: loop.substeps <= MAX_STEPS_PER_S / rate_hz. One integrator step (target sample + step) costs
+#: 13 µs for the 4-joint demo and 30 µs for 16 joints on a desktop (rk4, measured), several times
+#: more on a Raspberry Pi, so 50,000 steps a second already take 0.65-1.5 s of CPU per second of
+#: show: more could never keep real time. At the cap one tick's integration is 200 steps at
+#: 250 Hz (2.6-6 ms on a desktop, a few tens of ms on a Pi), so the loop still reaches its stop
+#: check that often and a Ctrl-C is heard at once; 10**7 substeps took minutes per tick.
+MAX_STEPS_PER_S = 50_000
+#: safety bounds: a dead bus must not hold the exit for long, nor a soft start the show
+MAX_EXIT_RETRIES = 10
+MAX_SOFT_START_S = 60.0
+#: a servo unheard from for 10 s is gone; a larger budget lets the show run blind
+MAX_COMM_FAILURE_BUDGET_MS = 10_000.0
+#: Bus Watchdog unit (ms) and range
+WATCHDOG_UNIT_MS = 20.0
+WATCHDOG_MAX_MS = 127 * WATCHDOG_UNIT_MS
+#: Below 1 deg/s (speed) or 1 deg/s² (acceleration) a joint takes minutes to cross its range
+#: (1 deg/s: 2 min for 120 deg; 1 deg/s² from rest to rest: 22 s for 120 deg), and at 500 Hz
+#: moves 1/40 of an encoder tick per tick: no show wants that, so such a value is a slip (a
+#: unit or an exponent); 1e-300 made a joint that never moved.
+MIN_SPEED_DEG_S = 1.0
+MIN_ACCEL_DEG_S2 = 1.0
+#: tracking monitor defaults and bounds
+TRACKING_TOLERANCE_DEG = 10.0
+TRACKING_TIME_MS = 250.0
+MAX_TRACKING_TOLERANCE_DEG = 360.0
+MAX_TRACKING_TIME_MS = 60_000.0
+#: servo IDs a joint may use (253 is reserved, 254 is broadcast)
+SERVO_ID_RANGE = (0, 252)
+#: a rig name becomes a directory name: a word character first, then word characters, ``.+-``
+#: and inner spaces; no separators, no ``..``, no leading dot or dash
+NAME_RE = re.compile(r"\w(?:[\w .+-]{0,98}[\w+-])?")
+
+_SLOW = "slower, a joint takes minutes to cross its range"
+
+
+def _ms_to_s(ms: float) -> float:
+    return ms / 1000.0
+
+
+# ----------------------------------------------------------------------------------------- model
+@dataclass(frozen=True)
+class BusConfig:
+    port: str = rig_key(
+        "text",
+        "The serial port: a device (`/dev/ttyUSB0`, `COM3`), a pty path, or the built-in "
+        "emulated bus `dxlsim://?ids=1-4&...`. The command line's `--port` overrides it.",
+        example="/dev/ttyUSB0",
+    )
+    baud: int = rig_key(
+        "integer",
+        "The bus's baud rate; every servo must be set to it.",
+        unit="bit/s",
+        default=1_000_000,
+        allowed="one of " + ", ".join(f"{b}" for b in SUPPORTED_BAUDS) + "; X330 servos: at most "
+        f"{SERIES_MAX_BAUD['X330']}",
+    )
+    read: ReadMode = rig_key(  # noqa: RUF009
+        "choice",
+        "How present positions are read: `fast` = Fast Sync Read, `plain` = Sync Read, `auto` = "
+        "Fast Sync Read when every servo's firmware has it.",
+        default=ReadMode.AUTO,
+    )
+    latency_timer_ms: float | None = rig_key(
+        "number",
+        "The USB adapter's latency timer, when it cannot be read (the loop budgets its bus time "
+        "with it).",
+        unit="ms",
+        default=None,
+        default_doc="none: read from the adapter (hardware) or the emulator's own",
+        bounds={
+            "nonnegative": True,
+            "at_most": 255.0,
+            "why": "a USB adapter's latency timer is 0..255 ms",
+        },
+        example=1,
+    )
+
+
+@dataclass(frozen=True)
+class LoopConfig:
+    rate_hz: float = rig_key(
+        "number",
+        "Ticks per second: one Sync Write and one Sync Read each.",
+        unit="Hz",
+        default=500.0,
+        bounds={"positive": True},
+        allowed="the bus must carry one tick's traffic in 80 % of a tick (checked at start)",
+        example=250,
+    )
+    integrator: str = rig_key(
+        "text",
+        "The springs' integrator.",
+        default="rk4",
+        allowed=" | ".join(f'`"{name}"`' for name in INTEGRATORS),
+    )
+    substeps: int = rig_key(
+        "integer",
+        "Integrator steps per tick; the loader says how many a stiff spring needs.",
+        default=1,
+        bounds={"lo": 1},
+        allowed=f"at most {MAX_STEPS_PER_S:,} / rate_hz (integrator steps a second, "
+        "each costs 10-30 µs of CPU)",
+    )
+    spin_us: float = rig_key(
+        "number",
+        "Sleep until this close to each deadline, then spin.",
+        unit="µs",
+        default=round(DEFAULT_SPIN_S * 1e6, 6),
+        bounds={"nonnegative": True},
+    )
+    overrun_policy: OverrunPolicy = rig_key(  # noqa: RUF009
+        "choice",
+        "A missed deadline: `warn` counts it and carries on from the next deadline; `stop` is "
+        "a safe stop.",
+        default=OverrunPolicy.WARN,
+    )
+    realtime_priority: int | None = rig_key(
+        "integer",
+        "SCHED_FIFO priority for the loop, when permitted (a warning, not a crash, when not).",
+        default=None,
+        default_doc="none: the normal scheduler",
+        bounds={"lo": 1, "hi": 99},
+        example=50,
+    )
+    cpu: int | None = rig_key(
+        "integer",
+        "Pin the loop to this CPU, when permitted.",
+        default=None,
+        default_doc="none: not pinned",
+        bounds={"lo": 0, "why_lo": "a CPU number, as in taskset -c"},
+        example=1,
+    )
+
+    @property
+    def period_s(self) -> float:
+        return 1.0 / self.rate_hz
+
+    @property
+    def h_s(self) -> float:
+        """Integrator step: the tick period divided by the substep count."""
+        return self.period_s / self.substeps
+
+
+@dataclass(frozen=True)
+class SafetyConfig:
+    exit_policy: ExitPolicy = rig_key(  # noqa: RUF009
+        "choice",
+        "What the servos do when the show ends or stops: `hold` = goal := present position, "
+        "torque on, Bus Watchdog armed; `relax` = torque off.",
+        default=ExitPolicy.HOLD,
+    )
+    comm_failure_budget_ms: float = rig_key(
+        "number",
+        "A servo without a valid read for this long (at least 3 failed reads in a row; the "
+        "host's own stalls are not counted) stops the show.",
+        unit="ms",
+        default=50.0,
+        bounds={
+            "positive": True,
+            "at_most": MAX_COMM_FAILURE_BUDGET_MS,
+            "why": "a servo silent for longer is gone; the figure would run blind",
+        },
+        allowed="at least one tick (1000 / rate_hz ms)",
+        example=100,
+    )
+    watchdog_ms: float | None = rig_key(
+        "number",
+        "Bus Watchdog armed while running: servos stop by themselves when no packet reaches "
+        "them this long (the host died). 0 turns it off.",
+        unit="ms",
+        default=100.0,
+        bounds={"nonnegative": True},
+        allowed=f"0 (off) or {WATCHDOG_UNIT_MS:g} .. {WATCHDOG_MAX_MS:g}, a multiple of "
+        f"{WATCHDOG_UNIT_MS:g}",
+        convert=lambda ms: ms or None,
+    )
+    soft_start_s: float = rig_key(
+        "number",
+        "Ramp from where the figure is to where the show starts.",
+        unit="s",
+        default=1.0,
+        bounds={
+            "nonnegative": True,
+            "at_most": MAX_SOFT_START_S,
+            "why": "a minute; longer and the figure barely moves at the start",
+        },
+        example=0.5,
+    )
+    exit_retries: int = rig_key(
+        "integer",
+        "Attempts to carry out the exit policy on each servo.",
+        default=3,
+        bounds={
+            "lo": 1,
+            "hi": MAX_EXIT_RETRIES,
+            "why": "each retry waits on a bus that may be dead",
+        },
+    )
+
+
+@dataclass(frozen=True)
+class TelemetryConfig:
+    out_dir: str = rig_key(
+        "text",
+        "Where run directories `<name>-<time>` are made (relative to the working directory); "
+        "the command line's `--out` names one instead.",
+        default="runs",
+    )
+    flush_interval_s: float = rig_key(
+        "number",
+        "How often the telemetry writer flushes its files.",
+        unit="s",
+        default=0.5,
+        bounds={"positive": True},
+    )
+    on_failure: TelemetryFailurePolicy = rig_key(  # noqa: RUF009
+        "choice",
+        "A dead telemetry writer (disk full, I/O error): `stop` = a safe stop; `continue` = the "
+        "show goes on without a record.",
+        default=TelemetryFailurePolicy.STOP,
+    )
+
+
+@dataclass(frozen=True, kw_only=True)
+class JointConfig:
+    """One joint. Angles in radians; ``home_rad`` is the servo angle (0 = tick 2048) at which
+    the joint angle is 0, and ``direction`` (+1/-1) maps joint angle to servo angle.
+
+    Tracking monitor: a present position further than ``tracking_tolerance_rad`` from the
+    commanded one for longer than ``tracking_time_s`` is a "following error" fault."""
+
+    name: str = rig_key(
+        "text",
+        "The joint's name; it names the telemetry columns (`cmd_<name>` ...) and the default CSV "
+        "column.",
+        allowed="letters, digits and `_` (a Python identifier); unique",
+        example="head_pan",
+    )
+    servo_id: int = rig_key(
+        "integer",
+        "The servo's ID on the bus.",
+        allowed=f"{SERVO_ID_RANGE[0]} .. {SERVO_ID_RANGE[1]}; unique",
+        example=1,
+    )
+    model: str = rig_key(
+        "text",
+        "The servo model; checked against the servo at start.",
+        default="XM430-W350",
+        allowed="a model the driver knows: " + ", ".join(KNOWN_MODELS) + " (a -T or -R suffix "
+        "is fine)",
+    )
+    home_rad: float = rig_key(
+        "number",
+        "The servo angle (0 = centre tick 2048) where this joint reads 0.",
+        toml="home_deg",
+        unit="deg",
+        default=0.0,
+        convert=math.radians,
+    )
+    direction: int = rig_key(
+        "integer",
+        "Servo angle = home_deg + direction · joint angle: -1 for a joint mounted mirrored.",
+        default=1,
+        allowed="1 or -1",
+    )
+    min_rad: float = rig_key(
+        "number",
+        "The joint's lower limit (joint frame); the safety filter never commands beyond it.",
+        toml="min_deg",
+        unit="deg",
+        allowed="home_deg + direction · min_deg within -180 .. 180 (one servo turn)",
+        example=-70,
+        convert=math.radians,
+    )
+    max_rad: float = rig_key(
+        "number",
+        "The joint's upper limit (joint frame).",
+        toml="max_deg",
+        unit="deg",
+        allowed="> min_deg; home_deg + direction · max_deg within -180 .. 180",
+        example=70,
+        convert=math.radians,
+    )
+    max_speed_rad_s: float = rig_key(
+        "number",
+        "Speed limit of the commands.",
+        toml="max_speed_deg_s",
+        unit="deg/s",
+        default=180.0,
+        bounds={"positive": True, "at_least": MIN_SPEED_DEG_S, "why": _SLOW},
+        example=240,
+        convert=math.radians,
+    )
+    max_accel_rad_s2: float = rig_key(
+        "number",
+        "Acceleration limit of the commands.",
+        toml="max_accel_deg_s2",
+        unit="deg/s²",
+        default=3000.0,
+        bounds={"positive": True, "at_least": MIN_ACCEL_DEG_S2, "why": _SLOW},
+        example=4000,
+        convert=math.radians,
+    )
+    spring: Spring = rig_key(  # noqa: RUF009
+        "table",
+        "The joint's spring, in one of two forms; see [Springs](#springs).",
+        example={"frequency_hz": 2.5, "damping_ratio": 0.75},
+    )
+    target: dict[str, Any] = rig_key(  # noqa: RUF009
+        "table",
+        "What the joint follows; see [Targets](#targets).",
+        example={"type": "csv", "file": "demo_animation.csv"},
+        convert=dict,
+        compare=False,  # a dict: not hashable
+    )
+    initial_rad: float | None = rig_key(
+        "number",
+        "The spring's starting angle (joint frame); e.g. a free spring released there.",
+        toml="initial_deg",
+        unit="deg",
+        default=None,
+        default_doc="none: the present pose",
+        allowed="within min_deg .. max_deg",
+        example=35,
+        convert=math.radians,
+    )
+    tracking_tolerance_rad: float = rig_key(
+        "number",
+        "A joint whose present position is further than this from its command ...",
+        toml="tracking_tolerance_deg",
+        unit="deg",
+        default=TRACKING_TOLERANCE_DEG,
+        bounds={"positive": True, "at_most": MAX_TRACKING_TOLERANCE_DEG, "why": "one turn"},
+        convert=math.radians,
+    )
+    tracking_time_s: float = rig_key(
+        "number",
+        '... for longer than this is a "following error" (a safe stop).',
+        toml="tracking_time_ms",
+        unit="ms",
+        default=TRACKING_TIME_MS,
+        bounds={"positive": True, "at_most": MAX_TRACKING_TIME_MS},
+        convert=_ms_to_s,
+    )
+
+
+@dataclass(frozen=True, kw_only=True)
+class Rig:
+    path: Path
+    name: str = rig_key(
+        "text",
+        "The rig's name; it names the run directory.",
+        default_doc="the file's stem",
+        allowed="letters, digits, `_ - + .` and inner spaces, at most 100 (no `/` or `..`, no "
+        "leading dot or dash)",
+        example="demo",
+    )
+    bus: BusConfig = rig_key("table", "The servo bus; see [[bus]](#bus).")  # noqa: RUF009
+    loop: LoopConfig = rig_key(  # noqa: RUF009
+        "table",
+        "The control loop; see [[loop]](#loop).",
+        default=LoopConfig(),
+        default_doc="all defaults",
+    )
+    safety: SafetyConfig = rig_key(  # noqa: RUF009
+        "table",
+        "Safe stops; see [[safety]](#safety).",
+        default=SafetyConfig(),
+        default_doc="all defaults",
+    )
+    telemetry: TelemetryConfig = rig_key(  # noqa: RUF009
+        "table",
+        "The run's record; see [[telemetry]](#telemetry).",
+        default=TelemetryConfig(),
+        default_doc="all defaults",
+    )
+    joints: tuple[JointConfig, ...] = rig_key(
+        "list",
+        "One `[[joints]]` table per joint; see [[[joints]]](#joints).",
+        allowed="at least one",
+    )
+    text: str = field(repr=False, compare=False, default="")
+
+    @property
+    def joint_names(self) -> tuple[str, ...]:
+        return tuple(j.name for j in self.joints)
+
+    @property
+    def servo_ids(self) -> tuple[int, ...]:
+        return tuple(j.servo_id for j in self.joints)
+
+    @property
+    def base_dir(self) -> Path:
+        """Relative file names in the rig (animations) are relative to the rig file."""
+        return self.path.parent
+
+    def spring_bank(self) -> Spring:
+        """All joints' springs as one bank, in joint order."""
+        return Spring.stack([j.spring for j in self.joints])
