@@ -32,6 +32,7 @@ REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
 from hilsim.telemetry.reader import read_run  # noqa: E402
+from hilsim.telemetry.stats import comm_errors  # noqa: E402
 
 
 def _load() -> float:
@@ -78,7 +79,7 @@ def one_run(stall_ms: float, seed: int, out: Path, rig: Path) -> dict:
         "reason": summary.get("exit_reason", err.strip().splitlines()[-1:]),
         "stall_events": [round(e.get("stall_ms", 0)) for e in stalls],
         "recoveries": len(recovered),
-        "comm_errors": summary.get("comm_errors_total"),
+        "comm_errors": comm_errors(summary) if summary else None,
         "servo_blamed": any("servo" in f["message"] for f in faults),
         "last_second_max_error_deg": round(math.degrees(worst), 2),
         "overruns": summary.get("overruns"),

@@ -38,12 +38,19 @@ a value never given is ``nan``.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Iterable, Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+import numpy.typing as npt
 
 TELEMETRY_CSV = "telemetry.csv"
 EVENTS_JSONL = "events.jsonl"
 SUMMARY_JSON = "summary.json"
 CONFIG_NAME = "rig.toml"
+#: the version of summary.json's layout (docs/summary.md); raised when a key changes meaning
+SUMMARY_SCHEMA_VERSION = 1
 
 #: columns before the per-joint blocks
 HEAD_COLUMNS: tuple[str, ...] = ("tick", "t_sched", "t_actual", "lateness_us")
@@ -58,6 +65,52 @@ TAIL_COLUMNS: tuple[str, ...] = (
     "comm_errors",
     "host_stall_us",
 )
+
+#: the TickRecord attributes behind TAIL_COLUMNS, in column order
+TAIL_FIELDS: tuple[str, ...] = (
+    *(f"t_{s}_us" for s in STAGES),
+    "overrun",
+    "comm_errors",
+    "host_stall_us",
+)
+
+
+def _nan_array() -> npt.NDArray[np.float64]:
+    return np.full(0, math.nan)
+
+
+@dataclass(slots=True, eq=False)
+class TickRecord:
+    """One tick's row, filled in place by the loop and handed to ``TelemetryWriter.record``.
+
+    The loop makes one and keeps it: the array fields are *its own buffers* (referenced, not
+    copied; ``record`` copies them into the ring), the scalars are overwritten each tick. Each
+    attribute is one CSV column or one block of per-joint columns (names as in the module
+    docstring; ``target`` … ``status`` are the :data:`JOINT_FIELDS`). Stage times not known
+    yet are NaN; :meth:`TelemetryWriter.amend` writes the late ones (``t_sim_us``,
+    ``t_telemetry_us``, ``overrun``) once the tick is over.
+    """
+
+    target: npt.NDArray[np.float64] = field(default_factory=_nan_array)
+    sim_x: npt.NDArray[np.float64] = field(default_factory=_nan_array)
+    sim_v: npt.NDArray[np.float64] = field(default_factory=_nan_array)
+    cmd: npt.NDArray[np.float64] = field(default_factory=_nan_array)
+    present: npt.NDArray[np.float64] = field(default_factory=_nan_array)
+    status: npt.ArrayLike = field(default_factory=_nan_array)
+    tick: int = 0
+    t_sched: float = 0.0  # s since run start (the show time k·period)
+    t_actual: float = 0.0  # s since run start (the clock)
+    t_sim_us: float = math.nan
+    t_safety_us: float = math.nan
+    t_bus_us: float = math.nan
+    t_telemetry_us: float = math.nan
+    overrun: bool = False
+    comm_errors: int = 0  # cumulative
+    host_stall_us: float = 0.0
+
+    @property
+    def lateness_us(self) -> float:
+        return (self.t_actual - self.t_sched) * 1e6
 
 
 class TelemetryError(Exception):

@@ -26,7 +26,7 @@ import numpy as np
 import numpy.typing as npt
 
 from drivers.servo_bus import ReadStatus
-from hilsim.telemetry.format import STAGES, check_joint_names
+from hilsim.telemetry.format import STAGES, SUMMARY_SCHEMA_VERSION, TickRecord, check_joint_names
 
 #: percentiles reported in the summary, as (key, q)
 PERCENTILES: tuple[tuple[str, float], ...] = (("p50", 50.0), ("p99", 99.0), ("p99.9", 99.9))
@@ -54,7 +54,6 @@ def summarize(
     stage_us: Mapping[str, npt.ArrayLike],
     status: npt.ArrayLike,
     servo_ids: Sequence[Any] | None = None,
-    comm_errors: Mapping[Any, int] | None = None,
     safety_limits: Mapping[str, Mapping[str, int]] | None = None,
     safety_ticks: Mapping[str, int] | None = None,
     faults: Sequence[Mapping[str, Any]] = (),
@@ -70,15 +69,15 @@ def summarize(
     Keys: ``ticks``; ``duration_s`` (first to last tick start) and ``rate_hz`` (achieved:
     (ticks - 1) / duration); ``lateness_us`` and ``stage_us[stage]`` as p50/p99/p99.9/max/mean
     (numpy's linear interpolation over finite values; None when there are none); ``overruns``;
-    ``stale_reads``/``error_reads``/``alert_reads`` per joint; ``comm_errors`` per servo (reads that
-    were not OK, plus ``comm_errors`` given here) and ``comm_errors_total``; ``safety_limits``
-    (kind -> joint -> count) and ``safety_ticks`` (as given; None, JSON null, when not given: see
-    the module docstring); ``faults``; ``exit_code``, ``exit_reason``; then ``extra`` verbatim.
+    ``stale_reads``/``error_reads``/``alert_reads`` per joint (their sum is the run's
+    communication errors); ``servo_ids`` (joint -> servo ID); ``safety_limits`` (kind -> joint
+    -> count) and ``safety_ticks`` (as given; None, JSON null, when not given: see the module
+    docstring); ``faults``; ``exit_code``, ``exit_reason``; then ``extra`` verbatim. The keys
+    and their meaning are documented in ``docs/summary.md`` (``schema_version``).
     """
     names = list(joint_names)
-    ids = [str(s) for s in (servo_ids if servo_ids is not None else names)]
-    if len(ids) != len(names):
-        raise ValueError(f"{len(ids)} servo ids for {len(names)} joints")
+    if servo_ids is not None and len(servo_ids) != len(names):
+        raise ValueError(f"{len(servo_ids)} servo ids for {len(names)} joints")
     lat = np.asarray(lateness_us, dtype=np.float64).reshape(-1)
     ticks = int(lat.size)
     st = np.asarray(status).reshape(ticks, len(names))
@@ -88,11 +87,8 @@ def summarize(
     def per_joint(code: ReadStatus) -> list[int]:
         return [int(c) for c in (st == code).sum(axis=0)]
 
-    not_ok = [int(c) for c in (st != ReadStatus.OK).sum(axis=0)]
-    comm = dict(zip(ids, not_ok, strict=True))
-    for sid, count in (comm_errors or {}).items():
-        comm[str(sid)] = comm.get(str(sid), 0) + int(count)
     return {
+        "schema_version": SUMMARY_SCHEMA_VERSION,
         "ticks": ticks,
         "duration_s": span,
         "rate_hz": (ticks - 1) / span if span > 0 else None,
@@ -102,8 +98,12 @@ def summarize(
         "stale_reads": dict(zip(names, per_joint(ReadStatus.STALE), strict=True)),
         "error_reads": dict(zip(names, per_joint(ReadStatus.ERROR), strict=True)),
         "alert_reads": dict(zip(names, per_joint(ReadStatus.ALERT), strict=True)),
-        "comm_errors": comm,
-        "comm_errors_total": sum(comm.values()),
+        "servo_ids": None
+        if servo_ids is None
+        else {
+            j: (int(s) if isinstance(s, int | np.integer) else str(s))
+            for j, s in zip(names, servo_ids, strict=True)
+        },
         "safety_limits": None
         if safety_limits is None
         else {k: {str(j): int(n) for j, n in v.items()} for k, v in safety_limits.items()},
@@ -117,14 +117,28 @@ def summarize(
     }
 
 
+def comm_errors(summary: Mapping[str, Any], servo: int | None = None) -> int:
+    """Communication errors from a summary: reads that were not OK (stale, error or alert), of
+    every joint or of one ``servo`` (by ID); 0 for a summary without read counts."""
+    joints = None
+    if servo is not None:
+        joints = {j for j, sid in (summary.get("servo_ids") or {}).items() if sid == servo}
+    return sum(
+        int(n)
+        for key in ("stale_reads", "error_reads", "alert_reads")
+        for j, n in (summary.get(key) or {}).items()
+        if joints is None or j in joints
+    )
+
+
 class RunStats:
     """Accumulates what the summary needs, cheaply, on the loop thread; percentiles at the end.
 
     Per tick, :meth:`add` stores the tick's start time, lateness, overrun flag, the four stage
     times and the read status into preallocated chunks of ``chunk_ticks`` rows (when one fills a
-    new one is allocated, never copied: no tick pays for a large copy). Rare things are counted
-    when they happen: :meth:`comm_error`, :meth:`safety_limit`, :meth:`fault`; the safety
-    filter's counters arrive once, at the end (:meth:`set_safety_counts`). :meth:`summary`
+    new one is allocated, never copied: no tick pays for a large copy). Faults are noted when
+    they happen (:meth:`fault`); the safety filter's counters arrive once, at the end
+    (:meth:`set_safety_counts`): it is their one owner. :meth:`summary`
     computes everything with numpy (:func:`summarize`). A :class:`TelemetryWriter` owns one and
     feeds it; use one directly only without a writer.
     """
@@ -148,7 +162,6 @@ class RunStats:
         self._done: list[tuple[np.ndarray, np.ndarray]] = []
         self._new_chunk()
         self._last_tick: int | None = None
-        self.comm_errors: dict[Any, int] = {}
         self.safety_limits: dict[str, dict[str, int]] | None = None
         self.safety_ticks: dict[str, int] | None = None
         self.faults: list[dict[str, Any]] = []
@@ -158,74 +171,35 @@ class RunStats:
         self._s = np.zeros((self._chunk_ticks, self._n), dtype=np.int8)
         self._i = 0
 
-    def add(
-        self,
-        t_actual: float,
-        lateness_us: float,
-        overrun: bool,
-        t_sim_us: float,
-        t_safety_us: float,
-        t_bus_us: float,
-        t_telemetry_us: float,
-        status: npt.ArrayLike,
-        tick: int | None = None,
-    ) -> None:
-        """Store one tick: start time (s), lateness and stage times (µs), overrun, status (n,)."""
+    def add(self, rec: TickRecord) -> None:
+        """Store one tick: its start time, lateness, overrun, stage times and read status."""
         i = self._i
         if i == self._chunk_ticks:
             self._done.append((self._f, self._s))
             self._new_chunk()
             i = 0
         row = self._f[i]
-        row[0] = t_actual
-        row[1] = lateness_us
-        row[2] = overrun
-        row[3] = t_sim_us
-        row[4] = t_safety_us
-        row[5] = t_bus_us
-        row[6] = t_telemetry_us
-        self._s[i] = status
+        row[0] = rec.t_actual
+        row[1] = rec.lateness_us
+        row[2] = rec.overrun
+        row[3] = rec.t_sim_us
+        row[4] = rec.t_safety_us
+        row[5] = rec.t_bus_us
+        row[6] = rec.t_telemetry_us
+        self._s[i] = rec.status
         self._i = i + 1
-        self._last_tick = tick
+        self._last_tick = rec.tick
 
-    def amend(
-        self,
-        tick: int | None,
-        *,
-        overrun: bool | None = None,
-        t_sim_us: float | None = None,
-        t_safety_us: float | None = None,
-        t_bus_us: float | None = None,
-        t_telemetry_us: float | None = None,
-    ) -> None:
-        """Change values of the last tick added (``tick`` must be the one given to :meth:`add`)."""
-        if self._i == 0 or tick != self._last_tick:
-            raise ValueError(f"can only amend the last tick ({self._last_tick}), not {tick}")
+    def amend(self, rec: TickRecord) -> None:
+        """Take the late values (stage times, overrun) of the last tick added, ``rec.tick``."""
+        if self._i == 0 or rec.tick != self._last_tick:
+            raise ValueError(f"can only amend the last tick ({self._last_tick}), not {rec.tick}")
         row = self._f[self._i - 1]
-        if overrun is not None:
-            row[2] = overrun
-        if t_sim_us is not None:
-            row[3] = t_sim_us
-        if t_safety_us is not None:
-            row[4] = t_safety_us
-        if t_bus_us is not None:
-            row[5] = t_bus_us
-        if t_telemetry_us is not None:
-            row[6] = t_telemetry_us
-
-    def comm_error(self, servo: Any, n: int = 1) -> None:
-        """Count ``n`` communication errors on one servo that no read status shows (a failed
-        write, a retry); reads that were not OK are counted from the status already."""
-        self.comm_errors[servo] = self.comm_errors.get(servo, 0) + n
-
-    def safety_limit(self, kind: str, joint: str | int, n: int = 1) -> None:
-        """Count a safety intervention of ``kind`` (e.g. "position", "speed") on a joint, on top
-        of what :meth:`set_safety_counts` set (for interventions made outside the filter)."""
-        name = self.joint_names[joint] if isinstance(joint, int) else str(joint)
-        if self.safety_limits is None:
-            self.safety_limits = {}
-        per_kind = self.safety_limits.setdefault(kind, {})
-        per_kind[name] = per_kind.get(name, 0) + n
+        row[2] = rec.overrun
+        row[3] = rec.t_sim_us
+        row[4] = rec.t_safety_us
+        row[5] = rec.t_bus_us
+        row[6] = rec.t_telemetry_us
 
     def set_safety_counts(
         self,
@@ -291,7 +265,6 @@ class RunStats:
             stage_us={stage: f[:, 3 + k] for k, stage in enumerate(STAGES)},
             status=s,
             servo_ids=self.servo_ids,
-            comm_errors=self.comm_errors,
             safety_limits=self.safety_limits,
             safety_ticks=self.safety_ticks,
             faults=self.faults,

@@ -37,14 +37,16 @@ Loop usage::
 
     tel = TelemetryWriter(run_dir, joint_names, servo_ids=ids, config_text=rig_text)
     tel.event("start", "run started", 0, 0.0, rate_hz=rate)
+    rec = TickRecord(target=u, sim_x=x, sim_v=v, cmd=cmd, present=present, status=status)
     every tick k:
-        tel.record(k, t_sched, t_actual, target, sim_x, sim_v, cmd, present, status,
-                   t_sim_us, t_safety_us, t_bus_us, nan, False, comm_errors)
+        rec.tick, rec.t_sched, rec.t_actual, rec.t_bus_us, ... = ...   # in place
+        tel.record(rec)
         ...                                     # the rest of the tick
-        tel.amend(k, t_telemetry_us=dt_us, overrun=late)   # optional, before the next record
+        rec.t_telemetry_us, rec.overrun = dt_us, late
+        tel.amend(rec)                          # optional, before the next record
     on a fault:   tel.event("fault", msg, k, t, joint="jaw")   # fsync-ed; listed in the summary
-    interventions that are not events:  tel.stats.safety_limit("speed", joint)
-    at the end:   summary = tel.close({"exit_code": 0, "exit_reason": "end of show"})
+    at the end:   tel.stats.set_safety_counts(...)             # the safety filter's counters
+                  summary = tel.close({"exit_code": 0, "exit_reason": "end of show"})
 """
 
 from __future__ import annotations
@@ -61,21 +63,21 @@ from pathlib import Path
 from typing import Any, Literal, TextIO
 
 import numpy as np
-import numpy.typing as npt
 
 from drivers.clock import Slack
 from hilsim.telemetry.format import (
     CONFIG_NAME,
     EVENTS_JSONL,
-    HEAD_COLUMNS,
     JOINT_FIELDS,
     STAGES,
     SUMMARY_JSON,
     TELEMETRY_CSV,
     TelemetryError,
+    TickRecord,
     check_joint_names,
     csv_columns,
 )
+from hilsim.telemetry.ring import TickRing
 from hilsim.telemetry.stats import RunStats
 
 #: event kinds that are fsync-ed by default (``event(..., fsync=None)``)
@@ -199,34 +201,20 @@ class TelemetryWriter:
 
         n = len(names)
         self._ncols = len(self.columns)
-        self._ring = np.full((self.queue_size, self._ncols), np.nan)
-        base = len(HEAD_COLUMNS)
-        (
-            self._s_target,
-            self._s_sim_x,
-            self._s_sim_v,
-            self._s_cmd,
-            self._s_present,
-            self._s_status,
-        ) = (slice(base + k * n, base + (k + 1) * n) for k in range(len(JOINT_FIELDS)))
-        self._tail_at = base + len(JOINT_FIELDS) * n
+        self._ring = TickRing(self.queue_size, n, self._ncols)
         self._fmt = _row_format(n)
         self._chunk_rows = max(1, _CHUNK_FLOATS // self._ncols)
         # drain often enough that formatting is spread thin; flush to the OS on its own interval
         self._poll_s = min(0.05, self.flush_interval_s) if self.flush_interval_s > 0 else 0.01
 
-        # Loop-side state (written by the loop thread, or a signal handler on it). _cursor is
-        # 2 * rows handed to the writer + 1 if the next slot holds a complete row not yet handed
-        # over (the one amend() may still change): one int, so a single store both publishes
-        # the previous row and marks the new one pending.
-        self._cursor = 0
+        # Loop-side state (written by the loop thread, or a signal handler on it); the ring's
+        # cursor protocol is in hilsim.telemetry.ring.
         self.rows_dropped = 0
         self._last_dropped_tick: int | None = None
         self._events_put = 0
         self.events_dropped = 0
         self._close_requested = False
         # writer-side counters (written only by the writer thread)
-        self._tail = 0
         self.rows_written = 0
         self._events_got = 0
         self._dropped_reported = 0
@@ -265,121 +253,41 @@ class TelemetryWriter:
 
     # ----------------------------------------------------------------- the loop's side
 
-    def record(
-        self,
-        tick: int,
-        t_sched: float,
-        t_actual: float,
-        target: npt.ArrayLike,
-        sim_x: npt.ArrayLike,
-        sim_v: npt.ArrayLike,
-        cmd: npt.ArrayLike,
-        present: npt.ArrayLike,
-        status: npt.ArrayLike,
-        t_sim_us: float,
-        t_safety_us: float,
-        t_bus_us: float,
-        t_telemetry_us: float,
-        overrun: bool,
-        comm_errors: int,
-        host_stall_us: float = 0.0,
-    ) -> bool:
+    def record(self, rec: TickRecord) -> bool:
         """Queue one tick's row; return True if queued, False if dropped (ring full, disk stalled).
 
-        Arrays are shaped ``(n_joints,)`` (numpy arrays or sequences; copied, so the loop may reuse
-        its buffers): ``target``, ``sim_x``, ``cmd``, ``present`` in rad, ``sim_v`` in rad/s,
-        ``present`` NaN where there was no valid read, ``status`` :class:`ReadStatus` codes. Times
-        in s since run start; stage times in µs (NaN if not known yet: see :meth:`amend`);
-        ``comm_errors`` cumulative; ``host_stall_us`` the host's own stall in this tick. Never
-        blocks with ``overflow="drop"``; a dropped row still counts in :attr:`stats`.
+        ``rec`` (:class:`~hilsim.telemetry.format.TickRecord`) is copied, so the loop reuses it
+        and its buffers: arrays shaped ``(n_joints,)``; ``target``, ``sim_x``, ``cmd``,
+        ``present`` in rad, ``sim_v`` in rad/s, ``present`` NaN where there was no valid read,
+        ``status`` :class:`ReadStatus` codes; times in s since run start; stage times in µs
+        (NaN if not known yet: see :meth:`amend`); ``comm_errors`` cumulative;
+        ``host_stall_us`` the host's own stall in this tick. Never blocks with
+        ``overflow="drop"``; a dropped row still counts in :attr:`stats`.
 
         Raises :class:`WriterFailedError` if the writer thread has died, and
         :class:`TelemetryError` after :meth:`close`.
         """
         if self._failed or self._close_requested:
             self._raise_not_open()
-        lateness_us = (t_actual - t_sched) * 1e6
-        self.stats.add(
-            t_actual,
-            lateness_us,
-            overrun,
-            t_sim_us,
-            t_safety_us,
-            t_bus_us,
-            t_telemetry_us,
-            status,
-            tick,
-        )
-        # the previous row (if pending) counts as handed over from here on
-        head = (self._cursor + 1) >> 1
-        if head - self._tail >= self.queue_size and not self._wait_for_space(tick, head):
-            self._cursor = head << 1  # hand the previous row over; this one is gone
+        self.stats.add(rec)
+        ring = self._ring
+        if ring.full() and not self._wait_for_space(rec.tick):
+            ring.publish_pending()  # hand the previous row over; this one is gone
             return False
-        row = self._ring[head % self.queue_size]
-        row[0] = tick
-        row[1] = t_sched
-        row[2] = t_actual
-        row[3] = lateness_us
-        row[self._s_target] = target
-        row[self._s_sim_x] = sim_x
-        row[self._s_sim_v] = sim_v
-        row[self._s_cmd] = cmd
-        row[self._s_present] = present
-        row[self._s_status] = status
-        k = self._tail_at
-        row[k] = t_sim_us
-        row[k + 1] = t_safety_us
-        row[k + 2] = t_bus_us
-        row[k + 3] = t_telemetry_us
-        row[k + 4] = overrun
-        row[k + 5] = comm_errors
-        row[k + 6] = host_stall_us
-        self._cursor = (head << 1) | 1  # publish the previous row, this one pending
+        ring.put(rec)
         return True
 
-    def amend(
-        self,
-        tick: int,
-        *,
-        overrun: bool | None = None,
-        t_sim_us: float | None = None,
-        t_safety_us: float | None = None,
-        t_bus_us: float | None = None,
-        t_telemetry_us: float | None = None,
-    ) -> bool:
-        """Fill in values of the last recorded tick that were known only after :meth:`record`.
+    def amend(self, rec: TickRecord) -> bool:
+        """Write the late values of the last recorded tick (``rec.tick``): its stage times and
+        overrun, known only after :meth:`record`.
 
-        Only ``tick`` == the last recorded tick can be amended. :attr:`stats` is always updated;
-        the CSV row only until it is handed to the writer (at the next :meth:`record`,
-        :meth:`flush`, :meth:`close` or fsync-ed :meth:`event`): the return value says whether it
-        was (False also when the row was dropped). Raises ``ValueError`` for any other tick.
+        :attr:`stats` is always updated; the CSV row only until it is handed to the writer (at
+        the next :meth:`record`, :meth:`flush`, :meth:`close` or fsync-ed :meth:`event`): the
+        return value says whether it was (False also when the row was dropped). Raises
+        ``ValueError`` for any tick but the last recorded one.
         """
-        self.stats.amend(
-            tick,
-            overrun=overrun,
-            t_sim_us=t_sim_us,
-            t_safety_us=t_safety_us,
-            t_bus_us=t_bus_us,
-            t_telemetry_us=t_telemetry_us,
-        )
-        cursor = self._cursor
-        if not cursor & 1:
-            return False
-        row = self._ring[(cursor >> 1) % self.queue_size]
-        if row[0] != tick:
-            return False
-        k = self._tail_at
-        if t_sim_us is not None:
-            row[k] = t_sim_us
-        if t_safety_us is not None:
-            row[k + 1] = t_safety_us
-        if t_bus_us is not None:
-            row[k + 2] = t_bus_us
-        if t_telemetry_us is not None:
-            row[k + 3] = t_telemetry_us
-        if overrun is not None:
-            row[k + 4] = overrun
-        return True
+        self.stats.amend(rec)
+        return self._ring.amend(rec)
 
     def event(
         self,
@@ -466,7 +374,7 @@ class TelemetryWriter:
         if self._thread.is_alive():
             raise WriterFailedError(
                 f"telemetry writer did not finish within {timeout_s} s (disk stalled?); "
-                f"{self._handed_over() - self._tail} rows still queued"
+                f"{self._ring.pending()} rows still queued"
             )
         if self._failed:
             self._handle_failure()
@@ -491,33 +399,29 @@ class TelemetryWriter:
     @property
     def rows_recorded(self) -> int:
         """Rows accepted by :meth:`record` (queued; written or about to be)."""
-        return (self._cursor + 1) >> 1
-
-    def _handed_over(self) -> int:
-        return self._cursor >> 1
+        return self._ring.head
 
     def _publish_pending(self) -> None:
-        cursor = self._cursor
-        if cursor & 1:
-            self._cursor = cursor + 1
+        self._ring.publish_pending()
 
     def _raise_not_open(self) -> None:
         if self._failed:
             raise WriterFailedError(f"telemetry writer failed: {self._error!r}") from self._error
         raise TelemetryError("telemetry writer is closed")
 
-    def _wait_for_space(self, tick: int, head: int) -> bool:
+    def _wait_for_space(self, tick: int) -> bool:
         if self.overflow == "drop":
             self.rows_dropped += 1
             self._last_dropped_tick = tick
             return False
-        self._cursor = head << 1  # hand the previous row over so the writer can drain it
+        ring = self._ring
+        ring.publish_pending()  # hand the previous row over so the writer can drain it
         woke = False
-        while head - self._tail >= self.queue_size:
+        while ring.full():
             if self._failed:
                 self._raise_not_open()
             self._space.clear()
-            if head - self._tail < self.queue_size:
+            if not ring.full():
                 break
             if not woke:
                 self._inbox.put(_WAKE)
@@ -584,10 +488,10 @@ class TelemetryWriter:
 
     def _drain_rows(self) -> None:
         assert self._csv is not None
-        cap = self.queue_size
+        ring = self._ring
         fmt = self._fmt
         slack = self.slack
-        while (pending := (self._cursor >> 1) - self._tail) > 0:
+        while ring.pending() > 0:
             # Format only in the loop's free time (see ``slack``), and never start a chunk that
             # could still be running when the loop wakes: nap past its deadline instead.
             if not slack.wait(self._poll_s):
@@ -595,14 +499,11 @@ class TelemetryWriter:
             elif (left := slack.remaining()) < _CHUNK_BUDGET_S:
                 time.sleep(max(left, 0.0) + _CHUNK_BUDGET_S)
                 continue
-            start = self._tail % cap
-            count = min(pending, self._chunk_rows, cap - start)
-            rows = self._ring[start : start + count].tolist()
-            self._tail += count  # slots are free once copied out
+            rows = ring.take(self._chunk_rows)  # slots are free once copied out
             if self.overflow == "block":
                 self._space.set()
             self._csv.write("".join([fmt % tuple(r) for r in rows]))
-            self.rows_written += count
+            self.rows_written += len(rows)
             _yield_gil()  # let the loop thread have the GIL between chunks
 
     def _write_event(self, ev: dict[str, Any]) -> None:

@@ -17,6 +17,7 @@ from hilsim.telemetry import TelemetryWriter
 from hilsim.telemetry.format import TELEMETRY_CSV
 from hilsim.telemetry.reader import read_run
 from tests.hilsim.test_telemetry import write_synthetic_run
+from tests.hilsim.tick_rows import tick_record
 
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 NAMES = ("joints.png", "lateness.png", "timing.png")
@@ -87,8 +88,8 @@ def test_damaged_virtual_time_run_still_plots(
             x = np.array([math.sin(k / 50), math.cos(k / 50)])
             status = np.array([1 if 100 <= k < 120 else 0, 0])
             present = np.where(status == 0, x, np.nan)
-            w.record(k, k * 0.01, k * 0.01, x, x, x * 0, x, present, status,
-                     math.nan, math.nan, math.nan, math.nan, False, 0)  # fmt: skip
+            w.record(tick_record(k, k * 0.01, k * 0.01, x, x, x * 0, x, present, status,
+                     math.nan, math.nan, math.nan, math.nan, False, 0))  # fmt: skip
     with open(tmp_path / TELEMETRY_CSV, "a") as f:
         f.write("300,3.0,3.0,0.000,0.1")
     assert plot_cli.run(_args(tmp_path)) == 0
@@ -147,8 +148,8 @@ def _write_run(run_dir: Path, *, config_text: str | None, summary: dict, noise: 
             t = k / rate
             x = np.radians([20.0 * t, 0.0]) + noise * math.sin(k)
             cmd = np.minimum(x, np.radians([40.0, 90.0]))
-            w.record(k, t, t, x, x, x * 0, cmd, cmd, np.zeros(2, dtype=np.int8),
-                     1.0, 1.0, 1.0, 1.0, False, 0)  # fmt: skip
+            w.record(tick_record(k, t, t, x, x, x * 0, cmd, cmd, np.zeros(2, dtype=np.int8),
+                     1.0, 1.0, 1.0, 1.0, False, 0))  # fmt: skip
         w.close(summary)
     return read_run(run_dir)
 
@@ -222,16 +223,17 @@ def test_a_quiet_window_keeps_a_readable_y_axis(tmp_path: Path) -> None:
 def test_virtual_time_runs_say_lateness_and_timing_are_not_measured(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
+    import hilsim.telemetry.plot_common as common
     import hilsim.telemetry.plots as plots
 
     figures = {}
-    save = plots._save
+    save = common.save
 
     def keep(fig, path, dpi):
         figures[Path(path).name] = fig
         return save(fig, path, dpi)
 
-    monkeypatch.setattr(plots, "_save", keep)
+    monkeypatch.setattr(common, "save", keep)
     run = _write_run(tmp_path, config_text=RIG_TEXT, summary={"clock": "virtual time"})
     _assert_pngs(plots.plot_run(run, tmp_path / "out", dpi=50))
     lateness = " ".join(t.get_text() for ax in figures["lateness.png"].axes for t in ax.texts)

@@ -29,7 +29,8 @@ from hilsim.telemetry.format import (
     csv_columns,
 )
 from hilsim.telemetry.reader import NotARunError, RunFormatError, read_run
-from hilsim.telemetry.stats import RunStats, summarize
+from hilsim.telemetry.stats import RunStats, comm_errors, summarize
+from tests.hilsim.tick_rows import stats_record, tick_record
 
 JOINTS = ("neck_pan", "neck_tilt", "jaw")
 WAIT_S = 10.0  # upper bound on any wait for the writer thread; reached only on failure
@@ -90,9 +91,12 @@ def write_synthetic_run(
     ) as w:
         w.event("start", "run started", 0, 0.0, rate_hz=rate_hz)
         for i in range(ticks):
-            w.record(i, t[i], t_actual[i], target[i], sim_x[i], sim_v[i], cmd[i], present[i],
-                     status[i], *stage[i][:3], math.nan, False, int(comm[i]))  # fmt: skip
-            w.amend(i, t_telemetry_us=stage[i][3], overrun=bool(overrun[i]))
+            rec = tick_record(i, t[i], t_actual[i], target[i], sim_x[i], sim_v[i], cmd[i],
+                              present[i], status[i], *stage[i][:3], math.nan, False,
+                              int(comm[i]))  # fmt: skip
+            w.record(rec)
+            rec.t_telemetry_us, rec.overrun = stage[i][3], bool(overrun[i])
+            w.amend(rec)
         w.event("stop", "finished", ticks - 1, t[-1])
         w.close({"exit_code": 0, "exit_reason": "finished"})
     return {
@@ -107,11 +111,15 @@ def write_synthetic_run(
 
 
 def _record_row(
-    w: TelemetryWriter, i: int, vals: np.ndarray, status: np.ndarray | None = None, **kw: object
+    w: TelemetryWriter, i: int, vals: np.ndarray, status: np.ndarray | None = None
 ) -> bool:
+    return w.record(_row(w, i, vals, status))
+
+
+def _row(w: TelemetryWriter, i: int, vals: np.ndarray, status: np.ndarray | None = None):
     n = len(w.joint_names)
     st_ = np.zeros(n, dtype=np.int8) if status is None else status
-    return w.record(
+    return tick_record(
         i,
         i * 1e-3,
         i * 1e-3 + 2e-6,
@@ -161,21 +169,23 @@ def test_round_trip_is_exact(tmp_path: Path) -> None:
     for i in range(n_rows):
         buf[:] = data["target"][i]
         assert w.record(
-            i,
-            t_sched[i],
-            t_actual[i],
-            buf,
-            data["sim_x"][i],
-            data["sim_v"][i],
-            data["cmd"][i].tolist(),
-            present[i],
-            status[i],
-            10.0 + i,
-            2.5,
-            1234.5678,
-            0.001,
-            i % 7 == 0,
-            i // 10,
+            tick_record(
+                i,
+                t_sched[i],
+                t_actual[i],
+                buf,
+                data["sim_x"][i],
+                data["sim_v"][i],
+                data["cmd"][i].tolist(),
+                present[i],
+                status[i],
+                10.0 + i,
+                2.5,
+                1234.5678,
+                0.001,
+                i % 7 == 0,
+                i // 10,
+            )
         )
         buf[:] = -1.0
     summary = w.close({"exit_code": 0, "exit_reason": "end of show"})
@@ -222,7 +232,11 @@ def test_any_double_round_trips(
 ) -> None:
     d = tmp_path_factory.mktemp("run")
     with TelemetryWriter(d, ["a", "b"]) as w:
-        w.record(0, t, t, values, values, values, values, values, [0, 0], 0, 0, 0, 0, False, 0)
+        w.record(
+            tick_record(
+                0, t, t, values, values, values, values, values, [0, 0], 0, 0, 0, 0, False, 0
+            )
+        )
     run = read_run(d)
     assert run.t_sched.tolist() == [t]
     for f in ("target", "sim_x", "sim_v", "cmd", "present"):
@@ -519,7 +533,6 @@ def test_summarize_percentiles_on_known_data() -> None:
         stage_us={"sim": np.full(1000, 20.0), "bus": np.r_[np.full(999, 100.0), np.nan]},
         status=status,
         servo_ids=[11, 12],
-        comm_errors={12: 1},
         exit_code=0,
         exit_reason="finished",
         seed=5,
@@ -533,7 +546,9 @@ def test_summarize_percentiles_on_known_data() -> None:
     assert s["ticks"] == 1000 and s["overruns"] == 9
     assert s["duration_s"] == pytest.approx(1.998) and s["rate_hz"] == pytest.approx(500.0)
     assert s["stale_reads"] == {"a": 7, "b": 0} and s["alert_reads"] == {"a": 0, "b": 2}
-    assert s["comm_errors"] == {"11": 7, "12": 3} and s["comm_errors_total"] == 10
+    assert s["servo_ids"] == {"a": 11, "b": 12} and s["schema_version"] == 1
+    assert s["stale_reads"] == {"a": 7, "b": 0} and s["alert_reads"] == {"a": 0, "b": 2}
+    assert comm_errors(s) == 9 and comm_errors(s, servo=12) == 2 and comm_errors(s, servo=3) == 0
     assert s["stage_us"]["bus"]["max"] == 100.0  # NaN (not measured) ignored
     assert s["seed"] == 5 and s["exit_reason"] == "finished"
     json.dumps(s)  # JSON-ready
@@ -542,24 +557,24 @@ def test_summarize_percentiles_on_known_data() -> None:
 def test_run_stats_accumulates_across_chunks() -> None:
     stats = RunStats(["a", "b"], servo_ids=[1, 2], chunk_ticks=7)
     for i in range(50):
-        stats.add(i * 2e-3, float(i), False, 1.0, 2.0, 3.0 + i, math.nan, [i % 25 == 0, 0], i)
-        stats.amend(i, overrun=i % 10 == 0, t_telemetry_us=4.0)
+        rec = stats_record(i * 2e-3, float(i), False, 1.0, 2.0, 3.0 + i, math.nan,
+                           [i % 25 == 0, 0], i)  # fmt: skip
+        stats.add(rec)
+        rec.overrun, rec.t_telemetry_us = i % 10 == 0, 4.0
+        stats.amend(rec)
     with pytest.raises(ValueError):
-        stats.amend(3, overrun=True)
-    stats.comm_error(2)
-    stats.comm_error(2, 3)
-    stats.safety_limit("position", 1)
-    stats.safety_limit("speed", "a", 2)
+        stats.amend(stats_record(0.0, 0.0, True, 0, 0, 0, 0, [0, 0], 3))
+    stats.set_safety_counts({"position": {"b": 1}, "speed": {"a": 2}}, ticks=50)
     stats.fault("limit", "b beyond limit", 33, 0.066)
     assert stats.ticks == 50
     s = stats.summary(exit_code=2, exit_reason="fault", rate_hz_target=500.0)
-    assert s["ticks"] == 50 and s["lateness_us"]["max"] == 49.0
+    assert s["ticks"] == 50 and s["lateness_us"]["max"] == pytest.approx(49.0)
     assert s["lateness_us"]["p50"] == pytest.approx(24.5)
     assert s["stage_us"]["bus"]["max"] == 52.0 and s["stage_us"]["sim"]["p99"] == 1.0
     assert s["stage_us"]["telemetry"]["max"] == 4.0
     assert s["overruns"] == 5 and s["stale_reads"] == {"a": 2, "b": 0}
-    assert s["comm_errors"] == {"1": 2, "2": 4}
-    assert s["safety_limits"] == {"position": {"b": 1}, "speed": {"a": 2}}
+    assert comm_errors(s, servo=1) == 2 and comm_errors(s, servo=2) == 0
+    assert s["safety_limits"] == {"position": {"a": 0, "b": 1}, "speed": {"a": 2, "b": 0}}
     assert s["faults"] == [{"kind": "limit", "message": "b beyond limit", "tick": 33, "t": 0.066}]
     assert s["exit_code"] == 2 and s["rate_hz_target"] == 500.0
     assert s["rate_hz"] == pytest.approx(500.0)
@@ -574,10 +589,12 @@ def test_empty_summary() -> None:
 def test_amend_fills_in_the_last_row(tmp_path: Path) -> None:
     w = TelemetryWriter(tmp_path, JOINTS)
     for i in range(3):
-        _record_row(w, i, np.zeros(3))
-        assert w.amend(i, overrun=i == 1, t_telemetry_us=7.5 + i)
+        rec = _row(w, i, np.zeros(3))
+        w.record(rec)
+        rec.overrun, rec.t_telemetry_us = i == 1, 7.5 + i
+        assert w.amend(rec)
     with pytest.raises(ValueError):
-        w.amend(0, overrun=True)  # no longer the last tick
+        w.amend(tick_record(0, 0, 0, *[np.zeros(3)] * 6, 0, 0, 0, 0, True, 0))  # not the last
     summary = w.close()
     run = read_run(tmp_path)
     np.testing.assert_array_equal(run.overrun, [False, True, False])
@@ -608,8 +625,8 @@ def test_close_in_a_signal_handler_mid_record(tmp_path: Path) -> None:
             w.close({"exit_code": 130, "exit_reason": "SIGINT"})  # "the signal arrives here"
             return np.zeros(3)
 
-    w.record(5, 5e-3, 5e-3, np.full(3, 5.0), np.zeros(3), np.zeros(3), _Interrupting(),
-             np.zeros(3), np.zeros(3), 0.0, 0.0, 0.0, 0.0, False, 0)  # fmt: skip
+    w.record(tick_record(5, 5e-3, 5e-3, np.full(3, 5.0), np.zeros(3), np.zeros(3), _Interrupting(),
+             np.zeros(3), np.zeros(3), 0.0, 0.0, 0.0, 0.0, False, 0))  # fmt: skip
     w.close()
     run = read_run(tmp_path)
     assert run.tick.tolist() == [0, 1, 2, 3, 4] and run.summary["exit_code"] == 130
@@ -625,5 +642,5 @@ def test_synthetic_run_reads_back(tmp_path: Path) -> None:
     assert [e["kind"] for e in run.events] == ["start", "stop"]
     assert run.summary["ticks"] == run.n_ticks == 500
     assert run.summary["stale_reads"]["jaw"] == int((data["status"][:, 2] == 1).sum())
-    assert run.summary["comm_errors"]["3"] == int((data["status"][:, 2] != 0).sum())
+    assert comm_errors(run.summary, servo=3) == int((data["status"][:, 2] != 0).sum())
     np.testing.assert_allclose(run.lateness_us, data["lateness"], atol=1e-3)

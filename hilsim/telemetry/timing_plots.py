@@ -1,0 +1,203 @@
+"""The timing figures of a run: tick lateness, and host time per tick by stage
+(see :mod:`hilsim.telemetry.plots`)."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+
+from hilsim.telemetry import plot_common as common
+from hilsim.telemetry.format import STAGES
+from hilsim.telemetry.reader import Run
+
+STAGE_COLORS = {"sim": "tab:blue", "safety": "tab:orange", "bus": "tab:green", "telemetry": "0.5"}
+
+
+def _lateness_marks(lat: np.ndarray) -> list[tuple[str, float, str]]:
+    p50, p99, p999 = np.percentile(lat, [50.0, 99.0, 99.9])
+    return [
+        ("p50", float(p50), "tab:green"),
+        ("p99", float(p99), "tab:orange"),
+        ("p99.9", float(p999), "tab:red"),
+        ("max", float(lat.max()), "black"),
+    ]
+
+
+def _use_log_axis(lat: np.ndarray) -> bool:
+    """A log lateness axis when all values are positive and the tail is far from the body."""
+    if lat.size == 0 or float(lat.min()) <= 0.0:
+        return False
+    return float(lat.max()) > 20.0 * float(np.median(lat))
+
+
+def plot_lateness(
+    run: Run,
+    path: str | os.PathLike[str],
+    *,
+    start: float | None = None,
+    end: float | None = None,
+    dpi: int = 110,
+) -> Path:
+    """Histogram of tick lateness (µs, log count) with p50/p99/p99.9/max marked; lateness vs time
+    with overruns marked. The lateness axis is logarithmic when the tail is > 20× the median."""
+    keep = common.window(run, start, end)
+    t = run.t_sched[keep]
+    if common.is_virtual_time(run):
+        fig = common.new_figure(11.0, 3.0)
+        where = common.window_note(start, end)
+        fig.suptitle(f"Tick lateness: {run.path.name}{where} ({t.size} ticks)", x=0.01, ha="left")
+        ax = fig.subplots()
+        ax.set_axis_off()
+        note = (
+            "Virtual-time run: the clock jumps to every deadline, so each tick starts exactly on "
+            "time by construction.\nLateness was not measured; run on the real clock (without "
+            "--virtual-time) to see it."
+        )
+        ax.text(0.5, 0.5, note, transform=ax.transAxes, ha="center", va="center",
+                fontsize="large")  # fmt: skip
+        return common.save(fig, Path(path), dpi)
+    lat_all = run.lateness_us[keep]
+    lat = lat_all[np.isfinite(lat_all)]
+    overrun = run.overrun[keep]
+    fig = common.new_figure(11.0, 8.0)
+    ax_h, ax_t = fig.subplots(2, 1, height_ratios=[3, 2])
+    n_over = int(np.count_nonzero(overrun))
+    fig.suptitle(
+        f"Tick lateness: {run.path.name}{common.window_note(start, end)} ({lat.size} ticks, "
+        f"{n_over} overrun{'s' if n_over != 1 else ''})",
+        x=0.01,
+        ha="left",
+    )
+    log_x = _use_log_axis(lat)
+    if lat.size == 0:
+        ax_h.text(0.5, 0.5, "no lateness data", transform=ax_h.transAxes, ha="center")
+    else:
+        lo, hi = float(lat.min()), float(lat.max())
+        if log_x:
+            bins = np.geomspace(lo, hi * 1.0001, 121)
+            ax_h.set_xscale("log")
+        else:
+            if hi - lo < 1e-9:  # e.g. a virtual clock: every tick exactly on time
+                ax_h.text(0.02, 0.95, f"every tick: {lo:,.3f} µs", transform=ax_h.transAxes,
+                          va="top", fontsize="large")  # fmt: skip
+                lo, hi = lo - 0.5, hi + 0.5
+            bins = np.linspace(lo, hi, 121)
+        ax_h.hist(lat, bins=bins, color="tab:blue", alpha=0.8, log=True)
+        for name, value, color in _lateness_marks(lat):
+            ax_h.axvline(
+                value, color=color, linestyle="--", linewidth=1.2, label=f"{name} = {value:,.1f} µs"
+            )
+        ax_h.legend(loc="upper right", title="lateness")
+    scale = " (log scale)" if log_x else ""
+    ax_h.set_xlabel(f"lateness: tick start − scheduled time (µs){scale}")
+    ax_h.set_ylabel("ticks (log scale)")
+    ax_h.grid(True, which="both" if log_x else "major", alpha=0.25)
+
+    ax_t.plot(
+        t, lat_all, linestyle="none", marker=".", markersize=2, color="tab:blue", label="one tick"
+    )
+    if n_over:
+        ax_t.plot(t[overrun], lat_all[overrun], linestyle="none", marker="x", markersize=6,
+                  color="tab:red", label=f"overrun ×{n_over}")  # fmt: skip
+    if log_x:
+        ax_t.set_yscale("log")
+    ax_t.set_xlabel("time since run start (s)")
+    ax_t.set_ylabel(f"lateness (µs){scale}")
+    ax_t.grid(True, alpha=0.3)
+    ax_t.legend(loc="lower right", bbox_to_anchor=(1.0, 1.0), ncols=2, frameon=False,
+                fontsize="small")  # fmt: skip
+    return common.save(fig, Path(path), dpi)
+
+
+def _binned(
+    t: np.ndarray, values: np.ndarray, n_bins: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Split ticks into ``n_bins`` equal runs: bin centre times, per-stage NaN-mean ``(bins, k)``,
+    and the largest per-tick stage total in each bin ``(bins,)``."""
+    starts = np.linspace(0, t.size, min(n_bins, t.size) + 1).astype(int)[:-1]
+    counts = np.diff(np.append(starts, t.size))
+    centers = np.add.reduceat(t, starts) / counts
+    finite = np.isfinite(values)
+    sums = np.add.reduceat(np.where(finite, values, 0.0), starts, axis=0)
+    n = np.add.reduceat(finite.astype(np.int64), starts, axis=0)
+    means = np.divide(sums, n, out=np.zeros_like(sums), where=n > 0)
+    worst = np.fmax.reduceat(np.nansum(values, axis=1), starts)
+    return centers, means, worst
+
+
+def plot_timing(
+    run: Run,
+    path: str | os.PathLike[str],
+    *,
+    start: float | None = None,
+    end: float | None = None,
+    dpi: int = 110,
+    n_bins: int = 400,
+) -> Path:
+    """Per-stage wall time (µs): stacked bin means vs time, and per-stage p50/p99/max bars."""
+    keep = common.window(run, start, end)
+    t = run.t_sched[keep]
+    stages = np.column_stack([run.stage_us(s)[keep] for s in STAGES]).reshape(-1, len(STAGES))
+    virtual = common.is_virtual_time(run)
+    fig = common.new_figure(11.0, 7.5)
+    ax_s, ax_b = fig.subplots(2, 1, height_ratios=[3, 2])
+    fig.suptitle(
+        f"Time per tick by stage: {run.path.name}{common.window_note(start, end)} ({t.size} ticks)"
+        + (
+            "\nvirtual-time run: the host's compute time per stage ('bus' includes the "
+            "in-process emulator, not wire time); no deadline applied"
+            if virtual
+            else ""
+        ),
+        x=0.01,
+        ha="left",
+    )
+    if t.size == 0 or not np.isfinite(stages).any():
+        ax_b.remove()
+        ax_s.set_axis_off()
+        ax_s.text(0.5, 0.5, "no per-stage timing in this run\n(every t_<stage>_us column is nan)",
+                  transform=ax_s.transAxes, ha="center", va="center", fontsize="large")  # fmt: skip
+        return common.save(fig, Path(path), dpi)
+    centers, means, worst = _binned(t, stages, n_bins)
+    ax_s.stackplot(centers, means.T, labels=[f"{s} (mean)" for s in STAGES],
+                   colors=[STAGE_COLORS[s] for s in STAGES], alpha=0.85)  # fmt: skip
+    ax_s.plot(centers, worst, color="black", linewidth=0.8, label="all stages, worst tick")
+    top = float(np.nanmax(worst))
+    if t.size > 1 and not virtual:
+        period_us = float(np.median(np.diff(t))) * 1e6
+        top = max(top, period_us)
+        ax_s.axhline(period_us, color="tab:red", linestyle="--", linewidth=1.0,
+                     label=f"tick period {period_us:,.0f} µs")  # fmt: skip
+    bin_s = (t[-1] - t[0]) / max(1, centers.size)
+    ax_s.set_xlabel(f"time since run start (s); one point per {bin_s * 1e3:.3g} ms of ticks")
+    ax_s.set_ylabel("wall time per tick (µs)")
+    ax_s.set_ylim(0, top * 1.08 if top > 0 else 1.0)
+    ax_s.grid(True, alpha=0.3)
+    ax_s.legend(loc="lower left", bbox_to_anchor=(0.0, 1.0), ncols=3, frameon=False,
+                fontsize="small")  # fmt: skip
+
+    x = np.arange(len(STAGES))
+    width = 0.26
+    finite_cols = [stages[np.isfinite(stages[:, s]), s] for s in range(len(STAGES))]
+    tops = []
+    for k, (label, q, color) in enumerate(
+        [("p50", 50.0, "#9ecae1"), ("p99", 99.0, "#4292c6"), ("max", 100.0, "#08306b")]
+    ):
+        vals = [float(np.percentile(c, q)) if c.size else np.nan for c in finite_cols]
+        tops += vals
+        bars = ax_b.bar(x + (k - 1) * width, vals, width, label=label, color=color)
+        ax_b.bar_label(bars, fmt="%.0f", fontsize="x-small", padding=1)
+    positive = [v for v in tops if np.isfinite(v) and v > 0]
+    if positive and max(positive) > 30 * min(positive):
+        ax_b.set_yscale("log")  # small stages would be invisible next to the bus
+        ax_b.set_ylabel("wall time per tick (µs, log)")
+    else:
+        ax_b.set_ylabel("wall time per tick (µs)")
+    ax_b.set_xticks(x, list(STAGES))
+    ax_b.set_title("per stage over the whole window", fontsize="medium")
+    ax_b.legend(loc="upper left")
+    ax_b.grid(True, axis="y", alpha=0.3)
+    ax_b.margins(y=0.2)
+    return common.save(fig, Path(path), dpi)
