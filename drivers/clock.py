@@ -7,9 +7,15 @@ forward, so a ten-minute show runs in seconds and tests never sleep in real time
 
 from __future__ import annotations
 
+import math
 import threading
 import time
+from collections.abc import Callable
 from typing import Protocol, runtime_checkable
+
+#: the default spin window of :class:`MonotonicClock` (s): sleep until this close to a
+#: deadline, then spin. The rig key ``loop.spin_us`` overrides it.
+DEFAULT_SPIN_S = 200e-6
 
 
 @runtime_checkable
@@ -49,16 +55,25 @@ class MonotonicClock:
     """The host's monotonic clock.
 
     ``wait_until`` sleeps to ``spin_s`` before the deadline (the OS wakes threads late
-    by ~0.1-1 ms), then spins on the clock for the last stretch.
+    by ~0.1-1 ms), then spins on the clock for the last stretch: the *spin window*. A rig sets
+    it with ``loop.spin_us``. ``now`` and ``sleep`` are the time source (default
+    ``time.perf_counter`` and ``time.sleep``); tests pass a simulated one.
     """
 
     virtual = False
 
-    def __init__(self, spin_s: float = 200e-6) -> None:
-        if not spin_s >= 0.0:
-            raise ValueError(f"spin_s must be >= 0, got {spin_s!r}")
-        self.spin_s = spin_s
-        self._now = time.perf_counter
+    def __init__(
+        self,
+        spin_s: float = DEFAULT_SPIN_S,
+        *,
+        now: Callable[[], float] | None = None,
+        sleep: Callable[[float], None] | None = None,
+    ) -> None:
+        if not (spin_s >= 0.0 and math.isfinite(spin_s)):
+            raise ValueError(f"spin_s must be finite and >= 0, got {spin_s!r}")
+        self.spin_s = float(spin_s)
+        self._now = time.perf_counter if now is None else now
+        self._sleep = time.sleep if sleep is None else sleep
 
     def now(self) -> float:
         return self._now()
@@ -68,12 +83,12 @@ class MonotonicClock:
         remaining = t - now - self.spin_s
         if remaining > 0.0:
             if idle is None:
-                time.sleep(remaining)
+                self._sleep(remaining)
             else:  # other threads may work while we sleep, not while we spin or run
                 if isinstance(idle, Slack):
                     idle.until = t - self.spin_s
                 idle.set()
-                time.sleep(remaining)
+                self._sleep(remaining)
                 idle.clear()
         while (now := self._now()) < t:
             pass

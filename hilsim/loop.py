@@ -5,12 +5,14 @@ One tick (k = 0, 1, ...; t_k = k·period of simulation time)::
     clock.wait_until(t0 + t_k)             sleep, then spin the last stretch (virtual: jump)
     after a long silence on the bus        check every servo's health; recover tripped watchdogs
     safety.filter                          finite? within limits, speed, acceleration? soft start
-    joint map                              servo angle = home + direction · joint angle
+    joint_map.to_servo                     servo angle = home + direction · joint angle
     bus.write_goals                        one Sync Write
     bus.read_present                       one (Fast) Sync Read, per-servo status
-    telemetry.record                       queued; a writer thread owns the disk
+    joint_map.to_joint, targets.sample     present back in the joint frame; u(t_k)
+    telemetry.record(TickRecord)           queued; a writer thread owns the disk
     reads, following error                 faults that stop the show, raised once recorded
-    targets.sample + integrator.step       x_k -> x_{k+1} (substeps; target held over each step)
+                                           (hilsim.servo_watch)
+    integrator.step                        x_k -> x_{k+1} (substeps; target held over each step)
     one health read                        round robin, only if the tick has time to spare
 
 Simulation time is ``k·period``, never the clock, so the commanded numbers are the same
@@ -18,6 +20,10 @@ whether the loop runs on the real clock or the virtual one. A tick that finishes
 next deadline is an overrun: counted, and (``overrun_policy = "stop"``) a fault. When the
 loop has fallen more than a whole period behind, the missed ticks are simulated without bus
 traffic so the figure stays in step with the show (counted as ``skipped_ticks``).
+
+The loop runs the :class:`~hilsim.session.Parts` a session built from the rig (targets,
+joint map, safety filter, integrator); what a servo failure is, and how a tripped watchdog
+is recovered, is decided in :mod:`hilsim.servo_watch`.
 
 **The show goes on through a host stall** (:mod:`hilsim.monitors`): the host's own stalls
 are measured and logged (``host_stall`` events, the ``host_stall_us`` column) and never
@@ -38,63 +44,41 @@ was energised; exit codes are in :mod:`hilsim.exit_codes`.
 
 from __future__ import annotations
 
-import contextlib
 import math
-import os
 import signal
 import sys
 import time
 import traceback
-import warnings
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 
-from drivers.servo_bus import (
-    HealthPart,
-    HealthProblem,
-    PresentReading,
-    ReadStatus,
-    ServoBus,
-    ServoBusError,
-    ServoHealth,
-)
+from drivers.servo_bus import PresentReading, ServoBus, ServoBusError
 from hilsim.exit_codes import ExitCode, for_signal
-from hilsim.integrators import make_integrator
-from hilsim.monitors import (
-    STALL_EVENT_INTERVAL_S,
-    STALL_EVENT_S,
-    WATCHDOG_GAP_FRACTION,
-    FollowingMonitor,
-    HealthSchedule,
-    HostStalls,
-    SilenceBudget,
-)
-from hilsim.rig import OverrunPolicy, Rig, TelemetryFailurePolicy
-from hilsim.safety import SafetyFilter
-from hilsim.targets import TargetSet
+from hilsim.monitors import STALL_EVENT_S, WATCHDOG_GAP_FRACTION, HostStalls
+from hilsim.realtime import REALTIME_SWITCH_INTERVAL_S, try_realtime
+from hilsim.rig import OverrunPolicy, TelemetryFailurePolicy
+from hilsim.servo_watch import LoopFaultError, ServoWatch
+from hilsim.show_log import ShowLog
 from hilsim.telemetry import TelemetryWriter, WriterFailedError
+from hilsim.telemetry.format import TickRecord
 
-#: GIL switch interval while a show runs on the real clock (see HilLoop.run)
-REALTIME_SWITCH_INTERVAL_S = 100e-6
+if TYPE_CHECKING:
+    from hilsim.session import Parts
+
 #: the loop stops when integrating one tick has cost more than this share of the period on
 #: every tick for INTEGRATION_BEHIND_S of wall time: it can never catch up
 INTEGRATION_SHARE = 0.9
 INTEGRATION_BEHIND_S = 0.5
-#: a health read runs only when the tick has its expected bus time, times this, plus
-#: HEALTH_SPARE_S (the SDK's own time) to spare: it must never make the tick late
-HEALTH_MARGIN = 1.1
-HEALTH_SPARE_S = 150e-6
 
 EXIT_OK = ExitCode.OK
 EXIT_FAULT = ExitCode.FAULT
 EXIT_SIGINT = ExitCode.SIGINT
 EXIT_SIGTERM = ExitCode.SIGTERM
 
-
-class LoopFaultError(RuntimeError):
-    """A condition that stops the show: the message names the servo/joint and the cause."""
+__all__ = ["HilLoop", "LoopFaultError", "RunResult", "StopFlag"]
 
 
 @dataclass
@@ -110,35 +94,15 @@ class StopFlag:
 
 @dataclass
 class RunResult:
+    """How :meth:`HilLoop.run` ended. ``loop`` holds the facts only the loop knows, for the
+    summary's ``loop`` section (``docs/summary.md``)."""
+
     exit_code: int
     reason: str
     ticks: int
-    summary: dict = field(default_factory=dict)
-
-
-def try_realtime(priority: int | None, cpu: int | None) -> str:
-    """Ask for SCHED_FIFO and CPU affinity; warn (never fail) when not permitted.
-
-    Returns the scheduling class in force, e.g. ``"SCHED_FIFO:50"`` or ``"SCHED_OTHER"``.
-    """
-    if cpu is not None:
-        try:
-            os.sched_setaffinity(0, {cpu})
-        except (OSError, AttributeError, ValueError) as exc:
-            warnings.warn(f"could not pin the loop to CPU {cpu}: {exc}", stacklevel=2)
-    sched = "SCHED_OTHER"
-    if priority is not None:
-        try:
-            os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
-            sched = f"SCHED_FIFO:{priority}"
-        except (OSError, AttributeError) as exc:
-            warnings.warn(
-                f"SCHED_FIFO priority {priority} not permitted ({exc}); running as SCHED_OTHER. "
-                "Grant it with: sudo setcap cap_sys_nice+ep $(readlink -f $(which python3)) "
-                "or run under a user with an rtprio limit (/etc/security/limits.conf).",
-                stacklevel=2,
-            )
-    return sched
+    exit_policy: str = ""
+    exit_policy_confirmed: bool | None = None
+    loop: dict = field(default_factory=dict)
 
 
 def _signal_name(signum: int) -> str:
@@ -149,13 +113,12 @@ def _signal_name(signum: int) -> str:
 
 
 class HilLoop:
-    """Runs one rig on one open bus. Build, then :meth:`run` once.
+    """Runs one show's parts on one open bus. Build, then :meth:`run` once.
 
     Parameters
     ----------
-    rig: the loaded rig (joints in bus order).
+    parts: what :func:`hilsim.session.build_parts` made from the rig (joints in bus order).
     bus: an open :class:`~drivers.servo_bus.ServoBus` whose IDs are the rig's servo IDs.
-    targets: one track per joint, in joint order.
     telemetry: the run's writer; closed by the caller after :meth:`run` returns.
     duration_s: stop after this much show time; None = the animation's length (or forever).
     stop: a :class:`StopFlag` a signal handler sets.
@@ -164,75 +127,63 @@ class HilLoop:
 
     def __init__(
         self,
-        rig: Rig,
+        parts: Parts,
         bus: ServoBus,
-        targets: TargetSet,
         telemetry: TelemetryWriter,
         *,
         duration_s: float | None = None,
         stop: StopFlag | None = None,
         on_status: Callable[[dict], None] | None = None,
     ) -> None:
+        rig = parts.rig
         if tuple(bus.ids) != rig.servo_ids:
             raise ValueError(f"bus IDs {tuple(bus.ids)} do not match the rig's {rig.servo_ids}")
-        if targets.n_joints != len(rig.joints):
+        if parts.targets.n_joints != len(rig.joints):
             raise ValueError("one target track per joint is needed")
         if duration_s is not None and not (math.isfinite(duration_s) and duration_s > 0):
             raise ValueError(f"duration_s must be finite and > 0, got {duration_s!r}")
-        self.rig, self.bus, self.targets, self.telemetry = rig, bus, targets, telemetry
+        self.rig, self.bus, self.telemetry = rig, bus, telemetry
+        self.targets, self.map = parts.targets, parts.joint_map
+        self.safety, self.integrator = parts.safety, parts.integrator
         self.clock = bus.clock
         self.stop = stop or StopFlag()
         self.on_status = on_status
-        end = targets.duration if duration_s is None else duration_s
-        self.duration_s = end
+        self.duration_s = parts.targets.duration if duration_s is None else duration_s
+        self.period = rig.loop.period_s
         n = len(rig.joints)
-        j = rig.joints
-        self.home = np.array([jt.home_rad for jt in j])
-        self.direction = np.array([float(jt.direction) for jt in j])
-        period = rig.loop.period_s
-        self.safety = SafetyFilter(
-            np.array([jt.min_rad for jt in j]),
-            np.array([jt.max_rad for jt in j]),
-            np.array([jt.max_speed_rad_s for jt in j]),
-            np.array([jt.max_accel_rad_s2 for jt in j]),
-            period,
-            soft_start_s=rig.safety.soft_start_s,
-            joint_names=rig.joint_names,
-        )
-        self.integrator = make_integrator(rig.loop.integrator, rig.spring_bank())
         # Preallocated per-tick buffers (joint frame unless named servo_*).
-        self.x = np.zeros(n)
-        self.v = np.zeros(n)
-        self.u = np.zeros(n)
-        self.du = np.zeros(n)
+        self.x, self.v, self.u, self.du = (np.zeros(n) for _ in range(4))
         self.cmd = np.zeros(n)
         self.servo_goal = np.zeros(n)
         self.present = np.zeros(n)
         self.reading = PresentReading.empty(rig.servo_ids)
-        # monitors (hilsim.monitors)
-        self.stalls = HostStalls()
-        self.silence = SilenceBudget(n, rig.safety.comm_failure_budget_ms * 1e-3)
-        self.following = FollowingMonitor(
-            [jt.tracking_tolerance_rad for jt in j], [jt.tracking_time_s for jt in j], period
+        self.rec = TickRecord(
+            target=self.u,
+            sim_x=self.x,
+            sim_v=self.v,
+            cmd=self.cmd,
+            present=self.present,
+            status=self.reading.status,
         )
-        self.health = HealthSchedule(n)
-        self._watchdog_s = (rig.safety.watchdog_ms or 0.0) * 1e-3
+        self.stalls = HostStalls()
+        self.log = ShowLog(telemetry, self.safety, bus)
+        self.watch = ServoWatch(
+            bus,
+            rig.joints,
+            self.map,
+            period_s=self.period,
+            comm_budget_ms=rig.safety.comm_failure_budget_ms,
+            watchdog_s=(rig.safety.watchdog_ms or 0.0) * 1e-3,
+            event=self.log.event,
+            rejoin=self._rejoin,
+        )
         self._energised = False  # torque may be on: every way out applies the exit policy
         self._recording = True
-        self._last_bus_t = -math.inf  # clock time of the last packet sent to the servos
-        self._last_long_gap_t = -math.inf  # when the bus last went quiet for a watchdog's while
-        self._last_health_ok = [-math.inf] * n
-        self._stall_event_t = -math.inf
-        self._stalls_unreported = 0
         self._behind_since: float | None = None
         self._k = 0
-        #: loop books for the summary (read statuses and comm errors are counted by telemetry)
-        self.stats: dict = {
-            "overruns": 0,
-            "skipped_ticks": 0,
-            "sched": "SCHED_OTHER",
-            "recoveries": 0,
-        }
+        self.overruns = 0  # for the live status line; the summary counts them from telemetry
+        #: what only the loop knows, for the summary's ``loop`` section
+        self.loop_stats: dict = {"skipped_ticks": 0, "sched": "SCHED_OTHER"}
 
     # ------------------------------------------------------------------ start / stop
     def _stopping(self) -> bool:
@@ -244,7 +195,7 @@ class HilLoop:
         Returns False, with nothing energised, if a stop was requested before torque went on.
         """
         try:
-            servo_present = self._first_read()
+            servo_present = self.watch.first_read(self.reading, self._stopping)
             if servo_present is None or self._stopping():
                 return False
             bus = self.bus
@@ -253,48 +204,19 @@ class HilLoop:
                 return False
             self._energised = True
             bus.set_torque(True)
-            if self._watchdog_s:
-                bus.arm_watchdog(self._watchdog_s)
+            if self.watch.watchdog_s:
+                bus.arm_watchdog(self.watch.watchdog_s)
         except ServoBusError as exc:
             raise LoopFaultError(f"cannot start: {exc}") from exc
-        np.subtract(servo_present, self.home, out=self.present)
-        self.present *= self.direction
+        self.map.to_joint(servo_present, self.present)
         event = self.safety.start(self.present)
         if event is not None:
-            self._event("safety", str(event), fsync=True)
+            self.log.event("safety", str(event), fsync=True)
         for i, jt in enumerate(self.rig.joints):
             self.x[i] = self.present[i] if jt.initial_rad is None else jt.initial_rad
         self.v[:] = 0.0
-        self._last_bus_t = self.clock.now()
+        self.watch.last_bus_t = self.clock.now()
         return True
-
-    def _first_read(self) -> np.ndarray | None:
-        """Every servo's present position (servo frame), from as many Sync Reads as the comm
-        budget allows (at least three): one bad reply must not stop a show from starting."""
-        rig, bus = self.rig, self.bus
-        period = rig.loop.period_s
-        attempts = max(3, min(100, math.ceil(rig.safety.comm_failure_budget_ms * 1e-3 / period)))
-        n = len(rig.joints)
-        positions = np.full(n, np.nan)
-        got = np.zeros(n, dtype=bool)
-        last = self.reading
-        for attempt in range(attempts):
-            if self._stopping():
-                return None
-            if attempt:
-                self.clock.wait_until(self.clock.now() + period)
-            last = bus.read_present(self.reading)
-            good = (last.status == ReadStatus.OK) & np.isfinite(last.positions)
-            positions[good] = last.positions[good]
-            got |= good
-            if got.all():
-                return positions
-        names = ", ".join(
-            f"{rig.joints[i].name} (servo {rig.joints[i].servo_id}: "
-            f"{ReadStatus(int(last.status[i])).name})"
-            for i in np.flatnonzero(~got)
-        )
-        raise LoopFaultError(f"cannot start: no present position for {names} in {attempts} reads")
 
     def _apply_exit_policy(self) -> tuple[str, bool]:
         """Apply the rig's exit policy; returns the report text and whether it was confirmed."""
@@ -306,10 +228,10 @@ class HilLoop:
             report = getattr(exc, "report", None)
             if report is None:
                 msg = f"exit policy {policy!r} NOT confirmed: {exc}"
-                self._event("exit_policy", msg, confirmed=[], unconfirmed=list(self.bus.ids))
+                self.log.event("exit_policy", msg, confirmed=[], unconfirmed=list(self.bus.ids))
             else:
                 msg = str(report)
-                self._event(
+                self.log.event(
                     "exit_policy",
                     msg,
                     confirmed=list(report.confirmed),
@@ -318,28 +240,21 @@ class HilLoop:
                 )
             return msg, False
         msg = str(report)
-        self._event("exit_policy", msg, confirmed=list(report.confirmed), notes=list(report.notes))
+        self.log.event(
+            "exit_policy", msg, confirmed=list(report.confirmed), notes=list(report.notes)
+        )
         return msg, True
 
-    def _event(self, kind: str, message: str, **fields) -> None:
-        """An events.jsonl line; never raises (it may run while handling a failure)."""
-        with contextlib.suppress(Exception):  # a broken writer must not stop the exit path
-            self.telemetry.event(kind, message, **fields)
-
-    # ------------------------------------------------------------------ the loop
+    # ------------------------------------------------------------------ the run
     def run(self) -> RunResult:
         """Run the show; every way out (end, signal, fault, exception) applies the exit policy
         once anything was energised. KeyboardInterrupt and SystemExit are re-raised after it."""
         rig = self.rig
-        self.stats["sched"] = try_realtime(rig.loop.realtime_priority, rig.loop.cpu)
-        self._event(
-            "start",
-            f"{rig.name}: {len(rig.joints)} joints at {rig.loop.rate_hz:g} Hz, "
-            f"{self.stats['sched']}",
+        sched = self.loop_stats["sched"] = try_realtime(rig.loop.realtime_priority, rig.loop.cpu)
+        self.log.event(
+            "start", f"{rig.name}: {len(rig.joints)} joints at {rig.loop.rate_hz:g} Hz, {sched}"
         )
-        # The telemetry writer is a Python thread: when the loop wakes from its sleep it may
-        # wait for the GIL up to the interpreter's switch interval (5 ms by default). Ask the
-        # holder to let go within 100 µs while the show runs on the real clock.
+        # the telemetry writer is a Python thread: have it let go of the GIL quickly
         switch = sys.getswitchinterval()
         if not self.clock.virtual:
             sys.setswitchinterval(min(switch, REALTIME_SWITCH_INTERVAL_S))
@@ -353,7 +268,7 @@ class HilLoop:
                 reason = f"stopped by {_signal_name(self.stop.signum)}"
                 if not self._energised:
                     reason += " before the show started: nothing was energised"
-                self._event("signal", reason, tick=k)
+                self.log.event("signal", reason, tick=k)
         except LoopFaultError as exc:
             exit_code, reason, fault = int(ExitCode.FAULT), str(exc), True
             if not self._energised:  # refused before anything could move: a clear error
@@ -364,7 +279,7 @@ class HilLoop:
         except Exception as exc:
             exit_code, fault = int(ExitCode.FAULT), True
             reason = f"internal error: {type(exc).__name__}: {exc}"
-            self._event("crash", reason, traceback=traceback.format_exc())
+            self.log.event("crash", reason, traceback=traceback.format_exc())
         except BaseException as exc:  # KeyboardInterrupt, SystemExit: clean up, then re-raise
             interrupted = exc
             exit_code, reason = int(ExitCode.SIGINT), f"interrupted ({type(exc).__name__})"
@@ -372,54 +287,49 @@ class HilLoop:
             sys.setswitchinterval(switch)
         if fault:
             k = self._k
-            self._event("fault", reason, tick=k, t=k * rig.loop.period_s)
+            self.log.event("fault", reason, tick=k, t=k * self.period)
+        result = RunResult(exit_code, reason, k, loop=self.loop_stats)
         if self._energised:
-            self.stats["exit_policy"], confirmed = self._apply_exit_policy()
-            self.stats["exit_policy_confirmed"] = confirmed
+            result.exit_policy, confirmed = self._apply_exit_policy()
+            result.exit_policy_confirmed = confirmed
             if not confirmed and not fault:
-                exit_code = int(ExitCode.UNSAFE_EXIT)
+                result.exit_code = int(ExitCode.UNSAFE_EXIT)
         else:
-            self.stats["exit_policy"] = "not applied: nothing was energised"
-            self.stats["exit_policy_confirmed"] = None
+            result.exit_policy = "not applied: nothing was energised"
         if self.safety.started:  # clamps: one owner, the summary's safety_limits
             counters = self.safety.counters
             self.telemetry.stats.set_safety_counts(
                 counters.by_kind(), ticks=counters.ticks, held_ticks=counters.fault_ticks
             )
-            self._log_safety_limits(k, k * rig.loop.period_s)
-        self.stats["host_stalls"] = self.stalls.as_dict()
-        self.stats["health_reads"] = self.health.reads
+            self.log.safety_limits(k, k * self.period)
+        self.loop_stats.update(
+            recoveries=self.watch.recoveries,
+            host_stalls=self.stalls.as_dict(),
+            health_reads=self.watch.health.reads,
+        )
         if interrupted is not None:
             raise interrupted
-        return RunResult(exit_code, reason, k, self.stats)
+        return result
 
     def _ticks(self) -> int:
         """Tick until the show ends, a stop is requested or a fault is raised; returns ticks run."""
-        rig, bus, clock = self.rig, self.bus, self.clock
-        period = rig.loop.period_s
-        stop_on_overrun = rig.loop.overrun_policy is OverrunPolicy.STOP
-        x, cmd, goal, present = self.x, self.cmd, self.servo_goal, self.present
-        home, direction, safety = self.home, self.direction, self.safety
+        clock, period = self.clock, self.period
         n_ticks = None if self.duration_s is None else round(self.duration_s / period) + 1
-        perf = time.perf_counter
         # the telemetry writer formats rows only while we sleep (never during a tick)
         slack = getattr(self.telemetry, "slack", None) if not clock.virtual else None
-        recent = np.zeros(512)  # lateness ring for the live status line
-        t0 = clock.now()
-        self.stats["clock_t0"] = t0  # the clock time of tick 0 (fault plans use the bus clock)
-        self.silence.start(t0)
-        self._comm_errors = 0
-        next_status = perf() + 0.5
+        self._recent = np.zeros(512)  # lateness ring for the live status line
+        t0 = self._t0 = clock.now()
+        self.loop_stats["clock_t0"] = t0  # the clock time of tick 0 (fault plans use it)
+        self.watch.silence.start(t0)
+        self._next_status = time.perf_counter() + 0.5
         # host-stall accounting per iteration: wall time less the sleep, the time the driver
         # waited on the servos, and the catch-up's cost is host work
-        prev_actual: float | None = None
-        prev_wait = 0.0
-        prev_excluded = 0.0
-        integ_s = math.inf  # the least integrating one tick has cost (clock time)
-        gaps_mark = bus.host_stall_s
-        limits_every = max(1, round(1.0 / period))  # clamps are logged once a second at most
-        next_limits_tick = limits_every
-        self._limits_seen: dict[str, dict[str, int]] = {}
+        self._prev: tuple[float, float] | None = None  # (t_actual, device wait) of the last
+        self._excluded = 0.0  # the last iteration's catch-up cost: not host work
+        self._integ_s = math.inf  # the least integrating one tick has cost (clock time)
+        self._gaps_mark = self.bus.host_stall_s
+        self._limits_every = max(1, round(1.0 / period))  # clamps logged once a second at most
+        self._next_limits_tick = self._limits_every
         k = 0
         while n_ticks is None or k < n_ticks:
             if self._stopping():
@@ -427,149 +337,142 @@ class HilLoop:
             t_sched = t0 + k * period
             t_top = clock.now()
             t_actual = clock.wait_until(t_sched, slack)
-            # late from a sleep it had to take: the host was not running (else it was behind)
-            sleep_late = t_actual - t_sched if t_top < t_sched else 0.0
-            waited = bus.device_wait_s
-            work = (
-                None
-                if prev_actual is None
-                else t_top - prev_actual - (waited - prev_wait) - prev_excluded
-            )
-            excluded = 0.0  # this iteration's catch-up cost: not host work
-            t_sim = k * period
             self._k = k
-            c0 = perf()
-            # -- safety: the only way to the wire
-            event = safety.filter(x, cmd)
-            if event is not None:
-                # a fatal one never reaches the wire (no row: nothing was sent or read); the
-                # simulation state that caused it is kept in the event
-                state = (
-                    {"sim_x": x.tolist(), "sim_v": self.v.tolist(), "cmd_held": cmd.tolist()}
-                    if event.fatal
-                    else {}
+            self._tick(k, t_sched, t_top, t_actual)
+            k = self._after_tick(k + 1, t_sched, t_actual, n_ticks)
+        return k
+
+    # ------------------------------------------------------------------ one tick
+    def _tick(self, k: int, t_sched: float, t_top: float, t_actual: float) -> None:
+        """Tick k: safety filter, Sync Write + Sync Read, telemetry, the checks, the springs
+        to tick k+1. Its stage times go into the tick record."""
+        clock, bus, rec, watch, perf = self.clock, self.bus, self.rec, self.watch, time.perf_counter
+        # late from a sleep it had to take: the host was not running (else it was behind)
+        sleep_late = t_actual - t_sched if t_top < t_sched else 0.0
+        waited = bus.device_wait_s
+        prev = self._prev
+        work = None if prev is None else t_top - prev[0] - (waited - prev[1]) - self._excluded
+        self._prev, self._excluded = (t_actual, waited), 0.0
+        t_sim = k * self.period
+        c0 = perf()
+        event = self.safety.filter(self.x, self.cmd)  # the only way to the wire
+        if event is not None:
+            # a fatal one never reaches the wire (no row: nothing was sent or read); the
+            # simulation state that caused it is kept in the event
+            state = {
+                "sim_x": self.x.tolist(),
+                "sim_v": self.v.tolist(),
+                "cmd_held": self.cmd.tolist(),
+            }
+            self.log.event(
+                "safety", str(event), tick=k, t=t_sim, fsync=True, **(state if event.fatal else {})
+            )
+            if event.fatal:
+                raise LoopFaultError(f"safety: {event}")
+        if watch.watchdog_s:  # a long silence on the bus: have the servos stopped?
+            gap = clock.now() - watch.last_bus_t
+            if gap >= WATCHDOG_GAP_FRACTION * watch.watchdog_s:
+                watch.after_bus_silence(gap, k)
+        self.map.to_servo(self.cmd, self.servo_goal)
+        tb = clock.now()
+        c1 = perf()
+        try:  # one Sync Write, one (Fast) Sync Read
+            bus.write_goals(self.servo_goal)
+            reading = bus.read_present(self.reading)
+        except ServoBusError as exc:
+            raise LoopFaultError(f"bus: {exc}") from exc
+        c2 = perf()
+        tc = clock.now()
+        watch.last_bus_t = tb  # the servos' watchdog counts from the last packet they got
+        self.map.to_joint(reading.positions, self.present)
+        self.targets.sample(t_sim, self.u, self.du)
+        c3 = perf()
+        # the host's own stall in or just before this tick: a late wake-up, the last
+        # iteration's host work beyond its usual cost, and what the driver saw of the host
+        # not running inside its bus calls (the health read's too)
+        stall = self.stalls.tick_stall(sleep_late, work, bus.host_stall_s - self._gaps_mark)
+        self._gaps_mark = bus.host_stall_s
+        rec.tick, rec.t_sched, rec.t_actual, rec.status = (
+            k,
+            t_sim,
+            t_actual - self._t0,
+            reading.status,
+        )
+        rec.t_sim_us, rec.t_telemetry_us, rec.overrun = math.nan, math.nan, False
+        rec.t_safety_us, rec.t_bus_us = (c1 - c0) * 1e6, (c2 - c1) * 1e6
+        rec.comm_errors = watch.comm_errors + int(np.count_nonzero(reading.status))
+        rec.host_stall_us = stall * 1e6
+        self._record()
+        c4 = perf()
+        # -- faults that stop the show, raised once the tick is in telemetry
+        if stall >= STALL_EVENT_S:
+            self.log.host_stall(stall, k, t_sim)
+            if stall >= WATCHDOG_GAP_FRACTION * watch.watchdog_s:
+                watch.last_long_gap_t = tc  # explains a watchdog trip found later
+        watch.check_reads(reading, tc, self.stalls.total_s, stall > 0.0)
+        watch.check_following(self.present, self.cmd)
+        # -- advance the springs to the next tick (target held over each step)
+        t_int = clock.now()
+        self._integrate(t_sim, first_target_sampled=True)
+        self._integ_s = min(self._integ_s, clock.now() - t_int)  # the least one tick has cost
+        c5 = perf()
+        rec.t_sim_us, rec.t_telemetry_us = (c5 - c4 + c3 - c2) * 1e6, (c4 - c3) * 1e6
+        self._integ_share = (c5 - c4) / self.period
+
+    def _after_tick(self, k: int, t_sched: float, t_actual: float, n_ticks: int | None) -> int:
+        """The end of tick k-1 (``k`` is the next): overrun and its policy, the catch-up or a
+        health read in the spare time, the once-a-second logs and the status line. Returns
+        the next tick to run."""
+        clock, period, t0, rec = self.clock, self.period, self._t0, self.rec
+        t_end = clock.now()
+        late = t_end > t0 + k * period
+        if self._recording:
+            rec.overrun = late
+            self.telemetry.amend(rec)
+        self._check_integration_keeps_up(self._integ_share, t_end)
+        self._recent[k % 512] = (t_actual - t_sched) * 1e6
+        if late:
+            self.overruns += 1
+            if self.rig.loop.overrun_policy is OverrunPolicy.STOP:
+                raise LoopFaultError(
+                    f"overrun at tick {k - 1}: the tick took {(t_end - t_actual) * 1e3:.2f} ms "
+                    f"(period {period * 1e3:g} ms; overrun_policy = 'stop')"
                 )
-                self._event("safety", str(event), tick=k, t=t_sim, fsync=True, **state)
-                if event.fatal:
-                    raise LoopFaultError(f"safety: {event}")
-            if self._watchdog_s:  # a long silence on the bus: have the servos stopped?
-                gap = clock.now() - self._last_bus_t
-                if gap >= WATCHDOG_GAP_FRACTION * self._watchdog_s:
-                    self._after_bus_silence(gap, k)
-            np.multiply(cmd, direction, out=goal)
-            goal += home
-            tb = clock.now()
-            c1 = perf()
-            # -- one Sync Write, one (Fast) Sync Read
-            try:
-                bus.write_goals(goal)
-                reading = bus.read_present(self.reading)
-            except ServoBusError as exc:
-                raise LoopFaultError(f"bus: {exc}") from exc
-            c2 = perf()
-            tc = clock.now()
-            self._last_bus_t = tb  # the servos' watchdog counts from the last packet they got
-            np.subtract(reading.positions, home, out=present)
-            present *= direction
-            self.targets.sample(t_sim, self.u, self.du)
-            c3 = perf()
-            # the host's own stall in or just before this tick: a late wake-up, the last
-            # iteration's host work beyond its usual cost, and what the driver saw of the host
-            # not running inside its bus calls (the health read's too)
-            stall = self.stalls.tick_stall(sleep_late, work, bus.host_stall_s - gaps_mark)
-            gaps_mark = bus.host_stall_s
-            self._record(k, t_sim, t_actual - t0, reading.status, c1 - c0, c2 - c1, stall)
-            c4 = perf()
-            # -- faults that stop the show, raised once the tick is in telemetry
-            if stall >= STALL_EVENT_S:
-                self._stall_event(stall, k, t_sim)
-                if stall >= WATCHDOG_GAP_FRACTION * self._watchdog_s:
-                    self._last_long_gap_t = tc  # explains a watchdog trip found later
-            self._check_reads(reading, tc, stall > 0.0)
-            self._check_following(k)
-            # -- advance the springs to the next tick (target held over each step)
-            t_int = clock.now()
-            self._integrate(t_sim, first_target_sampled=True)
-            integ_s = min(integ_s, clock.now() - t_int)  # the least one tick has cost
-            c5 = perf()
-            k += 1
-            t_end = clock.now()
-            late = t_end > t0 + k * period
-            if self._recording:
-                self.telemetry.amend(
-                    k - 1,
-                    overrun=late,
-                    t_sim_us=(c5 - c4 + c3 - c2) * 1e6,
-                    t_telemetry_us=(c4 - c3) * 1e6,
-                )
-            self._check_integration_keeps_up((c5 - c4) / period, t_end)
-            recent[k % 512] = (t_actual - t_sched) * 1e6
-            if late:
-                self.stats["overruns"] += 1
-                if stop_on_overrun:
-                    raise LoopFaultError(
-                        f"overrun at tick {k - 1}: the tick took {(t_end - t_actual) * 1e3:.2f} ms "
-                        f"(period {period * 1e3:g} ms; overrun_policy = 'stop')"
-                    )
-                caught_up = k
-                k = self._catch_up(k, t0, t_end, n_ticks)
-                excluded += (k - caught_up) * integ_s  # its cost; a stall in it is the host's
-            elif n_ticks is None or k < n_ticks:
-                self._maybe_read_health(t0 + k * period - t_end, t_end, k - 1)
-            prev_actual, prev_wait, prev_excluded = t_actual, waited, excluded
-            if k >= next_limits_tick:  # once a second: what the filter did, a corrupt reply
-                next_limits_tick = k + limits_every
-                self._log_safety_limits(k - 1, t_sim)
-                if bus.corrupt_sample is not None:
-                    self._event(
-                        "corrupt_reply",
-                        "a corrupt reply (bytes as received; the latest of the last second)",
-                        tick=k - 1,
-                        t=t_sim,
-                        raw=bus.corrupt_sample.hex(" "),
-                    )
-                    bus.corrupt_sample = None
-            if self.on_status is not None and perf() >= next_status:
-                next_status += 0.5
-                filled = recent[: min(k, 512)]
-                self.on_status(
-                    {
-                        "tick": k,
-                        "t": t_sim,
-                        "duration": self.duration_s,
-                        "comm_errors": self._comm_errors,
-                        "overruns": self.stats["overruns"],
-                        "host_stalls": self.stalls.count,
-                        "lateness_p99_us": float(np.percentile(filled, 99)),
-                    }
-                )
+            caught_up = k
+            k = self._catch_up(k, t0, t_end, n_ticks)
+            self._excluded += (
+                k - caught_up
+            ) * self._integ_s  # its cost; a stall in it is the host's
+        elif n_ticks is None or k < n_ticks:
+            self.watch.maybe_read_health(t0 + k * period - t_end, t_end, k - 1)
+        t_sim = rec.t_sched
+        if k >= self._next_limits_tick:  # once a second: what the filter did, a corrupt reply
+            self._next_limits_tick = k + self._limits_every
+            self.log.safety_limits(k - 1, t_sim)
+            self.log.corrupt_reply(k - 1, t_sim)
+        if self.on_status is not None and time.perf_counter() >= self._next_status:
+            self._next_status += 0.5
+            self.on_status(
+                {
+                    "tick": k,
+                    "t": t_sim,
+                    "duration": self.duration_s,
+                    "comm_errors": self.watch.comm_errors,
+                    "overruns": self.overruns,
+                    "host_stalls": self.stalls.count,
+                    "lateness_p99_us": float(np.percentile(self._recent[: min(k, 512)], 99)),
+                }
+            )
         return k
 
     # ------------------------------------------------------------------ per-tick parts
-    def _record(self, k: int, t_sim: float, t_rel: float, status, safety_s, bus_s, stall_s) -> None:
+    def _record(self) -> None:
         """Queue the tick's telemetry row; a dead writer stops the show or, with
         ``telemetry.on_failure = "continue"``, only the recording (said once, on stderr)."""
         if not self._recording:
             return
         try:
-            self.telemetry.record(
-                k,
-                t_sim,
-                t_rel,
-                self.u,
-                self.x,
-                self.v,
-                self.cmd,
-                self.present,
-                status,
-                math.nan,
-                safety_s * 1e6,
-                bus_s * 1e6,
-                math.nan,
-                False,
-                self._comm_errors + int(np.count_nonzero(status)),
-                stall_s * 1e6,
-            )
+            self.telemetry.record(self.rec)
         except WriterFailedError as exc:
             if self.rig.telemetry.on_failure is not TelemetryFailurePolicy.CONTINUE:
                 raise
@@ -580,99 +483,16 @@ class HilLoop:
                 file=sys.stderr,
             )
 
-    def _stall_event(self, stall: float, k: int, t_sim: float) -> None:
-        """One ``host_stall`` event per STALL_EVENT_INTERVAL_S at most; the rest counted in."""
-        now = time.monotonic()
-        self._stalls_unreported += 1
-        if now - self._stall_event_t < STALL_EVENT_INTERVAL_S:
-            return
-        more = self._stalls_unreported - 1
-        self._event(
-            "host_stall",
-            f"the host stalled {stall * 1e3:.0f} ms at tick {k} (t = {t_sim:.2f} s): the "
-            "process was not running; not counted against any servo"
-            + (f" ({more} shorter stalls since the last report)" if more else ""),
-            tick=k,
-            t=t_sim,
-            stall_ms=round(stall * 1e3, 3),
-            unreported=more,
-        )
-        self._stall_event_t = now
-        self._stalls_unreported = 0
-
-    def _check_reads(self, reading: PresentReading, t_now: float, host_late: bool) -> None:
-        rig = self.rig
-        status = reading.status
-        if not status.any():  # OK is 0: the common tick stays cheap
-            self.silence.all_ok(t_now, self.stalls.total_s)
-            return
-        ids, names = rig.servo_ids, rig.joint_names
-        for i, s in enumerate(status):
-            s = int(s)
-            if s == ReadStatus.OK:
-                self.silence.ok(i, t_now, self.stalls.total_s)
-                continue
-            self._comm_errors += 1
-            if s == ReadStatus.ALERT:
-                alert = f"hardware error: Alert bit set (ERR byte {int(reading.errors[i]):#04x})"
-                raise LoopFaultError(f"servo {ids[i]} ({names[i]}): " + self._health_text(i, alert))
-            silent = self.silence.failed(i, t_now, self.stalls.total_s, host_late)
-            if silent is not None:
-                raise LoopFaultError(
-                    f"servo {ids[i]} ({names[i]}): no valid reading for {silent * 1e3:.0f} ms "
-                    f"({self.silence.failed_reads(i)} reads in a row; budget "
-                    f"{rig.safety.comm_failure_budget_ms:g} ms, host stalls not counted); "
-                    f"last read {ReadStatus(s).name}"
-                )
-
-    def _log_safety_limits(self, k: int, t_sim: float) -> None:
-        """One ``safety_limit`` event naming each joint and limit that acted since the last
-        one (a second of show at most): rate-limited, never a line per tick."""
-        counts = self.safety.counters.by_kind()
-        seen = self._limits_seen
-        acted = []
-        for kind, per_joint in counts.items():
-            for joint, n in per_joint.items():
-                new = n - seen.get(kind, {}).get(joint, 0)
-                if new:
-                    acted.append(f"{joint} {kind} x{new}")
-        self._limits_seen = counts
-        if acted:
-            self._event(
-                "safety_limit",
-                "limits acted in the last second: " + ", ".join(acted),
-                tick=k,
-                t=t_sim,
-            )
-
-    def _check_following(self, k: int) -> None:
-        err = self.following.update(self.present.tolist(), self.cmd.tolist())
-        if err is None:
-            return
-        j = err.joint
-        jt = self.rig.joints[j]
-        raise LoopFaultError(
-            f"servo {jt.servo_id} ({jt.name}): following error: present "
-            f"{math.degrees(self.present[j]):.1f} deg vs commanded "
-            f"{math.degrees(self.cmd[j]):.1f} deg for {err.duration_s * 1e3:.0f} ms (tolerance "
-            f"{math.degrees(self.following.tolerance[j]):g} deg); "
-            + self._health_text(j, "the servo does not follow its goals")
-        )
-
-    def _health_text(self, i: int, fallback: str) -> str:
-        """What the servo says about itself (a health read), for a fault message."""
-        try:
-            health = self.bus.read_health(self.rig.servo_ids[i], HealthPart.ALL)
-        except (ServoBusError, ValueError):
-            return f"{fallback} (its health could not be read)"
-        if health.ok:
-            return f"{fallback} (it reports torque on, no hardware error)"
-        return f"{health.problem.value}: {health.detail}"
+    def _rejoin(self, i: int, joint_rad: float) -> None:
+        """Servo i was recovered where it stopped: the filter and this tick's goal start there
+        (the filter ran already this tick)."""
+        self.safety.rejoin(i, joint_rad)
+        self.cmd[i] = joint_rad
 
     def _integrate(self, t_sim: float, *, first_target_sampled: bool) -> None:
         """Advance the springs one tick from ``t_sim`` (the target held over each substep)."""
-        rig = self.rig
-        h, substeps = rig.loop.h_s, rig.loop.substeps
+        loop = self.rig.loop
+        h, substeps = loop.h_s, loop.substeps
         x, v, u, du = self.x, self.v, self.u, self.du
         targets, integ = self.targets, self.integrator
         if not first_target_sampled:
@@ -687,14 +507,14 @@ class HilLoop:
         """After an overrun of more than a whole period, simulate the missed ticks without bus
         traffic so the show stays in time; returns the next tick to run. Stops early on a
         stop request."""
-        period = self.rig.loop.period_s
+        period = self.period
         behind = int((t_end - t0) / period) - k
         for _ in range(max(0, behind)):
             if (n_ticks is not None and k >= n_ticks) or self._stopping():
                 break
             self._integrate(k * period, first_target_sampled=False)
             k += 1
-            self.stats["skipped_ticks"] += 1
+            self.loop_stats["skipped_ticks"] += 1
         return k
 
     def _check_integration_keeps_up(self, share: float, t_end: float) -> None:
@@ -712,90 +532,3 @@ class HilLoop:
                 f"{loop.integrator}) on every tick for {INTEGRATION_BEHIND_S:g} s. Lower "
                 "loop.substeps or loop.rate_hz."
             )
-
-    # ------------------------------------------------------------------ health
-    def _maybe_read_health(self, spare_s: float, t: float, k: int) -> None:
-        """One servo's health, round robin, if this tick has time to spare for it."""
-        sched = self.health
-        if not sched.due(t):
-            return
-        if spare_s < HEALTH_MARGIN * self.bus.health_read_s + HEALTH_SPARE_S:
-            sched.deferred += 1
-            return
-        i, part = sched.take(t)
-        sent = self.clock.now()
-        try:
-            health = self.bus.read_health(self.rig.servo_ids[i], part)
-        except ServoBusError:
-            return  # a failed read says nothing new: the per-tick reads keep the budget
-        self._last_bus_t = max(self._last_bus_t, sent)
-        self._handle_health(i, health, k, explained=self._last_long_gap_t > self._last_health_ok[i])
-
-    def _after_bus_silence(self, gap_s: float, k: int) -> None:
-        """The bus was quiet for a good part of the Bus Watchdog period (a host stall): check
-        every servo before sending goals; recover tripped watchdogs."""
-        self._last_long_gap_t = self.clock.now()
-        self._event(
-            "bus_silence",
-            f"no packet on the bus for {gap_s * 1e3:.0f} ms (Bus Watchdog "
-            f"{self._watchdog_s * 1e3:g} ms): checking every servo",
-            tick=k,
-            gap_ms=round(gap_s * 1e3, 3),
-        )
-        for i in range(len(self.rig.joints)):
-            try:
-                health = self.bus.read_health(self.rig.servo_ids[i], HealthPart.ALL)
-            except ServoBusError:
-                continue  # silent now: the per-tick reads and the budget decide
-            self._handle_health(i, health, k, explained=True, gap_s=gap_s)
-        self._last_bus_t = self.clock.now()
-
-    def _handle_health(
-        self, i: int, health: ServoHealth, k: int, *, explained: bool, gap_s: float = 0.0
-    ) -> None:
-        jt = self.rig.joints[i]
-        if health.ok:
-            self._last_health_ok[i] = self.clock.now()
-            return
-        who = f"servo {jt.servo_id} ({jt.name})"
-        if health.problem is HealthProblem.WATCHDOG_TRIPPED and explained:
-            self._recover(i, health, k, gap_s)
-            return
-        cause = health.detail
-        if health.problem is HealthProblem.WATCHDOG_TRIPPED:
-            cause += " (no host stall explains it: did another program stop talking to it?)"
-        raise LoopFaultError(f"{who}: {health.problem.value}: {cause}")
-
-    def _recover(self, i: int, health: ServoHealth, k: int, gap_s: float) -> None:
-        """A Bus Watchdog tripped by a host stall: clear it, goal = present, rejoin."""
-        jt = self.rig.joints[i]
-        bus = self.bus
-        try:
-            reading = bus.read_present(PresentReading.empty(bus.ids))
-            pos = float(reading.positions[i])
-            if reading.status[i] != ReadStatus.OK or not math.isfinite(pos):
-                raise LoopFaultError(
-                    f"servo {jt.servo_id} ({jt.name}): Bus Watchdog tripped after a host stall "
-                    "and its present position cannot be read to recover"
-                )
-            bus.recover_watchdog(jt.servo_id, pos)
-        except ServoBusError as exc:
-            raise LoopFaultError(
-                f"servo {jt.servo_id} ({jt.name}): Bus Watchdog tripped after a host stall "
-                f"and could not be recovered: {exc}"
-            ) from exc
-        joint_pos = (pos - self.home[i]) * self.direction[i]
-        self.safety.rejoin(i, joint_pos)
-        self.cmd[i] = joint_pos  # this tick's goal: where it stopped (the filter ran already)
-        self.following.reset(i)
-        self._last_health_ok[i] = self.clock.now()
-        self.stats["recoveries"] += 1
-        self._event(
-            "recovered",
-            f"servo {jt.servo_id} ({jt.name}): its Bus Watchdog had tripped "
-            + (f"after {gap_s * 1e3:.0f} ms without a packet " if gap_s else "")
-            + f"(a host stall); cleared, goal = present ({math.degrees(joint_pos):.1f} deg), "
-            "rejoining the show within the speed and acceleration limits",
-            tick=k,
-            servo=jt.servo_id,
-        )

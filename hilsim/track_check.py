@@ -174,7 +174,7 @@ def check_tracks(
     """Sample each joint's target at the tick times and report where it leaves its limits.
 
     Args:
-        targets: one track per joint, in joint order (:func:`hilsim.wiring.build_targets`).
+        targets: one track per joint, in joint order (:func:`hilsim.session.build_targets`).
         joints: the rig's joints in the same order (``rig.joints``): name, min_rad, max_rad,
             max_speed_rad_s, joint frame.
         period_s: the loop's tick period (``rig.loop.period_s``), > 0.

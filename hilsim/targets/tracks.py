@@ -50,7 +50,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-FloatArray = npt.NDArray[np.float64]
+from hilsim._types import FloatArray
 
 #: easing names accepted by :class:`Keyframes`
 EASINGS = ("linear", "step", "ease_in", "ease_out", "ease_in_out", "sine_in_out", "smooth")

@@ -26,11 +26,11 @@ from drivers.dynamixel.units import rad_to_ticks
 from hilsim.cli import main
 from hilsim.loop import EXIT_FAULT, HilLoop
 from hilsim.rig import load_rig
+from hilsim.session import build_parts, build_targets
 from hilsim.springs import Spring
 from hilsim.targets import TargetSet, Track
 from hilsim.telemetry import TelemetryWriter
 from hilsim.telemetry.reader import read_run
-from hilsim.wiring import build_targets
 
 REPO = Path(__file__).resolve().parents[2]
 TICK_RAD = 2 * math.pi / 4096
@@ -203,7 +203,7 @@ def run_loop(
     rig = load_rig(path)
     dbus = DynamixelBus.open(rig.bus.port, baud=rig.bus.baud, ids=rig.servo_ids)
     tel = TelemetryWriter(out, rig.joint_names, servo_ids=rig.servo_ids, overflow="block")
-    loop = HilLoop(rig, dbus, targets or build_targets(rig), tel, duration_s=duration)
+    loop = HilLoop(build_parts(rig, targets), dbus, tel, duration_s=duration)
     if patch:
         patch(loop)
     result = loop.run()
@@ -416,15 +416,15 @@ def test_signals_apply_the_exit_policy_and_keep_telemetry(tmp_path, signum, code
 
 
 def test_realtime_scheduling_refused_is_a_warning_not_a_crash(monkeypatch):
-    from hilsim import loop as loop_mod
+    from hilsim import realtime as realtime_mod
 
     def refuse(*_a, **_k):
         raise PermissionError(1, "Operation not permitted")
 
-    monkeypatch.setattr(loop_mod.os, "sched_setscheduler", refuse)
-    monkeypatch.setattr(loop_mod.os, "sched_setaffinity", refuse)
+    monkeypatch.setattr(realtime_mod.os, "sched_setscheduler", refuse)
+    monkeypatch.setattr(realtime_mod.os, "sched_setaffinity", refuse)
     with pytest.warns(UserWarning) as caught:
-        assert loop_mod.try_realtime(50, 1) == "SCHED_OTHER"
+        assert realtime_mod.try_realtime(50, 1) == "SCHED_OTHER"
     text = " ".join(str(w.message) for w in caught)
     assert "SCHED_FIFO" in text and "setcap" in text and "CPU 1" in text
-    assert loop_mod.try_realtime(None, None) == "SCHED_OTHER"  # nothing asked, nothing tried
+    assert realtime_mod.try_realtime(None, None) == "SCHED_OTHER"  # nothing asked, nothing tried

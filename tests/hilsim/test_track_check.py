@@ -10,10 +10,10 @@ import numpy as np
 import pytest
 
 from hilsim.rig import load_rig
+from hilsim.session import build_targets
 from hilsim.targets import Hold, Keyframes, Sine, TargetSet
 from hilsim.targets.csv_file import CsvCurve
 from hilsim.track_check import TrackWarning, _sample, check_tracks
-from hilsim.wiring import build_targets
 
 CONFIGS = Path(__file__).resolve().parents[2] / "configs"
 PERIOD = 1.0 / 64.0  # exact in binary: tick times k/64 are exact, so the counts are too

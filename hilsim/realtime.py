@@ -1,0 +1,40 @@
+"""Asking the OS for real-time treatment: SCHED_FIFO, a CPU of its own, a short GIL switch.
+
+Each is a request: refused (no privilege, no such CPU), the show runs anyway and a warning
+says how to grant it.
+"""
+
+from __future__ import annotations
+
+import os
+import warnings
+
+#: GIL switch interval while a show runs on the real clock: when the loop wakes from its
+#: sleep it may wait for the GIL up to the interpreter's switch interval (5 ms by default)
+#: while the telemetry writer thread holds it; this asks the holder to let go within 100 µs.
+REALTIME_SWITCH_INTERVAL_S = 100e-6
+
+
+def try_realtime(priority: int | None, cpu: int | None) -> str:
+    """Ask for SCHED_FIFO and CPU affinity; warn (never fail) when not permitted.
+
+    Returns the scheduling class in force, e.g. ``"SCHED_FIFO:50"`` or ``"SCHED_OTHER"``.
+    """
+    if cpu is not None:
+        try:
+            os.sched_setaffinity(0, {cpu})
+        except (OSError, AttributeError, ValueError) as exc:
+            warnings.warn(f"could not pin the loop to CPU {cpu}: {exc}", stacklevel=2)
+    sched = "SCHED_OTHER"
+    if priority is not None:
+        try:
+            os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
+            sched = f"SCHED_FIFO:{priority}"
+        except (OSError, AttributeError) as exc:
+            warnings.warn(
+                f"SCHED_FIFO priority {priority} not permitted ({exc}); running as SCHED_OTHER. "
+                "Grant it with: sudo setcap cap_sys_nice+ep $(readlink -f $(which python3)) "
+                "or run under a user with an rtprio limit (/etc/security/limits.conf).",
+                stacklevel=2,
+            )
+    return sched

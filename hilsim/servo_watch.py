@@ -1,0 +1,253 @@
+"""Deciding that a servo has failed — and that it has not: the loop's servo-side judgement.
+
+:class:`ServoWatch` takes what each tick saw and turns it into a :class:`LoopFaultError`
+naming the servo and the cause, or into a recovery. The rules and their numbers are in
+:mod:`hilsim.monitors` (pure bookkeeping); this module adds the bus reads they need:
+
+* **reads** (:meth:`ServoWatch.check_reads`): an Alert bit stops the show at once; a servo
+  silent beyond the comm budget, host stalls not counted, stops it naming the servo.
+* **following** (:meth:`ServoWatch.check_following`): present vs commanded beyond a joint's
+  tolerance for longer than its time.
+* **health** (:meth:`ServoWatch.maybe_read_health`): one servo's torque / hardware error /
+  Bus Watchdog / RAM reset, round robin, only on ticks with time to spare.
+* **after a bus silence** (:meth:`ServoWatch.after_bus_silence`): the host stalled long
+  enough for a Bus Watchdog to trip: check every servo before sending goals; a trip that a
+  host stall explains is recovered (cleared, goal = present, the joint rejoins through the
+  safety filter's limits); one nothing explains is a fault.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Sequence
+
+import numpy as np
+
+from drivers.servo_bus import (
+    HealthPart,
+    HealthProblem,
+    PresentReading,
+    ReadStatus,
+    ServoBus,
+    ServoBusError,
+    ServoHealth,
+)
+from hilsim.joint_map import JointMap
+from hilsim.monitors import FollowingMonitor, HealthSchedule, SilenceBudget
+
+#: a health read runs only when the tick has its expected bus time, times this, plus
+#: HEALTH_SPARE_S (the SDK's own time) to spare: it must never make the tick late
+HEALTH_MARGIN = 1.1
+HEALTH_SPARE_S = 150e-6
+
+
+class LoopFaultError(RuntimeError):
+    """A condition that stops the show: the message names the servo/joint and the cause."""
+
+
+class ServoWatch:
+    """The failure rules of one show's servos.
+
+    ``joints`` are the rig's joints (bus order); ``event(kind, message, **fields)`` writes an
+    ``events.jsonl`` line; ``rejoin(i, joint_rad)`` is called after servo ``i`` was recovered
+    at ``joint_rad`` (the loop resets the safety filter and this tick's command there).
+    """
+
+    def __init__(
+        self,
+        bus: ServoBus,
+        joints: Sequence,
+        joint_map: JointMap,
+        *,
+        period_s: float,
+        comm_budget_ms: float,
+        watchdog_s: float,
+        event: Callable[..., None],
+        rejoin: Callable[[int, float], None],
+    ) -> None:
+        self.bus, self.joints, self.map = bus, tuple(joints), joint_map
+        self.clock = bus.clock
+        n = len(self.joints)
+        self.ids = tuple(j.servo_id for j in self.joints)
+        self.names = tuple(j.name for j in self.joints)
+        self.comm_budget_ms = comm_budget_ms
+        self.watchdog_s = watchdog_s
+        self._event, self._rejoin = event, rejoin
+        self.silence = SilenceBudget(n, comm_budget_ms * 1e-3)
+        self.following = FollowingMonitor(
+            [j.tracking_tolerance_rad for j in self.joints],
+            [j.tracking_time_s for j in self.joints],
+            period_s,
+        )
+        self.health = HealthSchedule(n)
+        self.comm_errors = 0  # reads that were not OK, cumulative
+        self.recoveries = 0
+        self.last_bus_t = -math.inf  # clock time of the last packet sent to the servos
+        self.last_long_gap_t = -math.inf  # when the bus last went quiet for a watchdog's while
+        self._last_health_ok = [-math.inf] * n
+
+    def _who(self, i: int) -> str:
+        return f"servo {self.ids[i]} ({self.names[i]})"
+
+    # ------------------------------------------------------------------ the start
+    def first_read(
+        self, reading: PresentReading, stopping: Callable[[], bool]
+    ) -> np.ndarray | None:
+        """Every servo's present position (servo frame), from as many Sync Reads as the comm
+        budget allows (at least three): one bad reply must not stop a show from starting.
+        None if ``stopping()`` says a stop was requested first."""
+        bus, period = self.bus, self.following.period_s
+        attempts = max(3, min(100, math.ceil(self.comm_budget_ms * 1e-3 / period)))
+        positions = np.full(len(self.joints), np.nan)
+        got = np.zeros(len(self.joints), dtype=bool)
+        last = reading
+        for attempt in range(attempts):
+            if stopping():
+                return None
+            if attempt:
+                self.clock.wait_until(self.clock.now() + period)
+            last = bus.read_present(reading)
+            good = (last.status == ReadStatus.OK) & np.isfinite(last.positions)
+            positions[good] = last.positions[good]
+            got |= good
+            if got.all():
+                return positions
+        names = ", ".join(
+            f"{self.names[i]} (servo {self.ids[i]}: {ReadStatus(int(last.status[i])).name})"
+            for i in np.flatnonzero(~got)
+        )
+        raise LoopFaultError(f"cannot start: no present position for {names} in {attempts} reads")
+
+    # ------------------------------------------------------------------ every tick
+    def check_reads(
+        self, reading: PresentReading, t_now: float, stall_total_s: float, host_late: bool
+    ) -> None:
+        status = reading.status
+        if not status.any():  # OK is 0: the common tick stays cheap
+            self.silence.all_ok(t_now, stall_total_s)
+            return
+        for i, s in enumerate(status):
+            s = int(s)
+            if s == ReadStatus.OK:
+                self.silence.ok(i, t_now, stall_total_s)
+                continue
+            self.comm_errors += 1
+            if s == ReadStatus.ALERT:
+                alert = f"hardware error: Alert bit set (ERR byte {int(reading.errors[i]):#04x})"
+                raise LoopFaultError(f"{self._who(i)}: " + self.health_text(i, alert))
+            silent = self.silence.failed(i, t_now, stall_total_s, host_late)
+            if silent is not None:
+                raise LoopFaultError(
+                    f"{self._who(i)}: no valid reading for {silent * 1e3:.0f} ms "
+                    f"({self.silence.failed_reads(i)} reads in a row; budget "
+                    f"{self.comm_budget_ms:g} ms, host stalls not counted); "
+                    f"last read {ReadStatus(s).name}"
+                )
+
+    def check_following(self, present, cmd) -> None:
+        """``present`` and ``cmd`` in the joint frame (rad)."""
+        err = self.following.update(present.tolist(), cmd.tolist())
+        if err is None:
+            return
+        j = err.joint
+        raise LoopFaultError(
+            f"{self._who(j)}: following error: present "
+            f"{math.degrees(present[j]):.1f} deg vs commanded "
+            f"{math.degrees(cmd[j]):.1f} deg for {err.duration_s * 1e3:.0f} ms (tolerance "
+            f"{math.degrees(self.following.tolerance[j]):g} deg); "
+            + self.health_text(j, "the servo does not follow its goals")
+        )
+
+    def health_text(self, i: int, fallback: str) -> str:
+        """What the servo says about itself (a health read), for a fault message."""
+        try:
+            health = self.bus.read_health(self.ids[i], HealthPart.ALL)
+        except (ServoBusError, ValueError):
+            return f"{fallback} (its health could not be read)"
+        if health.ok:
+            return f"{fallback} (it reports torque on, no hardware error)"
+        return f"{health.problem.value}: {health.detail}"
+
+    # ------------------------------------------------------------------ health
+    def maybe_read_health(self, spare_s: float, t: float, k: int) -> None:
+        """One servo's health, round robin, if this tick has time to spare for it."""
+        sched = self.health
+        if not sched.due(t):
+            return
+        if spare_s < HEALTH_MARGIN * self.bus.health_read_s + HEALTH_SPARE_S:
+            sched.deferred += 1
+            return
+        i, part = sched.take(t)
+        sent = self.clock.now()
+        try:
+            health = self.bus.read_health(self.ids[i], part)
+        except ServoBusError:
+            return  # a failed read says nothing new: the per-tick reads keep the budget
+        self.last_bus_t = max(self.last_bus_t, sent)
+        self._handle(i, health, k, explained=self.last_long_gap_t > self._last_health_ok[i])
+
+    def after_bus_silence(self, gap_s: float, k: int) -> None:
+        """The bus was quiet for a good part of the Bus Watchdog period (a host stall): check
+        every servo before sending goals; recover tripped watchdogs."""
+        self.last_long_gap_t = self.clock.now()
+        self._event(
+            "bus_silence",
+            f"no packet on the bus for {gap_s * 1e3:.0f} ms (Bus Watchdog "
+            f"{self.watchdog_s * 1e3:g} ms): checking every servo",
+            tick=k,
+            gap_ms=round(gap_s * 1e3, 3),
+        )
+        for i in range(len(self.joints)):
+            try:
+                health = self.bus.read_health(self.ids[i], HealthPart.ALL)
+            except ServoBusError:
+                continue  # silent now: the per-tick reads and the budget decide
+            self._handle(i, health, k, explained=True, gap_s=gap_s)
+        self.last_bus_t = self.clock.now()
+
+    def _handle(
+        self, i: int, health: ServoHealth, k: int, *, explained: bool, gap_s: float = 0.0
+    ) -> None:
+        if health.ok:
+            self._last_health_ok[i] = self.clock.now()
+            return
+        if health.problem is HealthProblem.WATCHDOG_TRIPPED and explained:
+            self._recover(i, k, gap_s)
+            return
+        cause = health.detail
+        if health.problem is HealthProblem.WATCHDOG_TRIPPED:
+            cause += " (no host stall explains it: did another program stop talking to it?)"
+        raise LoopFaultError(f"{self._who(i)}: {health.problem.value}: {cause}")
+
+    def _recover(self, i: int, k: int, gap_s: float) -> None:
+        """A Bus Watchdog tripped by a host stall: clear it, goal = present, rejoin."""
+        bus = self.bus
+        sid = self.ids[i]
+        try:
+            reading = bus.read_present(PresentReading.empty(bus.ids))
+            pos = float(reading.positions[i])
+            if reading.status[i] != ReadStatus.OK or not math.isfinite(pos):
+                raise LoopFaultError(
+                    f"{self._who(i)}: Bus Watchdog tripped after a host stall "
+                    "and its present position cannot be read to recover"
+                )
+            bus.recover_watchdog(sid, pos)
+        except ServoBusError as exc:
+            raise LoopFaultError(
+                f"{self._who(i)}: Bus Watchdog tripped after a host stall "
+                f"and could not be recovered: {exc}"
+            ) from exc
+        joint_pos = self.map.joint_angle(i, pos)
+        self._rejoin(i, joint_pos)
+        self.following.reset(i)
+        self._last_health_ok[i] = self.clock.now()
+        self.recoveries += 1
+        self._event(
+            "recovered",
+            f"{self._who(i)}: its Bus Watchdog had tripped "
+            + (f"after {gap_s * 1e3:.0f} ms without a packet " if gap_s else "")
+            + f"(a host stall); cleared, goal = present ({math.degrees(joint_pos):.1f} deg), "
+            "rejoining the show within the speed and acceleration limits",
+            tick=k,
+            servo=sid,
+        )

@@ -1,0 +1,332 @@
+"""A show session: a loaded rig turned into running parts, on an open bus, to its exit.
+
+The one place where a show is put together (``hilsim run`` only prints what happens here)::
+
+    rig = load_rig(path)                                 hilsim.rig
+    parts = build_parts(rig)                             targets, joint map, safety filter,
+                                                         integrator; errors name file and key
+    port = port_for(rig, virtual)                        the emulator's clock chosen; spin window
+    bus = open_bus(rig, port)                            DynamixelBus (or ShowRefusedError)
+    notes = check_bus(rig, bus)                          cleared watchdog trips, model, limits,
+                                                         Return Delay Time, bus capacity
+    telemetry = open_telemetry(rig, run_dir, virtual)
+    result = run_show(parts, bus, telemetry, ...)        HilLoop.run + summary.json
+
+Every refusal before torque goes on is a :class:`ShowRefusedError` (exit 2, nothing moved) with a
+one-line reason. The wire-time model behind the capacity check is
+:mod:`drivers.protocol2.wire_time`.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from drivers.clock import MonotonicClock
+from drivers.dynamixel.startup import Expectation, ReadMode, StartupReport
+from drivers.protocol2.wire_time import cycle_bytes, cycle_time_s
+from hilsim.exit_codes import ExitCode
+from hilsim.integrators import Integrator, make_integrator
+from hilsim.joint_map import JointMap
+from hilsim.loop import HilLoop, StopFlag
+from hilsim.rig import Rig, RigError, TelemetryFailurePolicy
+from hilsim.safety import SafetyFilter
+from hilsim.targets import CsvAnimation, TargetSet, track_from_spec
+
+if TYPE_CHECKING:
+    from drivers.dynamixel.bus import DynamixelBus
+    from hilsim.telemetry import TelemetryWriter
+
+#: Fraction of a tick the bus transaction may take; the rest is for the host.
+BUS_SHARE_OF_TICK = 0.8
+
+
+class ShowRefusedError(Exception):
+    """The show cannot start (nothing moved): the bus, the servos or the run directory.
+    The message is one line for the user (plus a detail block for a servo mismatch)."""
+
+
+# ---------------------------------------------------------------------- the parts of a show
+
+
+@dataclass
+class Parts:
+    """Everything a :class:`~hilsim.loop.HilLoop` runs, built from one rig."""
+
+    rig: Rig
+    targets: TargetSet
+    joint_map: JointMap
+    safety: SafetyFilter
+    integrator: Integrator
+
+
+def build_targets(rig: Rig) -> TargetSet:
+    """One track per joint from the rig's ``target`` tables; errors name file and key."""
+    cache: dict[Path, CsvAnimation] = {}
+    tracks = []
+    for i, joint in enumerate(rig.joints):
+        try:
+            tracks.append(
+                track_from_spec(
+                    joint.target, base_dir=rig.base_dir, joint_name=joint.name, csv_cache=cache
+                )
+            )
+        except (ValueError, OSError) as exc:
+            raise RigError(f"{rig.path}: joints[{i}].target ({joint.name}): {exc}") from None
+    return TargetSet(tracks, rig.joint_names)
+
+
+def build_parts(rig: Rig, targets: TargetSet | None = None) -> Parts:
+    """The show's parts; ``targets`` defaults to :func:`build_targets`. Raises RigError."""
+    j = rig.joints
+    safety = SafetyFilter(
+        np.array([jt.min_rad for jt in j]),
+        np.array([jt.max_rad for jt in j]),
+        np.array([jt.max_speed_rad_s for jt in j]),
+        np.array([jt.max_accel_rad_s2 for jt in j]),
+        rig.loop.period_s,
+        soft_start_s=rig.safety.soft_start_s,
+        joint_names=rig.joint_names,
+    )
+    return Parts(
+        rig=rig,
+        targets=build_targets(rig) if targets is None else targets,
+        joint_map=JointMap.of(j),
+        safety=safety,
+        integrator=make_integrator(rig.loop.integrator, rig.spring_bank()),
+    )
+
+
+# ---------------------------------------------------------------------- the bus
+
+
+def real_clock(rig: Rig) -> MonotonicClock:
+    """The host's clock for a show on hardware, with the rig's spin window (``loop.spin_us``:
+    sleep until this close to each deadline, then spin)."""
+    return MonotonicClock(rig.loop.spin_us * 1e-6)
+
+
+def port_for(rig: Rig, virtual: bool) -> str:
+    """The port to open: for the emulator, with its clock chosen (virtual time, or the real
+    clock with the rig's spin window); hardware refuses virtual time (ValueError)."""
+    port = rig.bus.port
+    if not port.lower().startswith("dxlsim://"):
+        if virtual:
+            raise ValueError(f"--virtual-time needs the emulator (a dxlsim:// port), not {port!r}")
+        return port
+    from drivers.dxlsim.url import DxlsimUrl
+
+    url = DxlsimUrl.parse(port)
+    if url.name:  # a named bus brings its own clock
+        return port
+    if virtual:
+        return str(url.replace(clock="virtual"))
+    return str(url.replace(clock="real", spin_us=rig.loop.spin_us))
+
+
+def open_bus(rig: Rig, port: str) -> DynamixelBus:
+    """Open the bus the rig names (``port`` from :func:`port_for`). Hardware gets a monotonic
+    clock with the rig's spin window; the emulator brings its own clock."""
+    from drivers.dynamixel.bus import DynamixelBus
+    from drivers.dynamixel.errors import DynamixelError
+
+    clock = None if port.lower().startswith("dxlsim://") else real_clock(rig)
+    try:
+        return DynamixelBus.open(
+            port,
+            baud=rig.bus.baud,
+            ids=rig.servo_ids,
+            read_mode=rig.bus.read,
+            latency_timer_ms=rig.bus.latency_timer_ms,
+            clock=clock,
+        )
+    except (DynamixelError, ValueError, OSError) as exc:
+        msg = str(exc)
+        raise ShowRefusedError(
+            msg if msg.startswith("cannot open") else f"cannot open {rig.bus.port}: {msg}"
+        ) from None
+
+
+def check_bus(rig: Rig, bus: DynamixelBus, say: Callable[[str], None]) -> list[str]:
+    """Make the servos ready and check them against the rig before anything moves.
+
+    Clears Bus Watchdog trips a previous host left, checks every servo (model, limits, Return
+    Delay Time) and that the bus can carry the tick rate. Each note is passed to ``say`` as
+    it is found and returned (for ``events.jsonl``). Raises :class:`ShowRefusedError`.
+    """
+    from drivers.dynamixel.errors import DynamixelError, StartupMismatch
+
+    latency_ms = bus.link.latency_timer_ms
+    notes: list[str] = []
+    try:
+        # A previous run's "hold" exit leaves the Bus Watchdog armed; once that host is
+        # gone it trips. We are the host again: clear it, and say so.
+        tripped = bus.clear_watchdog_trips()
+        if tripped:
+            notes.append(
+                f"servo(s) {', '.join(map(str, tripped))}: Bus Watchdog had tripped (a "
+                "previous run's hold exit, or another program that stopped); cleared"
+            )
+            say(notes[-1])
+        report = bus.check(expectations(rig, latency_ms))
+    except StartupMismatch as exc:
+        raise ShowRefusedError(
+            f"the servos on {rig.bus.port} do not match {rig.path}:\n{exc}"
+        ) from None
+    except (DynamixelError, ValueError) as exc:
+        raise ShowRefusedError(f"start-up check failed on {rig.bus.port}: {exc}") from None
+    for note in report.notes:
+        say(f"note: {note}")
+    notes += report.notes
+    problem = bus_capacity_problem(rig, report, latency_ms)
+    if problem:
+        raise ShowRefusedError(f"{rig.path}: {problem}")
+    return notes
+
+
+def return_delay_budget_us(rig: Rig, latency_timer_ms: float = 0.0) -> float:
+    """The largest Return Delay Time with which the bus traffic still fits in a tick."""
+    n = len(rig.joints)
+    fast = rig.bus.read is not ReadMode.PLAIN
+    base = cycle_time_s(n, rig.bus.baud, fast, latency_s=latency_timer_ms * 1e-3)
+    spare = BUS_SHARE_OF_TICK * rig.loop.period_s - base
+    return max(0.0, spare / (1 if fast else n) * 1e6)
+
+
+def bus_capacity_problem(rig: Rig, report: StartupReport, latency_timer_ms: float) -> str | None:
+    """Why this bus cannot carry the rig's tick rate, or None if it can.
+
+    Uses the wire-time model with what the start-up check found: the read mode in force, each
+    servo's Return Delay Time, and the adapter latency timer in force. The bus may use at most
+    ``BUS_SHARE_OF_TICK`` of a tick.
+    """
+    n = len(rig.joints)
+    fast = report.read_mode is ReadMode.FAST
+    rdts = [s.return_delay_us * 1e-6 for s in report.servos]
+    cycle = cycle_time_s(
+        n, report.baud, fast, return_delay_s=rdts, latency_s=latency_timer_ms * 1e-3
+    )
+    budget = BUS_SHARE_OF_TICK * rig.loop.period_s
+    if cycle <= budget:
+        return None
+    wire = 10.0 * cycle_bytes(n, fast) / report.baud
+    waits = rdts[0] if fast else sum(rdts)
+    return (
+        f"the bus cannot carry {rig.loop.rate_hz:g} Hz: one tick's Sync Write + "
+        f"{'Fast ' if fast else ''}Sync Read takes {cycle * 1e3:.2f} ms (wire "
+        f"{wire * 1e3:.2f} ms at {report.baud} bps, Return Delay {waits * 1e3:.2f} ms, USB "
+        f"latency timer {latency_timer_ms:g} ms, servo turnaround) against {budget * 1e3:.2f} ms "
+        f"({BUS_SHARE_OF_TICK:.0%} of a {rig.loop.period_s * 1e3:g} ms tick). Lower "
+        f"loop.rate_hz to {BUS_SHARE_OF_TICK / cycle:.0f} or less, or shorten the cycle: Return "
+        "Delay Time 0, a higher baud rate, a 1 ms latency timer, Fast Sync Read (`hilsim bench` "
+        "shows each)."
+    )
+
+
+def expectations(rig: Rig, latency_timer_ms: float = 0.0) -> list[Expectation]:
+    """What each servo must look like for this rig to run (checked before anything moves)."""
+    rdt_max = return_delay_budget_us(rig, latency_timer_ms)
+    jmap = JointMap.of(rig.joints)
+    return [
+        Expectation(
+            id=j.servo_id,
+            model=j.model,
+            position_range_rad=jmap.servo_range(i, j.min_rad, j.max_rad),
+            return_delay_us_max=rdt_max,
+        )
+        for i, j in enumerate(rig.joints)
+    ]
+
+
+# ---------------------------------------------------------------------- running it
+
+
+def open_telemetry(rig: Rig, run_dir: Path, virtual: bool) -> TelemetryWriter:
+    """The run's telemetry writer (raises :class:`ShowRefusedError`)."""
+    from hilsim.telemetry import TelemetryWriter
+
+    try:
+        return TelemetryWriter(
+            run_dir,
+            rig.joint_names,
+            servo_ids=rig.servo_ids,
+            flush_interval_s=rig.telemetry.flush_interval_s,
+            config_text=rig.text,
+            # virtual time outruns any disk: wait for the writer rather than drop rows
+            overflow="block" if virtual else "drop",
+        )
+    except (OSError, ValueError) as exc:
+        raise ShowRefusedError(f"cannot write telemetry to {run_dir}: {exc}") from None
+
+
+@dataclass
+class ShowResult:
+    """How a show ended: the exit code and reason, and the summary written (or why not)."""
+
+    exit_code: int
+    reason: str
+    ticks: int
+    wall_s: float
+    exit_policy: str
+    summary: dict[str, Any] = field(default_factory=dict)
+    #: why summary.json could not be written (the writer's error), else None
+    telemetry_error: BaseException | None = None
+    telemetry_traceback: str | None = None
+
+
+def run_show(
+    parts: Parts,
+    bus: DynamixelBus,
+    telemetry: TelemetryWriter,
+    *,
+    duration_s: float | None,
+    stop: StopFlag,
+    on_status: Callable[[dict], None] | None = None,
+) -> ShowResult:
+    """Run the show and close its telemetry with the summary (``docs/summary.md``)."""
+    from hilsim.telemetry import WriterFailedError
+
+    rig = parts.rig
+    virtual = bus.clock.virtual
+    try:
+        loop = HilLoop(parts, bus, telemetry, duration_s=duration_s, stop=stop, on_status=on_status)
+        wall0 = time.perf_counter()
+        result = loop.run()
+        wall = time.perf_counter() - wall0
+    except BaseException:
+        _close_quietly(telemetry, {"exit_code": int(ExitCode.INTERNAL), "exit_reason": "crashed"})
+        raise
+    exit_code, reason = result.exit_code, result.reason
+    summary_in = {
+        "exit_code": exit_code,
+        "exit_reason": reason,
+        "exit_policy": result.exit_policy,
+        "exit_policy_confirmed": result.exit_policy_confirmed,
+        "wall_s": wall,
+        "clock": "virtual time" if virtual else "real time",
+        "port": rig.bus.port,
+        "read_mode": bus.read_mode.value,
+        "loop": result.loop,
+    }
+    show = ShowResult(exit_code, reason, result.ticks, wall, result.exit_policy)
+    try:
+        show.summary = telemetry.close(summary_in)
+    except WriterFailedError as exc:
+        cause = exc.__cause__ or exc
+        show.telemetry_error, show.telemetry_traceback = cause, telemetry.error_traceback
+        if rig.telemetry.on_failure is TelemetryFailurePolicy.STOP and exit_code == 0:
+            show.exit_code, show.reason = int(ExitCode.FAULT), f"telemetry: {cause}"
+        show.summary = {"telemetry": {"error": repr(cause)}}
+    return show
+
+
+def _close_quietly(telemetry: TelemetryWriter, summary: dict) -> None:
+    import contextlib
+
+    with contextlib.suppress(Exception):
+        telemetry.close(summary, timeout_s=2.0)
