@@ -4,7 +4,9 @@
 code   meaning
 =====  ==================================================================================
 0      the show completed; the exit policy was applied and confirmed on every servo
-1      an unexpected error outside the show (a bug: the traceback is printed)
+1      an unexpected error outside the show (a bug: the traceback is printed); for
+       ``hilsim scan`` and ``hilsim plot``: nothing found (no servo answered; no tick in the
+       run or in the window asked for) (``NOTHING_FOUND``)
 2      usage or configuration error: the rig file, a command-line value, or servos that do
        not match the rig or refuse to start (before torque went on). Nothing moved.
 3      a fault stopped the show (a servo, the bus, the host, the telemetry disk, or an
@@ -25,6 +27,7 @@ from enum import IntEnum
 class ExitCode(IntEnum):
     OK = 0
     INTERNAL = 1
+    NOTHING_FOUND = 1  # scan: no servo answered; plot: no tick to plot (same code, own meaning)
     USAGE = 2
     FAULT = 3
     UNSAFE_EXIT = 4

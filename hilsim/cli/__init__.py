@@ -18,6 +18,8 @@ import importlib
 import sys
 from collections.abc import Sequence
 
+from hilsim.exit_codes import ExitCode
+
 #: subcommand name -> module implementing it
 SUBCOMMANDS: dict[str, str] = {
     "run": "hilsim.cli.run",
@@ -58,11 +60,11 @@ def main(argv: Sequence[str] | None = None) -> int:
         args = parser.parse_args(argv)
         if getattr(args, "_run", None) is None:
             parser.print_help()
-            return 2
+            return int(ExitCode.USAGE)
         return int(args._run(args))
     except KeyboardInterrupt:  # Ctrl-C before a command took over SIGINT: nothing had moved
         print("hilsim: interrupted", file=sys.stderr)
-        return 130
+        return int(ExitCode.SIGINT)
 
 
 if __name__ == "__main__":

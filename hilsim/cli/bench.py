@@ -9,7 +9,8 @@ Without CONFIG or --port the bus side runs on the built-in emulator on the real 
 8 and 16 servos at 1 and 4 Mbps). With a rig file it measures that rig's bus and loop rate;
 ``--port`` measures any port (``/dev/ttyUSB0``, a pty, ``dxlsim://?...``).
 
-Exit codes: 0 measured, 1 the rig or the bus cannot be used.
+Exit codes (:mod:`hilsim.exit_codes`): 0 measured; 2 a bad value, a rig that cannot be
+loaded, or a bus that cannot be used (nothing was measured).
 """
 
 from __future__ import annotations
@@ -17,17 +18,20 @@ from __future__ import annotations
 import argparse
 import sys
 import time
-import urllib.parse
 from pathlib import Path
+
+from drivers.clock import DEFAULT_SPIN_S
+from hilsim.cli._args import add_baud, add_ids, add_port, parse_baud, parse_ids, usage_error
+from hilsim.exit_codes import ExitCode
 
 HELP = "measure loop timing, bus rate and latency beside the physical limit; diagnose the bus"
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("config", nargs="?", help="rig file (TOML); its bus, servos and rate")
-    parser.add_argument("--port", help="port to measure instead (or overriding the rig's)")
-    parser.add_argument("--baud", type=int, help="baud rate with --port (default 1000000)")
-    parser.add_argument("--ids", help="servo IDs with --port, e.g. 1-4 (default: discover)")
+    add_port(parser, help="port to measure instead (or overriding the rig's)")
+    add_baud(parser, help="baud rate with --port, e.g. 1M (default: the URL's, else 1000000)")
+    add_ids(parser, help="servo IDs with --port, e.g. 1-4 (default: discover)")
     parser.add_argument("--quick", action="store_true", help="short runs (~20 s in all)")
     parser.add_argument(
         "--json", metavar="FILE", help="write the JSON here (default OUT/bench.json)"
@@ -43,7 +47,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="scheduling class of the timed runs: auto = SCHED_FIFO when permitted (default)",
     )
     parser.add_argument("--priority", type=int, default=80, help="SCHED_FIFO priority (80)")
-    parser.add_argument("--spin-us", type=float, default=200.0, help="scheduler spin (µs, 200)")
+    spin = round(DEFAULT_SPIN_S * 1e6, 6)
+    parser.add_argument(
+        "--spin-us", type=float, default=spin, help=f"scheduler spin window (µs, {spin:g})"
+    )
     parser.add_argument("--no-cyclictest", action="store_true", help="do not run cyclictest")
     parser.add_argument("--rate", type=float, help="latency loop rate, Hz (default: rig's or 500)")
     parser.add_argument(
@@ -65,7 +72,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def build_plan(args: argparse.Namespace, argv_text: str = "hilsim bench"):
     """The :class:`~hilsim.bench.runner.BenchPlan` for parsed arguments (may load the rig)."""
-    from drivers.protocol2.ids import parse_ids
     from hilsim.bench.runner import BenchPlan, BusTarget
 
     quick = bool(args.quick)
@@ -88,7 +94,7 @@ def build_plan(args: argparse.Namespace, argv_text: str = "hilsim bench"):
 
         rig = load_rig(args.config, port=args.port)
         rate = float(rig.loop.rate_hz)
-        read = str(getattr(rig.bus.read, "value", rig.bus.read))
+        read = rig.bus.read.value
         return BenchPlan(
             **common,
             loop_rates_hz=(1000.0,) if rate == 1000.0 else (1000.0, rate),
@@ -99,8 +105,9 @@ def build_plan(args: argparse.Namespace, argv_text: str = "hilsim bench"):
             rig_rate_hz=rate,
         )
     if args.port:
-        baud = args.baud or _url_baud(args.port) or 1_000_000
-        ids = tuple(parse_ids(args.ids)) if args.ids else None
+        baud = parse_baud(args.baud) if args.baud else _url_baud(args.port) or 1_000_000
+        ids = parse_ids(args.ids)
+        ids = tuple(ids) if ids else None
         return BenchPlan(
             **common,
             target=BusTarget(args.port, baud, ids),
@@ -128,8 +135,7 @@ def run(args: argparse.Namespace) -> int:
     try:
         plan = build_plan(args, command or "hilsim bench")
     except (RigError, ValueError) as exc:
-        print(f"hilsim bench: {exc}", file=sys.stderr)
-        return 1
+        return usage_error("bench", exc)
     out = Path(args.out or f"runs/bench-{time.strftime('%Y%m%d-%H%M%S')}")
 
     def progress(msg: str) -> None:
@@ -137,9 +143,8 @@ def run(args: argparse.Namespace) -> int:
 
     try:
         report = run_bench(plan, progress)
-    except BenchError as exc:
-        print(f"hilsim bench: {exc}", file=sys.stderr)
-        return 1
+    except BenchError as exc:  # the bus cannot be used: nothing was measured
+        return usage_error("bench", exc)
     out.mkdir(parents=True, exist_ok=True)
     if not args.no_plots:
         progress("plotting")
@@ -149,7 +154,7 @@ def run(args: argparse.Namespace) -> int:
     report.notes.append(f"whole command: {time.perf_counter() - t_start:.1f} s wall time")
     report.write_json(json_path)
     print(report.text(), end="")
-    return 0
+    return int(ExitCode.OK)
 
 
 def _plots(report, out: Path) -> list[str]:
@@ -171,5 +176,6 @@ def _url_baud(port: str) -> int | None:
     """The ``baud=`` of a ``dxlsim://?...`` URL, if it has one."""
     if not port.startswith("dxlsim:"):
         return None
-    values = urllib.parse.parse_qs(urllib.parse.urlsplit(port).query).get("baud")
-    return int(values[-1]) if values else None
+    from drivers.dxlsim.url import DxlsimUrl  # the emulator only when the port names it
+
+    return DxlsimUrl.parse(port).baud

@@ -9,6 +9,7 @@ import argparse
 import time
 from pathlib import Path
 
+from hilsim.exit_codes import ExitCode
 from hilsim.studies.compare import HELP, run_study, summary
 
 __all__ = ["HELP", "add_arguments", "run"]
@@ -52,4 +53,4 @@ def run(args: argparse.Namespace) -> int:
         f"\nwrote {report}, {json_path} and {len(figures)} figures to {out}/ "
         f"in {time.perf_counter() - started:.1f} s"
     )
-    return 0
+    return int(ExitCode.OK)

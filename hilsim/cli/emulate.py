@@ -15,57 +15,65 @@ import json
 import signal
 import sys
 
-from drivers.clock import MonotonicClock
-from drivers.dxlsim.bus import DxlBus
-from drivers.dxlsim.faults import FaultSpecError, parse_fault_plan
 from drivers.dxlsim.pty_server import PtyServer
-from drivers.dxlsim.servo import VirtualServo
-from drivers.protocol2.ids import parse_ids
+from drivers.dxlsim.url import DEFAULT_HOST_BAUD, DxlsimUrl
+from drivers.protocol2.wire_time import PTY_LATENCY_MS
+from hilsim.cli._args import add_baud, add_ids, parse_baud, usage_error
+from hilsim.exit_codes import ExitCode
 
 HELP = "serve an emulated Dynamixel bus on a pseudo-terminal (path printed first)"
-#: Adapter latency a host should count for this pty on top of ``--latency-ms`` (ms): the
-#: server writes each byte when due and wakes within ~0.1-1 ms on a quiet host. The same
-#: figure as ``drivers.dynamixel.link.PTY_LATENCY_MS``, which ``hilsim run`` assumes for
-#: a pty when the rig gives no ``latency_timer_ms`` (not imported: the emulator does not
-#: load the host's driver).
-PTY_LATENCY_MS = 1.0
+#: What ``hilsim emulate`` serves without flags: the demo figure (IDs 1-4, Return Delay
+#: Time 0) on the real clock; every other default is :class:`DxlsimUrl`'s.
+BASE = DxlsimUrl(ids=(1, 2, 3, 4), rdt_us=0.0, clock="real")
+#: flag destination -> DxlsimUrl field
+_FIELDS = ("ids", "model", "rdt_us", "turnaround_us", "latency_ms", "firmware", "faults", "seed")
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument(
-        "--ids", default="1-4", help="servo IDs, e.g. 1-4 or 1,3,5 (default 1-4: the demo figure)"
-    )
-    p.add_argument("--model", default="XM430-W350", help="servo model (default XM430-W350)")
-    p.add_argument("--baud", type=int, default=1_000_000, help="bus baud rate (default 1000000)")
+    keep = argparse.SUPPRESS  # a flag not given leaves BASE's value
+    add_ids(p, default=keep, help="servo IDs, e.g. 1-4 or 1,3,5 (default 1-4: the demo figure)")
+    p.add_argument("--model", default=keep, help=f"servo model (default {BASE.model})")
+    add_baud(p, default=str(DEFAULT_HOST_BAUD), help=f"bus baud rate (default {DEFAULT_HOST_BAUD})")
     p.add_argument(
         "--rdt-us",
         type=float,
-        default=0.0,
-        help="Return Delay Time in µs (default 0, as the demo's servos; factory 500)",
+        default=keep,
+        help=f"Return Delay Time in µs (default {BASE.rdt_us:g}, as the demo's servos; "
+        f"factory {DxlsimUrl().rdt_us:g})",
     )
     p.add_argument(
         "--turnaround-us",
         type=float,
-        default=20.0,
-        help="servo processing time after the Return Delay Time (default 20)",
+        default=keep,
+        help=f"servo processing time after the Return Delay Time (default {BASE.turnaround_us:g})",
     )
     p.add_argument(
         "--latency-ms",
         type=float,
-        default=0.0,
-        help="extra USB latency-timer model on replies (default 0: the pty adds its own)",
+        default=keep,
+        help=f"extra USB latency-timer model on replies (default {BASE.latency_ms:g}: "
+        "the pty adds its own)",
     )
-    p.add_argument("--firmware", type=int, default=None, help="firmware version to report")
+    p.add_argument("--firmware", type=int, default=keep, help="firmware version to report")
     p.add_argument(
-        "--faults", default="", help="fault plan, e.g. 'drop:id=2,rate=0.05;unplug:at=30'"
+        "--faults", default=keep, help="fault plan, e.g. 'drop:id=2,rate=0.05;unplug:at=30'"
     )
-    p.add_argument("--seed", type=int, default=0, help="fault plan seed (default 0)")
+    p.add_argument("--seed", type=int, default=keep, help=f"fault plan seed (default {BASE.seed})")
     p.add_argument("--trace", metavar="FILE", help="write every byte, timestamped, as JSON lines")
+
+
+def url_from_args(args: argparse.Namespace) -> DxlsimUrl:
+    """The bus the flags describe, as a :class:`DxlsimUrl` (``--trace FILE`` turns its
+    trace on). Raises ValueError on a bad value."""
+    given = {k: getattr(args, k) for k in _FIELDS if hasattr(args, k)}
+    if args.trace:
+        given["trace"] = True
+    return BASE.replace(**given)
 
 
 def usage_lines(path: str, args: argparse.Namespace) -> str:
     """What to give a host to use this pty: ``--port`` and a rig's ``[bus]`` lines."""
-    latency = PTY_LATENCY_MS + args.latency_ms
+    latency = PTY_LATENCY_MS + getattr(args, "latency_ms", BASE.latency_ms)
     return "\n".join(
         (
             f"--port {path}",
@@ -81,33 +89,11 @@ def usage_lines(path: str, args: argparse.Namespace) -> str:
 
 def run(args: argparse.Namespace) -> int:
     try:
-        ids = parse_ids(args.ids)
-        plan = parse_fault_plan(args.faults, seed=args.seed)
-        clock = MonotonicClock()
-        t = clock.now()
-        servos = [
-            VirtualServo(
-                args.model,
-                i,
-                baud=args.baud,
-                return_delay_us=args.rdt_us,
-                firmware=args.firmware,
-                t=t,
-            )
-            for i in ids
-        ]
-        bus = DxlBus(
-            servos,
-            baud=args.baud,
-            clock=clock,
-            latency_timer_ms=args.latency_ms,
-            turnaround_us=args.turnaround_us,
-            faults=plan,
-            trace=bool(args.trace),
-        )
-    except (ValueError, FaultSpecError) as exc:
-        print(f"hilsim emulate: {exc}", file=sys.stderr)
-        return 2
+        args.baud = parse_baud(args.baud)
+        url = url_from_args(args)
+        bus = url.build_bus(host_baud=args.baud)
+    except ValueError as exc:  # FaultSpecError is one too
+        return usage_error("emulate", exc)
     server = PtyServer(bus)
     got = {}
 
@@ -120,7 +106,7 @@ def run(args: argparse.Namespace) -> int:
     print(server.path, flush=True)
     print(usage_lines(server.path, args), flush=True)
     print(
-        f"hilsim emulate: {len(servos)} x {args.model} (IDs {args.ids}) at {args.baud} bps "
+        f"hilsim emulate: {len(bus.servos)} x {url.model} ({url}) at {args.baud} bps "
         f"on {server.path}; Ctrl-C to stop",
         file=sys.stderr,
         flush=True,
@@ -145,4 +131,4 @@ def run(args: argparse.Namespace) -> int:
                         + "\n"
                     )
     print(f"hilsim emulate: stopped ({bus.stats['instructions']} packets served)", file=sys.stderr)
-    return 0
+    return int(ExitCode.OK)

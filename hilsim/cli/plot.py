@@ -15,6 +15,8 @@ from __future__ import annotations
 import argparse
 import sys
 
+from hilsim.exit_codes import ExitCode
+
 HELP = "plot a run directory: joint positions (deg), tick lateness and per-stage timing (PNG)"
 #: --dpi bounds: a legible thumbnail .. print resolution (a 16-joint figure at 300 dpi is already
 #: ~40 megapixels; far more exhausts memory)
@@ -65,20 +67,20 @@ def run(args: argparse.Namespace) -> int:
     problem = _option_problem(args)
     if problem:
         print(f"hilsim plot: {problem}", file=sys.stderr)
-        return 2
+        return int(ExitCode.USAGE)
     try:
         loaded = read_run(args.run_dir)
     except (NotARunError, RunFormatError, NotADirectoryError) as exc:
         print(f"hilsim plot: {exc}", file=sys.stderr)
-        return 2
+        return int(ExitCode.USAGE)
     except (OSError, UnicodeDecodeError) as exc:
         print(f"hilsim plot: {args.run_dir}: cannot read the run: {exc}", file=sys.stderr)
-        return 2
+        return int(ExitCode.USAGE)
     for warning in loaded.warnings:
         print(f"hilsim plot: warning: {warning}", file=sys.stderr)
     if loaded.n_ticks == 0:
         print(f"hilsim plot: {args.run_dir} has no ticks to plot", file=sys.stderr)
-        return 1
+        return int(ExitCode.NOTHING_FOUND)
     start, end = getattr(args, "start", None), getattr(args, "end", None)
     t = loaded.t_sched
     inside = (t >= (start if start is not None else -float("inf"))) & (
@@ -91,7 +93,7 @@ def run(args: argparse.Namespace) -> int:
             f"{float(t.min()):g}..{float(t.max()):g} s",
             file=sys.stderr,
         )
-        return 1
+        return int(ExitCode.NOTHING_FOUND)
     from hilsim.telemetry.plots import plot_run
 
     out = getattr(args, "out", None)
@@ -100,7 +102,7 @@ def run(args: argparse.Namespace) -> int:
     except OSError as exc:
         where = out if out is not None else f"{args.run_dir}/plots"
         print(f"hilsim plot: cannot write to {where}: {exc.strerror or exc}", file=sys.stderr)
-        return 2
+        return int(ExitCode.USAGE)
     for path in paths:
         print(path)
-    return 0
+    return int(ExitCode.OK)

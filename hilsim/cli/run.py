@@ -16,7 +16,6 @@ import os
 import signal
 import sys
 import time
-import urllib.parse
 from pathlib import Path
 
 from hilsim.exit_codes import ExitCode, for_signal
@@ -50,25 +49,6 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="run directory, new or empty (default <out_dir>/<name>-<time>)",
     )
     p.add_argument("--no-plots", action="store_true", help="do not draw plots after the run")
-
-
-def clocked_port(port: str, virtual: bool) -> str:
-    """The port string with the emulator's clock chosen; hardware refuses virtual time."""
-    if not port.lower().startswith("dxlsim://"):
-        if virtual:
-            raise ValueError(f"--virtual-time needs the emulator (a dxlsim:// port), not {port!r}")
-        return port
-    parts = urllib.parse.urlsplit(port)
-    query = [
-        (k, v)
-        for k, v in urllib.parse.parse_qsl(parts.query, keep_blank_values=True)
-        if k != "clock"
-    ]
-    if parts.netloc or parts.path.strip("/"):
-        return port  # a named bus brings its own clock
-    query.append(("clock", "virtual" if virtual else "real"))
-    # not urlunsplit: with an empty host it writes "dxlsim:?..." and drops the "//"
-    return f"{parts.scheme}://?{urllib.parse.urlencode(query, safe='-,;:=|')}"
 
 
 #: run directories this process created (and may remove again if the run never starts)
@@ -155,24 +135,24 @@ def _say(message: str) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from hilsim.rig import RigError, load_rig
-    from hilsim.wiring import build_targets
+    from hilsim.session import build_parts, port_for
 
     try:
         rig = load_rig(args.config, port=args.port)
-        port = clocked_port(rig.bus.port, args.virtual_time)
-        targets = build_targets(rig)
+        port = port_for(rig, args.virtual_time)
+        parts = build_parts(rig)
     except (RigError, ValueError) as exc:
         _say(str(exc))
         return EXIT_USAGE
     if args.duration is not None and not (math.isfinite(args.duration) and args.duration > 0):
         _say(f"--duration must be a finite number of seconds > 0, got {args.duration!r}")
         return EXIT_USAGE
-    if args.duration is None and targets.duration is None:
+    if args.duration is None and parts.targets.duration is None:
         _say(
             "the animation never ends (generators only); running until Ctrl-C. "
             "Give --duration to stop by itself."
         )
-    for line in _track_warnings(rig, targets, args.duration):
+    for line in _track_warnings(rig, parts.targets, args.duration):
         _say(f"warning: {line}")
     try:
         run_dir = make_run_dir(args.out, rig.telemetry.out_dir, rig.name)
@@ -180,153 +160,83 @@ def run(args: argparse.Namespace) -> int:
         _say(str(exc))
         return EXIT_USAGE
     try:
-        return _open_and_run(args, rig, port, targets, run_dir)
+        return _open_and_run(args, parts, port, run_dir)
     except KeyboardInterrupt:  # before the signal handlers: nothing was written to a servo
         _say("interrupted before the show started: nothing moved")
         _remove_if_empty(run_dir)
         return int(ExitCode.SIGINT)
 
 
-def _open_and_run(args, rig, port: str, targets, run_dir: Path) -> int:
-    from drivers.dynamixel.bus import DynamixelBus
-    from drivers.dynamixel.errors import DynamixelError
+def _open_and_run(args, parts, port: str, run_dir: Path) -> int:
+    from hilsim.session import ShowRefusedError, open_bus
 
     try:
-        bus = DynamixelBus.open(
-            port,
-            baud=rig.bus.baud,
-            ids=rig.servo_ids,
-            read_mode=rig.bus.read.value,
-            latency_timer_ms=rig.bus.latency_timer_ms,
-        )
-    except (DynamixelError, ValueError, OSError) as exc:
-        msg = str(exc)
-        _say(msg if msg.startswith("cannot open") else f"cannot open {rig.bus.port}: {msg}")
+        bus = open_bus(parts.rig, port)
+    except ShowRefusedError as exc:
+        _say(str(exc))
         _remove_if_empty(run_dir)
         return EXIT_USAGE
     try:
-        return _run_on_bus(args, rig, bus, targets, run_dir)
+        return _run_on_bus(args, parts, bus, run_dir)
     finally:
         bus.close()
 
 
-def _run_on_bus(args, rig, bus, targets, run_dir: Path) -> int:
-    from drivers.dynamixel.errors import DynamixelError, StartupMismatch
-    from hilsim.loop import HilLoop, StopFlag
-    from hilsim.rig import TelemetryFailurePolicy
-    from hilsim.telemetry import TelemetryWriter, WriterFailedError
-    from hilsim.wiring import bus_capacity_problem, expectations
+def _run_on_bus(args, parts, bus, run_dir: Path) -> int:
+    from hilsim.loop import StopFlag
+    from hilsim.session import ShowRefusedError, check_bus, open_telemetry, run_show
 
+    rig = parts.rig
+    virtual = bus.clock.virtual
     stop = StopFlag()
     previous = {
         s: signal.signal(s, lambda signum, _f: stop.request(signum))
         for s in (signal.SIGINT, signal.SIGTERM)
     }
     try:
-        latency_ms = bus.link.latency_timer_ms
         try:
-            # A previous run's "hold" exit leaves the Bus Watchdog armed; once that host is
-            # gone it trips. We are the host again: clear it, and say so.
-            tripped = bus.clear_watchdog_trips()
-            notes = []
-            if tripped:
-                notes.append(
-                    f"servo(s) {', '.join(map(str, tripped))}: Bus Watchdog had tripped (a "
-                    "previous run's hold exit, or another program that stopped); cleared"
-                )
-                _say(notes[-1])
-            report = bus.check(expectations(rig, latency_ms))
-        except StartupMismatch as exc:
-            _say(f"the servos on {rig.bus.port} do not match {rig.path}:\n{exc}")
+            notes = check_bus(rig, bus, _say)
+            if stop.signum is not None:
+                _say(f"stopped by signal {stop.signum} during the start-up check: nothing moved")
+                _remove_if_empty(run_dir)
+                return for_signal(stop.signum)
+            telemetry = open_telemetry(rig, run_dir, virtual)
+        except ShowRefusedError as exc:
+            _say(str(exc))
             _remove_if_empty(run_dir)
-            return EXIT_USAGE
-        except (DynamixelError, ValueError) as exc:
-            _say(f"start-up check failed on {rig.bus.port}: {exc}")
-            _remove_if_empty(run_dir)
-            return EXIT_USAGE
-        for note in report.notes:
-            _say(f"note: {note}")
-        notes += report.notes
-        problem = bus_capacity_problem(rig, report, latency_ms)
-        if problem:
-            _say(f"{rig.path}: {problem}")
-            _remove_if_empty(run_dir)
-            return EXIT_USAGE
-        if stop.signum is not None:
-            _say(f"stopped by signal {stop.signum} during the start-up check: nothing moved")
-            _remove_if_empty(run_dir)
-            return for_signal(stop.signum)
-        try:
-            telemetry = TelemetryWriter(
-                run_dir,
-                rig.joint_names,
-                servo_ids=rig.servo_ids,
-                flush_interval_s=rig.telemetry.flush_interval_s,
-                config_text=rig.text,
-                # virtual time outruns any disk: wait for the writer rather than drop rows
-                overflow="block" if bus.clock.virtual else "drop",
-            )
-        except (OSError, ValueError) as exc:
-            _say(f"cannot write telemetry to {run_dir}: {exc}")
             return EXIT_USAGE
         for note in notes:  # what the start-up found and changed, in the run's record too
             telemetry.event("startup", note)
-        mode = "virtual time" if bus.clock.virtual else "real time"
         _say(
             f"{rig.name}: {len(rig.joints)} joints on {rig.bus.port} at "
-            f"{rig.loop.rate_hz:g} Hz ({mode}) -> {run_dir}"
+            f"{rig.loop.rate_hz:g} Hz ({'virtual' if virtual else 'real'} time) -> {run_dir}"
         )
-        try:
-            loop = HilLoop(
-                rig,
-                bus,
-                targets,
-                telemetry,
-                duration_s=args.duration,
-                stop=stop,
-                on_status=None if bus.clock.virtual else _status_printer(rig.loop.rate_hz),
-            )
-            wall0 = time.perf_counter()
-            result = loop.run()
-            wall = time.perf_counter() - wall0
-        except BaseException:
-            _close_quietly(telemetry, {"exit_code": 1, "exit_reason": "crashed"})
-            raise
-        exit_code, reason = result.exit_code, result.reason
-        summary_in = {
-            "exit_code": exit_code,
-            "exit_reason": reason,
-            "exit_policy": result.summary.get("exit_policy"),
-            "exit_policy_confirmed": result.summary.get("exit_policy_confirmed"),
-            "wall_s": wall,
-            "clock": mode,
-            "port": rig.bus.port,
-            "read_mode": bus.read_mode.value,
-            "loop": result.summary,
-        }
-        try:
-            summary = telemetry.close(summary_in)
-        except WriterFailedError as exc:
-            cause = exc.__cause__ or exc
-            _say(f"telemetry could not be written to {run_dir}: {cause}")
-            if telemetry.error_traceback:
-                print(telemetry.error_traceback.rstrip(), file=sys.stderr)
-            if rig.telemetry.on_failure is TelemetryFailurePolicy.STOP and exit_code == 0:
-                exit_code, reason = int(ExitCode.FAULT), f"telemetry: {cause}"
-            summary = {"telemetry": {"error": repr(cause)}}
+        show = run_show(
+            parts,
+            bus,
+            telemetry,
+            duration_s=args.duration,
+            stop=stop,
+            on_status=None if virtual else _status_printer(rig.loop.rate_hz),
+        )
     finally:
         for s, handler in previous.items():
             signal.signal(s, handler)
-    if sys.stderr.isatty() and not bus.clock.virtual:
+    if show.telemetry_error is not None:
+        _say(f"telemetry could not be written to {run_dir}: {show.telemetry_error}")
+        if show.telemetry_traceback:
+            print(show.telemetry_traceback.rstrip(), file=sys.stderr)
+    if sys.stderr.isatty() and not virtual:
         sys.stderr.write("\n")
+    summary = show.summary
     _say(
-        f"{reason} after {result.ticks} ticks "
-        f"({result.ticks / rig.loop.rate_hz:.2f} s of show in {wall:.2f} s); "
-        f"{result.summary.get('exit_policy', '?')}"
+        f"{show.reason} after {show.ticks} ticks "
+        f"({show.ticks / rig.loop.rate_hz:.2f} s of show in {show.wall_s:.2f} s); "
+        f"{show.exit_policy}"
     )
-    _print_stats(summary, result, rig)
+    _print_stats(summary)
     print(f"  telemetry: {run_dir}", file=sys.stderr)
-    if exit_code == ExitCode.OK and (verdict := _verdict(summary, result)):
+    if show.exit_code == ExitCode.OK and (verdict := _verdict(summary, show.ticks)):
         _say(f"verdict: {verdict}")
     if not args.no_plots and "ticks" in summary:  # a summary was written: the run reads back
         try:
@@ -336,8 +246,8 @@ def _run_on_bus(args, rig, bus, targets, run_dir: Path) -> int:
                 print(f"  plot: {path}", file=sys.stderr)
         except Exception as exc:  # plots are a convenience: never change the show's verdict
             _say(f"plots not drawn: {type(exc).__name__}: {exc}")
-    _say(f"exit code {exit_code}")
-    return exit_code
+    _say(f"exit code {show.exit_code}")
+    return show.exit_code
 
 
 def _track_warnings(rig, targets, duration_s: float | None) -> list[str]:
@@ -348,37 +258,38 @@ def _track_warnings(rig, targets, duration_s: float | None) -> list[str]:
     return [str(w) for w in warnings]
 
 
-def _print_stats(summary: dict, result, rig) -> None:
+def _print_stats(summary: dict) -> None:
+    from hilsim.telemetry.stats import comm_errors
+
     lat = summary.get("lateness_us") or {}
+    loop = summary.get("loop") or {}
 
     def us(key: str) -> str:
         value = lat.get(key)
         return "n/a" if value is None else f"{value:.0f} us"
 
-    stalls = result.summary.get("host_stalls") or {}
+    stalls = loop.get("host_stalls") or {}
     print(
         f"  lateness p50 {us('p50')}, p99 {us('p99')}, max {us('max')}; "
-        f"overruns {result.summary.get('overruns', 0)}; "
-        f"comm errors {sum((summary.get('comm_errors') or {}).values())}; "
+        f"overruns {summary.get('overruns', 0)}; "
+        f"comm errors {comm_errors(summary)}; "
         f"host stalls {stalls.get('count', 0)} (max {stalls.get('max_ms', 0):.0f} ms)"
-        + (
-            f"; watchdog recoveries {result.summary['recoveries']}"
-            if result.summary.get("recoveries")
-            else ""
-        ),
+        + (f"; watchdog recoveries {loop['recoveries']}" if loop.get("recoveries") else ""),
         file=sys.stderr,
     )
 
 
-def _verdict(summary: dict, result) -> str | None:
+def _verdict(summary: dict, ticks_run: int) -> str | None:
     """One line when a completed show was not healthy (overruns, failed reads, lost rows)."""
-    ticks = max(int(summary.get("ticks") or result.ticks or 0), 1)
+    from hilsim.telemetry.stats import comm_errors
+
+    ticks = max(int(summary.get("ticks") or ticks_run or 0), 1)
     problems = []
-    overruns = int(result.summary.get("overruns", 0))
+    overruns = int(summary.get("overruns") or 0)
     if overruns > VERDICT_OVERRUN_SHARE * ticks:
         problems.append(f"{overruns / ticks:.0%} of ticks overran (the host is too busy?)")
-    comm = sum((summary.get("comm_errors") or {}).values())
-    if comm > VERDICT_COMM_SHARE * ticks * len(summary.get("comm_errors") or {1: 0}):
+    comm = comm_errors(summary)
+    if comm > VERDICT_COMM_SHARE * ticks * max(len(summary.get("stale_reads") or {}), 1):
         problems.append(f"{comm} failed reads (check wiring, power and Return Delay Time)")
     tel = summary.get("telemetry") or {}
     if tel.get("rows_dropped"):
@@ -388,13 +299,6 @@ def _verdict(summary: dict, result) -> str | None:
     if not problems:
         return None
     return "the show completed, but " + "; ".join(problems)
-
-
-def _close_quietly(telemetry, summary: dict) -> None:
-    try:
-        telemetry.close(summary, timeout_s=2.0)
-    except Exception as exc:
-        _say(f"telemetry not closed cleanly: {exc}")
 
 
 def _remove_if_empty(path: Path) -> None:

@@ -11,57 +11,24 @@ On the emulator: ``hilsim scan --port "dxlsim://?ids=1-4"``.
 from __future__ import annotations
 
 import argparse
-import re
 import sys
+
+from hilsim.cli._args import add_baud, add_ids, add_port, parse_baud, parse_ids, usage_error
+from hilsim.exit_codes import ExitCode
 
 HELP = "find servo IDs, models and firmware across baud rates"
 DEFAULT_BAUDS = (57_600, 115_200, 1_000_000, 2_000_000, 3_000_000, 4_000_000)
-_BAUD_RE = re.compile(r"\s*(\d+(?:\.\d+)?)\s*([kKmM]?)\s*(?:bps|bit/s)?\s*", re.IGNORECASE)
-
-
-def _supported_bauds() -> tuple[int, ...]:
-    from drivers.protocol2.control_table import BAUD_RATES
-
-    return tuple(sorted(BAUD_RATES.values()))
-
-
-def _short(bps: int) -> str:
-    """57600 -> 57.6k, 1000000 -> 1M."""
-    if bps >= 1_000_000:
-        return f"{bps / 1e6:g}M"
-    return f"{bps / 1e3:g}k" if bps >= 1000 else str(bps)
-
-
-def parse_baud(text: str) -> int:
-    """``"1M"`` -> 1000000, ``"57.6k"`` -> 57600, ``"115200"`` -> 115200.
-
-    Raises ValueError (one line, listing the servos' rates) for anything else.
-    """
-    allowed = _supported_bauds()
-    listed = ", ".join(f"{_short(b)} ({b})" for b in allowed)
-    m = _BAUD_RE.fullmatch(text)
-    if m is None:
-        raise ValueError(
-            f"--baud {text!r}: not a baud rate (write 1000000 or 1M); allowed: {listed}"
-        )
-    number, suffix = m.groups()
-    scale = {"": 1, "k": 1_000, "m": 1_000_000}[suffix.lower()]
-    value = round(float(number) * scale)
-    if abs(float(number) * scale - value) > 1e-6 or value not in allowed:
-        raise ValueError(f"--baud {text!r}: the servos do not run at that rate; allowed: {listed}")
-    return value
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--port", required=True, help="/dev/ttyUSB0, a pty path, or dxlsim://...")
-    p.add_argument(
-        "--baud",
-        action="append",
-        metavar="BPS",
+    add_port(p, required=True)
+    add_baud(
+        p,
+        repeat=True,
         help="baud rate to try, e.g. 1M or 1000000 (repeat for several; "
         "default: 57.6k 115.2k 1M 2M 3M 4M)",
     )
-    p.add_argument("--ids", help="only these IDs, e.g. 1-8 (default 0-252)")
+    add_ids(p, help="only these IDs, e.g. 1-8 (default 0-252)")
     p.add_argument(
         "--no-unicast", action="store_true", help="broadcast Ping only (faster when nobody answers)"
     )
@@ -70,26 +37,20 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from drivers.dynamixel.errors import DynamixelError
     from drivers.dynamixel.scan import scan
-    from drivers.protocol2.ids import parse_ids
 
     try:
-        ids = parse_ids(args.ids) if args.ids else None
-        bauds = tuple(parse_baud(str(b)) for b in args.baud) if args.baud else DEFAULT_BAUDS
+        ids = parse_ids(args.ids or None)
+        bauds = tuple(parse_baud(b) for b in args.baud) if args.baud else DEFAULT_BAUDS
     except ValueError as exc:
-        message = str(exc)
-        if len(message) > 200:  # an ID list can be long: one line, not a screenful
-            message = message[:200] + " …"
-        print(f"hilsim scan: {message}", file=sys.stderr)
-        return 2
+        return usage_error("scan", exc)
     print(f"hilsim scan: {args.port} at {', '.join(str(b) for b in bauds)} bit/s", file=sys.stderr)
     try:
         found = scan(args.port, bauds, ids, unicast_fallback=not args.no_unicast)
     except ValueError as exc:  # a dxlsim:// URL that cannot be built: a usage error
-        print(f"hilsim scan: {exc}", file=sys.stderr)
-        return 2
+        return usage_error("scan", exc)
     except DynamixelError as exc:
         print(f"hilsim scan: {exc}", file=sys.stderr)
-        return 3
+        return int(ExitCode.FAULT)
     for f in found:
         print(f)
     if not found:
@@ -98,5 +59,5 @@ def run(args: argparse.Namespace) -> int:
             "power-up), wiring, and that nothing else has the port open.",
             file=sys.stderr,
         )
-        return 1
-    return 0
+        return int(ExitCode.NOTHING_FOUND)
+    return int(ExitCode.OK)

@@ -11,7 +11,7 @@ import serial
 from drivers.dxlsim.url import bus_from_url
 from hilsim.cli import main
 from hilsim.cli import main as hilsim_main
-from hilsim.cli.scan import parse_baud
+from hilsim.cli._args import parse_baud
 from tests.hilsim.test_rig import BASE, PAN_SPRING, TILT_SPRING
 from tests.hilsim.test_telemetry import write_synthetic_run
 

@@ -9,11 +9,11 @@ import sys
 import numpy as np
 import pytest
 
-from drivers.dynamixel.bench_session import emulator_url, open_bus
 from hilsim.bench import cyclictest
 from hilsim.bench.busrate import measure_bus_rate
 from hilsim.bench.diagnose import diagnose, gather_facts
 from hilsim.bench.latency import measure_latency
+from hilsim.bench.ports import emulator_url, open_bus
 from hilsim.bench.report import BenchReport, LoopResult
 from hilsim.bench.sched import SCHED_FIFO, SchedulerRun, lateness_stats
 from hilsim.cli import bench as bench_cli
@@ -142,7 +142,7 @@ def test_cli_diagnoses_a_slow_port(tmp_path, capsys):
     assert "tops out" in capsys.readouterr().out
 
 
-def test_cli_bad_port_is_exit_code_1(tmp_path, capsys):
+def test_cli_bad_baud_is_one_line_and_exit_code_2(tmp_path, capsys):
     args = [
         "--clock",
         "virtual",
@@ -155,8 +155,9 @@ def test_cli_bad_port_is_exit_code_1(tmp_path, capsys):
         "--out",
     ]
     code = hilsim_main(["bench", *args, str(tmp_path)])
-    assert code == 1
-    assert "does not support" in capsys.readouterr().err
+    assert code == 2
+    err = capsys.readouterr().err
+    assert "--baud '123': the servos do not run at that rate" in err and len(err.splitlines()) == 1
 
 
 def test_plan_from_a_rig_file(tmp_path):
