@@ -184,3 +184,21 @@ def test_field_lookup_accepts_emanual_names():
     assert m.baud_index(1_000_000) == 3
     with pytest.raises(ValueError, match="bps"):
         MODELS["XL330-M288"].baud_index(4_500_000)
+
+
+def test_the_hosts_items_and_the_emulators_table_agree():
+    """Two tables, two jobs: the host's Items (drivers.protocol2.control_table: what the driver
+    reads and writes) and the emulator's full X-series table (defaults, ranges, access). Every
+    field both name has one address and one size."""
+    import drivers.protocol2.control_table as ct
+    from drivers.dxlsim.models import _X_TABLE, normalize_name
+
+    rows = {name: (addr, size) for addr, size, name, *_ in _X_TABLE}
+    items = [v for v in vars(ct).values() if isinstance(v, ct.Item)]
+    matched = 0
+    for item in items:
+        key = normalize_name(item.name)
+        if key in rows:
+            assert rows[key] == (item.addr, item.size), item.name
+            matched += 1
+    assert matched >= 20  # every single field the host uses; the blocks are spans, not fields

@@ -11,7 +11,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from drivers.clock import MonotonicClock
+from drivers.clock import MonotonicClock, VirtualClock
 from drivers.dxlsim.url import DxlsimUrl
 from hilsim.joint_map import JointMap
 from hilsim.rig import load_rig
@@ -48,20 +48,18 @@ def rig(tmp_path: Path, port: str = "dxlsim://?ids=1", spin_us: float | None = N
 
 
 def measured_spin_window(clock: MonotonicClock, deadline: float = 0.01) -> float:
-    """Run ``clock.wait_until(deadline)`` on a simulated time source (each poll of the clock
-    costs 1 µs, a sleep jumps): the time it spent spinning after its sleep (s)."""
-    t = [0.0]
+    """Run ``clock.wait_until(deadline)`` with a virtual clock as its time source (each look at
+    the clock costs 1 µs, a sleep jumps): the time it spent spinning after its sleep (s)."""
+    vc = VirtualClock()
     woke: list[float] = []
 
     def now() -> float:
-        t[0] += 1e-6
-        return t[0]
+        return vc.advance(1e-6)
 
     def sleep(d: float) -> None:
-        t[0] += d
-        woke.append(t[0])
+        woke.append(vc.advance(d))
 
-    clock._now, clock._sleep = now, sleep  # the clock's time source, simulated
+    clock._now, clock._sleep = now, sleep  # the clock's time source, virtual
     end = clock.wait_until(deadline)
     assert end >= deadline and len(woke) == 1
     return end - woke[0]
