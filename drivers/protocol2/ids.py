@@ -22,7 +22,8 @@ def parse_ids(text: str) -> list[int]:
         raise ValueError(f"no servo IDs in {text!r}")
     bad = [i for i in ids if not 0 <= i <= 252]
     if bad:
-        raise ValueError(f"servo IDs must be 0..252, got {bad}")
+        shown = ", ".join(map(str, bad[:5])) + (f" … ({len(bad)} in all)" if len(bad) > 5 else "")
+        raise ValueError(f"servo IDs must be 0..252, got {shown}")
     if len(set(ids)) != len(ids):
         raise ValueError(f"repeated servo ID in {text!r}")
     return ids
