@@ -18,6 +18,7 @@ import sys
 import time
 from pathlib import Path
 
+from hilsim.cli._args import add_port
 from hilsim.exit_codes import ExitCode, for_signal
 
 HELP = "run a rig: springs follow the animation, streamed to the servos (or the emulator)"
@@ -31,7 +32,7 @@ VERDICT_COMM_SHARE = 0.01
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("config", help="rig file (TOML), e.g. configs/demo.toml")
-    p.add_argument("--port", help="override bus.port: /dev/ttyUSB0, a pty, or dxlsim://...")
+    add_port(p, help="override bus.port: /dev/ttyUSB0, a pty, or dxlsim://... (the emulator)")
     p.add_argument(
         "--duration",
         type=float,
