@@ -21,6 +21,7 @@ from dataclasses import dataclass
 from enum import IntEnum
 
 from drivers.protocol2 import control_table as _ct
+from drivers.protocol2.crc import crc16
 
 # The error numbers are the same at both ends of the wire: one definition, in the driver's data.
 ErrorCode = _ct.StatusError
@@ -53,27 +54,6 @@ class Instruction(IntEnum):
     BULK_READ = 0x92
     BULK_WRITE = 0x93
     FAST_BULK_READ = 0x9A
-
-
-def _make_crc_table() -> tuple[int, ...]:
-    table = []
-    for i in range(256):
-        crc = i << 8
-        for _ in range(8):
-            crc = ((crc << 1) ^ 0x8005) if crc & 0x8000 else (crc << 1)
-        table.append(crc & 0xFFFF)
-    return tuple(table)
-
-
-_CRC_TABLE = _make_crc_table()
-
-
-def crc16(data: bytes | bytearray | memoryview, crc: int = 0) -> int:
-    """CRC-16 of ``data`` continuing from ``crc`` (Protocol 2.0: poly 0x8005, init 0)."""
-    table = _CRC_TABLE
-    for byte in data:
-        crc = ((crc << 8) ^ table[((crc >> 8) ^ byte) & 0xFF]) & 0xFFFF
-    return crc
 
 
 def stuff(body: bytes) -> bytes:

@@ -13,28 +13,13 @@ from collections.abc import Sequence
 
 from drivers.dynamixel.units import CENTER_TICK, RAD_PER_TICK, decode_position
 from drivers.protocol2 import control_table as ct
+from drivers.protocol2.crc import CRC_TABLE
 from drivers.servo_bus import PresentReading, ReadStatus
 
 #: :class:`~drivers.servo_bus.ReadStatus` as plain ints, for the per-tick loops.
 STALE, ERROR, ALERT, GOOD = (
     int(s) for s in (ReadStatus.STALE, ReadStatus.ERROR, ReadStatus.ALERT, ReadStatus.OK)
 )
-
-
-def _crc_table() -> list[int]:
-    """Protocol 2.0 CRC-16 (polynomial 0x8005, MSB first) by high byte."""
-    table = []
-    for i in range(256):
-        c = i << 8
-        for _ in range(8):
-            c = ((c << 1) ^ 0x8005) if c & 0x8000 else c << 1
-        table.append(c & 0xFFFF)
-    return table
-
-
-#: For :func:`parse_fast_reply`, which runs every tick (the SDK's ``updateCRC`` rebuilds its
-#: table on every call: 13 us for one 4-servo packet).
-CRC_TABLE = _crc_table()
 
 
 def parse_fast_reply(

@@ -6,6 +6,7 @@
 ``wire_time``       bytes and seconds of a Sync Write + (Fast) Sync Read cycle; USB latency timer;
                     default turnaround
 ``ids``             servo ID lists as people write them (``1-4``, ``1,3,5``)
+``crc``             the CRC-16 every packet carries
 ==================  ==============================================================================
 
 The host driver (:mod:`drivers.dynamixel`) and the emulator (:mod:`drivers.dxlsim`) both import

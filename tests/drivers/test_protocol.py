@@ -153,3 +153,14 @@ def test_parser_never_raises_and_frames_are_consistent(data):
         assert len(f.raw) == 7 + (f.raw[5] | f.raw[6] << 8)
         if f.crc_ok:
             assert decode(f.raw).instruction == f.packet.instruction
+
+
+@given(st.binary(max_size=300))
+def test_the_shared_crc_is_the_sdks(data):
+    """drivers.protocol2.crc (the emulator's codec and the driver's Fast Sync Read parser both
+    use it) computes what dynamixel-sdk computes."""
+    import dynamixel_sdk as sdk
+
+    from drivers.protocol2.crc import crc16
+
+    assert crc16(data) == sdk.PacketHandler(2.0).updateCRC(0, list(data), len(data))
