@@ -746,7 +746,7 @@ def test_row_13_torque_silently_off_is_a_safe_stop(emulated):
 
 def test_row_14_tripped_watchdog_at_start_is_named_before_anything_moves(emulated, capsys):
     """The matrix asks for CE; the driver clears a trip left by a previous run's hold exit and
-    says so (run_cli, deliberate). What must hold either way: the servo is named, and the
+    says so (hilsim run, deliberate). What must hold either way: the servo is named, and the
     trip is cleared before any goal or torque write."""
     emu = emulated(faults="watchdog_trip:id=2,at=0")
     code = emu.run(duration=0.5)
