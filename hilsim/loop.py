@@ -58,7 +58,7 @@ import numpy as np
 from drivers.servo_bus import PresentReading, ServoBus, ServoBusError
 from hilsim.exit_codes import ExitCode, for_signal
 from hilsim.monitors import STALL_EVENT_S, WATCHDOG_GAP_FRACTION, HostStalls
-from hilsim.realtime import REALTIME_SWITCH_INTERVAL_S, try_realtime
+from hilsim.realtime import REALTIME_SWITCH_INTERVAL_S, realtime
 from hilsim.rig import OverrunPolicy, TelemetryFailurePolicy
 from hilsim.servo_watch import LoopFaultError, ServoWatch
 from hilsim.show_log import ShowLog
@@ -248,9 +248,15 @@ class HilLoop:
     # ------------------------------------------------------------------ the run
     def run(self) -> RunResult:
         """Run the show; every way out (end, signal, fault, exception) applies the exit policy
-        once anything was energised. KeyboardInterrupt and SystemExit are re-raised after it."""
+        once anything was energised. KeyboardInterrupt and SystemExit are re-raised after it.
+        SCHED_FIFO and the CPU pin the rig asks for hold for the run only."""
+        loop = self.rig.loop
+        with realtime(loop.realtime_priority, loop.cpu) as sched:
+            self.loop_stats["sched"] = sched
+            return self._run(sched)
+
+    def _run(self, sched: str) -> RunResult:
         rig = self.rig
-        sched = self.loop_stats["sched"] = try_realtime(rig.loop.realtime_priority, rig.loop.cpu)
         self.log.event(
             "start", f"{rig.name}: {len(rig.joints)} joints at {rig.loop.rate_hz:g} Hz, {sched}"
         )

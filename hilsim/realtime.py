@@ -6,8 +6,10 @@ says how to grant it.
 
 from __future__ import annotations
 
+import contextlib
 import os
 import warnings
+from collections.abc import Iterator
 
 #: GIL switch interval while a show runs on the real clock: when the loop wakes from its
 #: sleep it may wait for the GIL up to the interpreter's switch interval (5 ms by default)
@@ -38,3 +40,37 @@ def try_realtime(priority: int | None, cpu: int | None) -> str:
                 stacklevel=2,
             )
     return sched
+
+
+def _snapshot() -> tuple | None:
+    """This process's scheduling policy, priority and CPU set, or None where the OS has none."""
+    try:
+        return os.sched_getscheduler(0), os.sched_getparam(0), os.sched_getaffinity(0)
+    except (OSError, AttributeError):
+        return None
+
+
+def _restore(state: tuple | None) -> None:
+    if state is None:
+        return
+    policy, param, cpus = state
+    try:
+        if (os.sched_getscheduler(0), os.sched_getparam(0)) != (policy, param):
+            os.sched_setscheduler(0, policy, param)
+        if os.sched_getaffinity(0) != cpus:
+            os.sched_setaffinity(0, cpus)
+    except (OSError, AttributeError, ValueError) as exc:
+        warnings.warn(f"could not restore the scheduling class and CPUs: {exc}", stacklevel=3)
+
+
+@contextlib.contextmanager
+def realtime(priority: int | None, cpu: int | None) -> Iterator[str]:
+    """:func:`try_realtime` for the ``with`` block, then the process's scheduling class and
+    CPUs as they were: a show run inside a longer-lived process (a test suite, a program that
+    embeds hilsim) must not leave it SCHED_FIFO or pinned — a SCHED_FIFO process that busy-waits
+    (the virtual clock never sleeps) starves everything else on the host."""
+    state = _snapshot()
+    try:
+        yield try_realtime(priority, cpu)
+    finally:
+        _restore(state)

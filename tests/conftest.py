@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import os
 
+import pytest
 from hypothesis import HealthCheck, settings
 
 settings.register_profile(
@@ -35,3 +36,19 @@ _in_ci = os.environ.get("CI", "").strip().lower() not in ("", "0", "false", "no"
 _profile = os.environ.get("HYPOTHESIS_PROFILE") or ("hilsim-ci" if _in_ci else None)
 if _profile:
     settings.load_profile(_profile)
+
+
+@pytest.fixture(autouse=True)
+def _no_real_time_scheduling(monkeypatch):
+    """No test makes the test process SCHED_FIFO or pins it to a CPU for real. A rig that asks
+    for it (configs/hardware_example.toml) run in-process as root would otherwise get it: a
+    SCHED_FIFO process that busy-waits (the virtual clock never sleeps) starves the host, and
+    several test runs at once froze a 2-core machine that way. The request is refused as an
+    unprivileged user's would be (a warning); tests of the scheduling code patch their own."""
+    import hilsim.realtime
+
+    def refuse(*_args, **_kwargs):
+        raise PermissionError(1, "Operation not permitted (the test suite never runs real time)")
+
+    monkeypatch.setattr(hilsim.realtime.os, "sched_setscheduler", refuse)
+    monkeypatch.setattr(hilsim.realtime.os, "sched_setaffinity", refuse)

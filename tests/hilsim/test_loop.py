@@ -428,3 +428,32 @@ def test_realtime_scheduling_refused_is_a_warning_not_a_crash(monkeypatch):
     text = " ".join(str(w.message) for w in caught)
     assert "SCHED_FIFO" in text and "setcap" in text and "CPU 1" in text
     assert realtime_mod.try_realtime(None, None) == "SCHED_OTHER"  # nothing asked, nothing tried
+
+
+def test_real_time_scheduling_holds_for_the_run_only(monkeypatch):
+    """A show run inside a longer-lived process gives it back as it found it: policy,
+    priority and CPUs (SCHED_FIFO left behind starves the host once the process busy-waits)."""
+    from hilsim import realtime as realtime_mod
+
+    state = {"sched": (0, 0), "cpus": {0, 1}}
+    monkeypatch.setattr(realtime_mod.os, "sched_getscheduler", lambda _p: state["sched"][0])
+    monkeypatch.setattr(
+        realtime_mod.os, "sched_getparam", lambda _p: os.sched_param(state["sched"][1])
+    )
+    monkeypatch.setattr(realtime_mod.os, "sched_getaffinity", lambda _p: set(state["cpus"]))
+
+    def setscheduler(_p, policy, param):
+        state["sched"] = (policy, param.sched_priority)
+
+    def setaffinity(_p, cpus):
+        state["cpus"] = set(cpus)
+
+    monkeypatch.setattr(realtime_mod.os, "sched_setscheduler", setscheduler)
+    monkeypatch.setattr(realtime_mod.os, "sched_setaffinity", setaffinity)
+    with realtime_mod.realtime(50, 1) as sched:
+        assert sched == "SCHED_FIFO:50"
+        assert state == {"sched": (os.SCHED_FIFO, 50), "cpus": {1}}
+    assert state == {"sched": (0, 0), "cpus": {0, 1}}
+    with pytest.raises(RuntimeError), realtime_mod.realtime(50, None):
+        raise RuntimeError("a show that crashes still gives the process back")
+    assert state == {"sched": (0, 0), "cpus": {0, 1}}
