@@ -8,19 +8,26 @@ what is readable now; ``timeout=T`` waits until ``size`` bytes are readable or `
 has passed. On a virtual clock that wait is a jump, so nothing ever sleeps. Once the
 bus's fault plan unplugs the adapter every call raises :class:`serial.SerialException`,
 as a real USB adapter that vanished does.
+
+Opening a ``dxlsim://?...`` URL connects to the bus other ports have open under the same
+normal form, or powers one up; closing lets go of it, and re-opening the same port object
+keeps its bus (the rule: :mod:`drivers.dxlsim.url`). Changing ``baudrate`` changes the host's
+rate only: servos at another rate hear noise and never answer.
 """
 
 from __future__ import annotations
 
 from serial.serialutil import PortNotOpenError, SerialBase, SerialException
 
-from drivers.dxlsim.url import bus_from_url
+from drivers.dxlsim.url import acquire_bus, release_bus
 
 
 class Serial(SerialBase):
     """A serial port whose other end is a :class:`~drivers.dxlsim.bus.DxlBus`."""
 
     bus = None
+    _bus_key = ""
+    _bus_url = None
 
     def open(self) -> None:
         if self._port is None:
@@ -28,7 +35,9 @@ class Serial(SerialBase):
         if self.is_open:
             raise SerialException("Port is already open.")
         try:
-            self.bus = bus_from_url(self.portstr, host_baud=self._baudrate)
+            keep = self.bus if self._bus_url == self.portstr else None
+            self.bus, self._bus_key = acquire_bus(self.portstr, host_baud=self._baudrate, keep=keep)
+            self._bus_url = self.portstr
         except ValueError as exc:
             raise SerialException(str(exc)) from exc
         self.is_open = True
@@ -45,6 +54,8 @@ class Serial(SerialBase):
             self.bus.baud = int(self._baudrate)  # the host's line rate; servos keep theirs
 
     def close(self) -> None:
+        if self.is_open and self.bus is not None:
+            release_bus(self._bus_key, self.bus)  # the bus stays with this object for a re-open
         self.is_open = False
 
     def from_url(self, url: str) -> str:  # pyserial calls this with the whole URL
@@ -54,7 +65,7 @@ class Serial(SerialBase):
         if not self.is_open:
             raise PortNotOpenError()
         if self.bus.unplugged():
-            self.is_open = False
+            self.close()
             raise SerialException(
                 "device reports readiness to read but returned no data "
                 "(device disconnected or multiple access on port?)"

@@ -11,15 +11,21 @@ The line rate is the client's: a pty carries whatever speed the client set with
 so before each burst of client bytes the bus takes that speed as the host's rate, and
 servos at another baud hear noise and never answer, as on a real bus. The slave starts
 at the bus's rate, so a client that never sets one is heard. A speed the termios table
-cannot name (pyserial's custom ``BOTHER`` rates, e.g. 4.5 Mbps) leaves the rate as it was.
+cannot name (pyserial's custom ``BOTHER`` rates, e.g. 4.5 Mbps) is read with Linux's
+``TCGETS2`` (``struct termios2``, the speed in bit/s); where that is unavailable the rate is
+left as it was. So a servo whose Baud Rate(8) changed (a write, a Factory Reset) answers
+only a client at its new rate (e-Manual x/xm430-w350.md, Baud Rate(8)).
 """
 
 from __future__ import annotations
 
+import array
 import contextlib
+import fcntl
 import os
 import re
 import select
+import sys
 import termios
 import threading
 import tty
@@ -39,12 +45,29 @@ _SPEEDS = {
 _CODES = {bps: code for code, bps in _SPEEDS.items()}
 
 
+#: Linux ``TCGETS2`` = ``_IOR('T', 0x2A, struct termios2)`` (44 bytes) on x86, arm, riscv;
+#: pyserial sets custom rates with its ``TCSETS2`` twin.
+_TCGETS2 = 0x802C542A if sys.platform.startswith("linux") else None
+#: ``struct termios2`` as 32-bit words: iflag, oflag, cflag, lflag, line + cc[19], ispeed,
+#: ospeed -> ``c_ospeed`` is word 10 (pyserial's own index).
+_OSPEED_WORD = 10
+
+
 def line_speed(fd: int) -> int | None:
-    """The speed (bit/s) a terminal is set to, or None if termios cannot name it."""
+    """The speed (bit/s) a terminal is set to, or None if it cannot be read."""
     try:
-        return _SPEEDS.get(termios.tcgetattr(fd)[5])
+        code = termios.tcgetattr(fd)[5]
     except termios.error:
         return None
+    speed = _SPEEDS.get(code)
+    if speed is not None or _TCGETS2 is None:
+        return speed
+    buf = array.array("i", [0] * 64)  # larger than struct termios2, as pyserial's
+    try:
+        fcntl.ioctl(fd, _TCGETS2, buf)
+    except OSError:
+        return None
+    return buf[_OSPEED_WORD] or None
 
 
 class PtyServer:

@@ -14,7 +14,9 @@ baud            the servos' baud rate (bit/s); the host's rate is     the port's
 rdt_us          Return Delay Time in µs (multiple of 2, 0..508)       ``500`` (factory)
 turnaround_us   servo processing time after the Return Delay Time     ``20``
 latency_ms      USB adapter latency timer: 0, 1, 16, ...              ``0``
-clock           ``virtual`` (jumps, never sleeps) or ``real``         ``virtual``
+clock           ``real`` (the host's time: a program's ``time.sleep``   ``real``
+                lets the servos move) or ``virtual`` (jumps, never
+                sleeps; for a loop that keeps its own time)
 spin_us         the real clock's spin window (µs), ``clock=real``     the clock's
                 only: sleep until this close to a deadline, then spin
 faults          fault plan, e.g. ``drop:id=2,rate=0.1;unplug:at=3``   none
@@ -26,6 +28,28 @@ trace           ``1`` to keep a timestamped trace of every byte       ``0``
 ``str(DxlsimUrl.parse(url))`` is the normal form: in the order of the table above, the keys
 the URL named and any other key that is not at its default. It parses back to an equal
 :class:`DxlsimUrl`.
+
+**One URL, one bus, while it is in use.** A port opens its bus with :func:`acquire_bus` and
+lets go with :func:`release_bus`; buses in use are kept by the URL's normal form. The rule:
+
+* while some port has a ``dxlsim://?...`` bus open, every other open of the same URL (any
+  spelling with the same normal form) gets that bus: same servos, same state, same clock;
+* a port object re-opened (pyserial's ``close()``/``open()``; the SDK's ``setBaudRate`` and
+  ``closePort``/``openPort`` through :class:`drivers.dynamixel.port.PortHandler`, which
+  re-opens its own serial object) keeps its bus: unplugging and re-plugging the adapter
+  leaves the servos powered and as they were;
+* once every port on it is closed (and none re-opens it), the next open of the URL powers up
+  a fresh bus: nothing in the process can still reach the old one except the closed port
+  objects, and a registry that kept state for a URL string forever would hand one test's or
+  one program part's servos to an unrelated other;
+* the registry holds buses by weak reference (the ports hold them), so a port left open and
+  dropped does not keep its bus, nor the registry entry, alive;
+* the host's rate belongs to the port, the servos' rates to the bus: opening or re-opening at
+  another baud changes only the host side. A URL without ``baud`` builds its servos at the
+  rate of the open that powers the bus up (the SDK's ``openPort``: 1 Mbit/s); after that a
+  host at another rate hears no valid reply, as on a wire.
+
+Named buses (:func:`register_bus`) are kept by their name until :func:`unregister_bus`.
 """
 
 from __future__ import annotations
@@ -34,6 +58,7 @@ import dataclasses
 import math
 import threading
 import urllib.parse
+import weakref
 from collections.abc import Iterable
 from dataclasses import dataclass, field
 from typing import Any
@@ -99,7 +124,7 @@ class DxlsimUrl:
     rdt_us: float = 500.0
     turnaround_us: float = DEFAULT_TURNAROUND_S * 1e6
     latency_ms: float = 0.0
-    clock: str = "virtual"
+    clock: str = "real"
     spin_us: float = DEFAULT_SPIN_S * 1e6
     faults: str = ""
     seed: int = 0
@@ -310,5 +335,74 @@ def _format_ids(ids: Iterable[int]) -> str:
 
 
 def bus_from_url(url: str, host_baud: int = DEFAULT_HOST_BAUD) -> DxlBus:
-    """The bus a ``dxlsim://`` URL names or describes. Raises ValueError saying what is wrong."""
+    """A bus a ``dxlsim://`` URL names or describes (a new one for ``?keys``, not shared:
+    ports use :func:`acquire_bus`). Raises ValueError saying what is wrong."""
     return DxlsimUrl.parse(url).build_bus(host_baud=host_baud)
+
+
+class _Live:
+    """A bus some port has open: a weak reference and how many ports have it open."""
+
+    __slots__ = ("ref", "users")
+
+    def __init__(self, ref: weakref.ref[DxlBus]) -> None:
+        self.ref = ref
+        self.users = 0
+
+
+#: normal form -> the bus ports have open under it
+_live: dict[str, _Live] = {}
+
+
+def _forget(key: str, ref: weakref.ref[DxlBus]) -> None:
+    with _lock:
+        entry = _live.get(key)
+        if entry is not None and entry.ref is ref:
+            del _live[key]
+
+
+def acquire_bus(
+    url: str, host_baud: int = DEFAULT_HOST_BAUD, keep: DxlBus | None = None
+) -> tuple[DxlBus, str]:
+    """The bus a port opening ``url`` at ``host_baud`` is connected to, and its key for
+    :func:`release_bus`: a named bus; the bus another port has open under the same normal
+    form; ``keep`` (the bus this port had before it was closed); else a new one. The host
+    side is set to ``host_baud``, the servos keep theirs. Raises ValueError."""
+    parsed = DxlsimUrl.parse(url)
+    if parsed.name:
+        bus = parsed.build_bus(host_baud=host_baud)
+        bus.baud = int(host_baud)
+        return bus, ""
+    key = str(parsed)
+    with _lock:
+        entry = _live.get(key)
+        bus = entry.ref() if entry is not None else None
+    if bus is None:
+        bus = keep if keep is not None else parsed.build_bus(host_baud=host_baud)
+        with _lock:
+            entry = _live[key] = _Live(weakref.ref(bus, lambda ref, key=key: _forget(key, ref)))
+    with _lock:
+        entry.users += 1
+    bus.baud = int(host_baud)
+    return bus, key
+
+
+def release_bus(key: str, bus: DxlBus) -> None:
+    """A port that had ``bus`` open (from :func:`acquire_bus`) closed. The last one to close
+    ends the sharing: the next open of the URL powers up a fresh bus."""
+    if not key:
+        return
+    with _lock:
+        entry = _live.get(key)
+        if entry is None or entry.ref() is not bus:
+            return
+        entry.users -= 1
+        if entry.users <= 0:
+            del _live[key]
+
+
+def live_buses() -> dict[str, DxlBus]:
+    """The buses ports have open now, by normal form (for tests and diagnostics)."""
+    with _lock:
+        pairs = [(key, entry.ref()) for key, entry in _live.items()]
+    return {key: bus for key, bus in pairs if bus is not None}

@@ -7,9 +7,12 @@ packet code:
 * the port is opened with :func:`serial.serial_for_url`, so ``/dev/ttyUSB0``, a pty
   path and ``dxlsim://...`` (the emulated bus) all work;
 * "now" comes from a :class:`~drivers.clock.Clock`. A ``dxlsim://`` port brings its bus's
-  clock; hardware uses the monotonic clock. On a virtual clock the SDK's busy-poll for a
-  status packet becomes one blocking read up to the packet deadline (a jump), so the
-  SDK's own timeouts still fire and nothing sleeps;
+  clock; hardware uses the monotonic clock. Re-opening a ``dxlsim://`` port (``setBaudRate``,
+  which every SDK example calls after ``openPort``; ``closePort`` then ``openPort``) re-uses
+  its serial object, so the bus, its servos and its clock stay (a port opened on the same
+  URL while another has it open shares that bus and clock too). On a virtual clock the
+  SDK's busy-poll for a status packet becomes one blocking read up to the packet deadline
+  (a jump), so the SDK's own timeouts still fire and nothing sleeps;
 * **a timeout is declared only by a poll that began after the deadline.** The SDK's
   ``rxPacket`` busy-polls ``readPort()`` then ``isPacketTimeout()``; if the process is
   descheduled between the two, a wall-clock check on wake-up would call the servo silent
@@ -137,13 +140,23 @@ class PortHandler(dynamixel_sdk.PortHandler):
 
     # -- the two SDK methods that touch the OS ------------------------------------
     def setupPort(self, cflag_baud):
-        if self.is_open:
-            self.closePort()
-        if self.port_name.lower().startswith("dxlsim://"):
-            register_url_handlers()
-        self.ser = serial.serial_for_url(
-            self.port_name, baudrate=self.baudrate, bytesize=serial.EIGHTBITS, timeout=0
-        )
+        old = self.ser
+        if old is not None and getattr(old, "bus", None) is not None and old.port == self.port_name:
+            # A dxlsim:// port: re-opened (the SDK's setBaudRate, closePort/openPort) it is
+            # the same adapter on the same powered bus, so the serial object is re-used and
+            # keeps its bus; a new baud changes the host's rate only (drivers.dxlsim.url).
+            old.baudrate = self.baudrate
+            if not old.is_open:
+                old.open()
+            self.ser = old
+        else:
+            if self.is_open:
+                self.closePort()
+            if self.port_name.lower().startswith("dxlsim://"):
+                register_url_handlers()
+            self.ser = serial.serial_for_url(
+                self.port_name, baudrate=self.baudrate, bytesize=serial.EIGHTBITS, timeout=0
+            )
         port_clock = getattr(self.ser, "clock", None)
         if port_clock is not None:
             if self._clock is not None and self._clock is not port_clock:

@@ -6,6 +6,10 @@ SIGINT/SIGTERM. Any serial program (dynamixel-sdk's own PortHandler, Dynamixel W
 under Wine, a terminal) can open that path. The defaults serve the demo figure as
 ``configs/demo.toml``'s own emulated bus has it (IDs 1-4, XM430-W350, 1 Mbps, Return
 Delay Time 0): ``hilsim emulate``, then ``hilsim run configs/demo.toml --port /dev/pts/N``.
+
+The servos answer only a client whose line speed is theirs (``--baud``; after a write of
+Baud Rate(8) or a Factory Reset, their new rate), as on a wire: the client's speed is read
+back from the pty (:func:`drivers.dxlsim.pty_server.line_speed`).
 """
 
 from __future__ import annotations
@@ -33,7 +37,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     keep = argparse.SUPPRESS  # a flag not given leaves BASE's value
     add_ids(p, default=keep, help="servo IDs, e.g. 1-4 or 1,3,5 (default 1-4: the demo figure)")
     p.add_argument("--model", default=keep, help=f"servo model (default {BASE.model})")
-    add_baud(p, default=str(DEFAULT_HOST_BAUD), help=f"bus baud rate (default {DEFAULT_HOST_BAUD})")
+    add_baud(
+        p,
+        default=str(DEFAULT_HOST_BAUD),
+        help=f"the servos' baud rate; a client at another rate gets no reply "
+        f"(default {DEFAULT_HOST_BAUD})",
+    )
     p.add_argument(
         "--rdt-us",
         type=float,

@@ -86,7 +86,7 @@ def pos_bytes(tick: int) -> bytes:
 
 # ------------------------------------------------------------------ open / close
 def test_open_close_context_manager_and_close_twice():
-    with DynamixelBus.open("dxlsim://?ids=1-4&rdt_us=0", baud=1_000_000, ids=[1, 2, 3, 4]) as bus:
+    with DynamixelBus.open("dxlsim://?ids=1-4&rdt_us=0&clock=virtual", baud=1_000_000, ids=[1, 2, 3, 4]) as bus:
         assert not bus.closed and bus.ids == (1, 2, 3, 4) and bus.n == 4
         assert bus.read_present().all_ok
         assert bus.clock.virtual
@@ -110,7 +110,7 @@ def test_open_close_context_manager_and_close_twice():
 def test_open_rejects_bad_arguments(kw, match):
     args = {"baud": 1_000_000, "ids": [1], **kw}
     with pytest.raises(ValueError, match=match):
-        DynamixelBus.open("dxlsim://?ids=1&rdt_us=0", **args)
+        DynamixelBus.open("dxlsim://?ids=1&rdt_us=0&clock=virtual", **args)
 
 
 def test_the_driver_opens_dxlsim_urls_without_importing_the_emulator():
@@ -121,7 +121,7 @@ def test_the_driver_opens_dxlsim_urls_without_importing_the_emulator():
         "import drivers.dynamixel.bus, drivers.dynamixel.scan, drivers.dynamixel.bench_session\n"
         "assert 'drivers.dxlsim' not in sys.modules, 'imported the emulator'\n"
         "from drivers.dynamixel.link import Link\n"
-        "link = Link.open('dxlsim://?ids=1&rdt_us=0', baud=1_000_000)\n"
+        "link = Link.open('dxlsim://?ids=1&rdt_us=0&clock=virtual', baud=1_000_000)\n"
         "print(link.ping(1)[0])\n"
         "link.close()\n"
     )
@@ -441,7 +441,7 @@ def test_watchdog_arms_trips_and_disarms(open_bus):
 
 # ------------------------------------------------------------------ latency timer
 def test_emulated_latency_sets_the_packet_timeout():
-    url = "dxlsim://?ids=1&rdt_us=0&latency_ms=1"
+    url = "dxlsim://?ids=1&rdt_us=0&latency_ms=1&clock=virtual"
     with DynamixelBus.open(url, baud=1_000_000, ids=[1]) as bus:
         assert bus.link.latency_timer_ms == 1.0
     with DynamixelBus.open(url, baud=1_000_000, ids=[1], latency_timer_ms=4.0) as bus:
@@ -511,7 +511,7 @@ def test_timeout_margin_tops_the_latency_up_to_the_device_allowance():
 
 
 def test_tick_read_timeouts_follow_the_device_margin():
-    url = "dxlsim://?ids=1-4&rdt_us=0&latency_ms=1"
+    url = "dxlsim://?ids=1-4&rdt_us=0&latency_ms=1&clock=virtual"
     with DynamixelBus.open(url, baud=1_000_000, ids=[1, 2, 3, 4], read_mode="fast") as bus:
         assert bus.link.timeout_margin_ms == 0.0  # the emulator in-process: its model is exact
         fast = bus._fast_timeout_ms

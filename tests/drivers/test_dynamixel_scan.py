@@ -61,9 +61,9 @@ def test_unicast_fallback_when_broadcast_finds_nobody(registered):
 
 
 def test_scan_a_url_bus():
-    found = scan("dxlsim://?ids=1-3&baud=115200", bauds=BAUDS)
+    found = scan("dxlsim://?ids=1-3&baud=115200&clock=virtual", bauds=BAUDS)
     assert [(f.baud, f.id) for f in found] == [(115_200, 1), (115_200, 2), (115_200, 3)]
 
 
 def test_nothing_there_is_an_empty_list():
-    assert scan("dxlsim://?ids=1&baud=9600", bauds=(57_600,), ids=range(3)) == []
+    assert scan("dxlsim://?ids=1&baud=9600&clock=virtual", bauds=(57_600,), ids=range(3)) == []

@@ -212,7 +212,7 @@ def test_no_host_stall_is_counted_on_a_virtual_clock(opened):
 def host_reading(read_mode: str, order: tuple[int, ...], stream: bytes) -> PresentReading:
     """What the host makes of ``stream`` as the reply to a Sync Read listing ``order``."""
     with DynamixelBus.open(
-        "dxlsim://?ids=1-4&rdt_us=0", baud=BAUD, ids=IDS, read_mode=read_mode
+        "dxlsim://?ids=1-4&rdt_us=0&clock=virtual", baud=BAUD, ids=IDS, read_mode=read_mode
     ) as bus:
         bus._set_order([IDS.index(i) for i in order])
         bus.link.port.ser = CannedPort(bus.clock, stream)

@@ -6,7 +6,7 @@ from hilsim.cli import main
 
 
 def test_scan_finds_every_servo(capsys):
-    assert main(["scan", "--port", "dxlsim://?ids=1-3&model=XL330-M288", "--baud", "57600"]) == 0
+    assert main(["scan", "--port", "dxlsim://?ids=1-3&model=XL330-M288&clock=virtual", "--baud", "57600"]) == 0
     lines = capsys.readouterr().out.splitlines()
     assert len(lines) == 3
     assert lines[0].startswith("ID   1 @   57600 bit/s: XL330-M288 (model 1200")
@@ -15,7 +15,7 @@ def test_scan_finds_every_servo(capsys):
 def test_scan_says_when_nobody_answers(capsys):
     # The servos sit at 57600 (the port's first rate); at 1 Mbps nobody answers.
     code = main(
-        ["scan", "--port", "dxlsim://?ids=5&baud=57600", "--baud", "1000000", "--ids", "1-10"]
+        ["scan", "--port", "dxlsim://?ids=5&baud=57600&clock=virtual", "--baud", "1000000", "--ids", "1-10"]
     )
     assert code == 1
     assert "no servo answered" in capsys.readouterr().err
@@ -28,7 +28,7 @@ def test_scan_rejects_bad_ids(capsys):
 
 def test_scan_takes_the_helps_baud_notation(capsys):
     # The help lists "57600 115200 1M ..."; 57.6k and 1M are what people type.
-    code = main(["scan", "--port", "dxlsim://?ids=1-2&baud=57600", "--baud", "57.6k",
+    code = main(["scan", "--port", "dxlsim://?ids=1-2&baud=57600&clock=virtual", "--baud", "57.6k",
                  "--baud", "1M", "--ids", "1-3"])  # fmt: skip
     assert code == 0
     lines = capsys.readouterr().out.splitlines()
