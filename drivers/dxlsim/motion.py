@@ -16,11 +16,34 @@ trajectory instead and the horn velocity lags it. Positions are kept in the actu
 registers (``regs``, shared with its :class:`~drivers.dxlsim.registers.RegisterFile`)
 and never writes them; the servo owns it and decides when to plan, hold or stop.
 
-Not modelled: Drive Mode (reverse, time-based profile) is stored but ignored; Moving
-Status bit3 (following error) is never set; Homing Offset's ±1024 validity rule in
-Position Control Mode is ignored; in step moves (Profile Velocity 0) only the motor's
-speed bounds the horn, not Velocity Limit. Current mode is crude: the goal current
-fraction of Current Limit sets a fraction of no-load speed (an unloaded horn).
+e-Manual rules modelled here (``_includes/en/dxl/...``):
+
+- Time-based profile, Drive Mode(10) bit 2 (``control_table_drivemode.md``, firmware ≥ 42;
+  ``control_table_profile_velocity.md``): Profile Velocity(112) is the move's time span
+  [ms], Profile Acceleration(108) the accelerating time [ms], used as at most 50 % of
+  Profile Velocity (a larger value plans a triangle of PV/2 + PV/2; the register keeps
+  what was written). Profile Velocity 0 is "an infinite velocity": a step. Velocity
+  Limit does not cap it; the motor does (the horn falls behind). In Velocity Control Mode
+  the ramp takes Profile Acceleration ms (t1 = Profile Acceleration(108)).
+- Following Error, Moving Status(123) bit 3 (``control_table_moving_status.md``: "fails to
+  reach desired position trajectory"; Position, Extended Position and Current-based
+  Position modes, as the page says; the XL430 has no mode 5): set while the horn is more
+  than :data:`FOLLOWING_ERROR_PULSES` from Position Trajectory(140) during a profiled
+  move. The manual gives no number; see the constant.
+- Homing Offset(20) (``control_table_homingoffset.md``): in Position Control Mode (3) a
+  value outside -1024..1024 is ignored (Present Position = actual position); the register
+  keeps it and it applies again in the other modes.
+- Load: :attr:`Motion.load_nm` (set by the servo's ``set_load``) is a steady external
+  torque on the horn (gravity-like; positive pushes towards lower positions). The motor's
+  linear speed-torque line gives the top speed ``v_nl·s·(1 - |load|/(s·stall))`` (s: the
+  voltage and PWM Limit scale); holding it costs ``load/kt`` amps, clamped to the stall
+  current. A load at or above the stall torque stalls the horn where it is (a simplification:
+  no back-driving).
+
+Not modelled: Drive Mode bit 0 (reverse) is stored but ignored; in step moves (Profile
+Velocity 0) only the motor's speed bounds the horn, not Velocity Limit. Current mode is
+crude: the goal current fraction of Current Limit sets a fraction of no-load speed (an
+unloaded horn).
 """
 
 from __future__ import annotations
@@ -29,7 +52,7 @@ import math
 from collections.abc import Callable
 from typing import NamedTuple
 
-from drivers.protocol2.control_table import POSITION_MODES, OperatingMode
+from drivers.protocol2.control_table import DRIVE_MODE, POSITION_MODES, OperatingMode
 
 from .models import (
     PULSE_PER_S2_PER_ACCEL_UNIT,
@@ -38,13 +61,15 @@ from .models import (
     PWM_FULL_SCALE,
     ServoModel,
 )
-from .profile import ProfileType, _segments_end, plan_profile, plan_velocity
+from .profile import ProfileType, _segments_end, plan_profile, plan_time_profile, plan_velocity
 from .registers import (
     CURRENT_LIMIT,
+    FIRMWARE_VERSION,
     GOAL_CURRENT,
     GOAL_POSITION,
     GOAL_PWM,
     GOAL_VELOCITY,
+    HARDWARE_ERROR_STATUS,
     HOMING_OFFSET,
     MOVING,
     MOVING_STATUS,
@@ -59,6 +84,7 @@ from .registers import (
     PROFILE_ACCELERATION,
     PROFILE_VELOCITY,
     PWM_LIMIT,
+    SHUTDOWN,
     TORQUE_ENABLE,
     VELOCITY_LIMIT,
     VELOCITY_TRAJECTORY,
@@ -66,6 +92,47 @@ from .registers import (
 
 _SETTLE_PULSES = 1e-3  # horn this close to a finished trajectory: snap and go idle
 _GRID_EPS = 1e-7  # grid steps are counted with this slack against float round-off
+_DRIVE_MODE = DRIVE_MODE.addr
+DRIVE_MODE_TIME_BASED = 0x04  # Drive Mode bit 2: time-based profile
+TIME_PROFILE_MIN_FIRMWARE = 42  # e-Manual control_table_drivemode.md NOTE
+HOMING_OFFSET_POSITION_MODE_LIMIT = 1024  # e-Manual control_table_homingoffset.md NOTE
+#: Moving Status bit 3 threshold, pulses between Position Trajectory(140) and the horn.
+#: The e-Manual gives no number. 128 pulses = 1/32 turn = 11.25°: about five times the
+#: largest lag a healthy horn shows in this model (``v_nl·tau`` at full no-load speed:
+#: 25 pulses for an XM430-W350 at 12 V, 56 for an XL330-M288 at 5 V), so a profile the
+#: motor can follow never sets it; and of the order of hilsim's own host-side tracking
+#: tolerance (``tracking_tolerance_deg`` default 10°, docs/rig.md).
+FOLLOWING_ERROR_PULSES = 128
+DRIVE_MODE_TORQUE_ON_BY_GOAL = 0x08  # Drive Mode bit 3
+#: Torque On by Goal Update is "available from firmware V45" (V46 on XL330/XC330).
+TORQUE_ON_BY_GOAL_MIN_FIRMWARE = 45
+TORQUE_ON_BY_GOAL_MIN_FIRMWARE_X330 = 46
+#: The goal register that commands each Operating Mode (the "given command" of Drive Mode
+#: bit 3; Goal Current in Current-based Position mode is a limit, not the command).
+COMMAND_GOAL = {
+    OperatingMode.CURRENT: GOAL_CURRENT,
+    OperatingMode.VELOCITY: GOAL_VELOCITY,
+    OperatingMode.POSITION: GOAL_POSITION,
+    OperatingMode.EXTENDED_POSITION: GOAL_POSITION,
+    OperatingMode.CURRENT_BASED_POSITION: GOAL_POSITION,
+    OperatingMode.PWM: GOAL_PWM,
+}
+
+
+def torque_on_by_goal(regs: dict[int, int], model: ServoModel, addr: int) -> bool:
+    """Drive Mode bit 3, Torque On by Goal Update (e-Manual ``control_table_drivemode.md``):
+    with Torque Enable 0, a write of the goal that commands the present Operating Mode turns
+    torque on and is performed. Not with a Shutdown error latched: Torque Enable would be
+    refused (Result Fail) there too, so the goal is stored and nothing moves."""
+    if not regs[_DRIVE_MODE] & DRIVE_MODE_TORQUE_ON_BY_GOAL:
+        return False
+    x330 = model.name.startswith(("XL330", "XC330"))
+    min_fw = TORQUE_ON_BY_GOAL_MIN_FIRMWARE_X330 if x330 else TORQUE_ON_BY_GOAL_MIN_FIRMWARE
+    return (
+        regs[FIRMWARE_VERSION] >= min_fw
+        and COMMAND_GOAL.get(regs[OPERATING_MODE]) == addr
+        and not regs[HARDWARE_ERROR_STATUS] & regs[SHUTDOWN]
+    )
 
 
 class MotionState(NamedTuple):
@@ -93,6 +160,7 @@ class Motion:
         self.v = 0.0
         self.acc = 0.0
         self.volts = m.nominal_voltage_v
+        self.load_nm = 0.0  # steady external torque on the horn (see the module docstring)
         self.velocity_loop = False  # True in modes 0/1/16: the horn tracks a velocity
         self.hold(self.x)
         self.profile_type = ProfileType.STEP
@@ -115,7 +183,7 @@ class Motion:
 
     def state(self) -> MotionState:
         """Unrounded motion state at the last grid step (Present Position's frame)."""
-        off = self._regs[HOMING_OFFSET]
+        off = self.offset()
         return MotionState(self.x + off, self.v, self.r + off, self.rv)
 
     def run_to(self, t: float) -> None:
@@ -202,12 +270,16 @@ class Motion:
         accel = regs[PROFILE_ACCELERATION] * PULSE_PER_S2_PER_ACCEL_UNIT or math.inf
         if mode in POSITION_MODES:
             self.velocity_loop = False
-            goal = float(regs[GOAL_POSITION] - regs[HOMING_OFFSET])
+            goal = float(regs[GOAL_POSITION] - self.offset())
             vel = regs[PROFILE_VELOCITY]
-            if regs[VELOCITY_LIMIT] > 0:
+            time_based = self.time_based()
+            if not time_based and regs[VELOCITY_LIMIT] > 0:
                 vel = min(vel, regs[VELOCITY_LIMIT])  # Velocity Limit caps the profile
             if vel == 0:
                 segs, kind = [], ProfileType.STEP
+            elif time_based:  # Profile Velocity = span, Profile Acceleration = t1, in ms
+                span, acc = vel / 1000.0, regs[PROFILE_ACCELERATION] / 1000.0
+                segs, kind = plan_time_profile(t, p0, v0, goal, span, acc)
             else:
                 v_max = vel * PULSE_PER_S_PER_VELOCITY_UNIT
                 segs, kind = plan_profile(t, p0, v0, goal, v_max, accel)
@@ -217,6 +289,9 @@ class Motion:
             if mode == OperatingMode.VELOCITY:
                 target = regs[GOAL_VELOCITY] * PULSE_PER_S_PER_VELOCITY_UNIT
                 kind = ProfileType.TRAPEZOIDAL if regs[PROFILE_ACCELERATION] else ProfileType.STEP
+                if self.time_based() and regs[PROFILE_ACCELERATION] and target != v0:
+                    # time-based: t1 = Profile Acceleration(108) ms whatever the step
+                    accel = abs(target - v0) * 1000.0 / regs[PROFILE_ACCELERATION]
             else:  # duty (or, unloaded, current) as a fraction of the no-load speed
                 if mode == OperatingMode.PWM:
                     frac = regs[GOAL_PWM] / PWM_FULL_SCALE
@@ -233,6 +308,25 @@ class Motion:
         self.profile_end = ends[-1] if ends else t
         self.profile_type = kind
         self.idle = False
+
+    def time_based(self) -> bool:
+        """Drive Mode bit 2 selects the time-based profile (firmware 42 and later)."""
+        regs = self._regs
+        return bool(
+            regs[_DRIVE_MODE] & DRIVE_MODE_TIME_BASED
+            and regs[FIRMWARE_VERSION] >= TIME_PROFILE_MIN_FIRMWARE
+        )
+
+    def offset(self) -> int:
+        """Homing Offset(20) in effect: ignored in Position Control Mode outside ±1024."""
+        regs = self._regs
+        off = regs[HOMING_OFFSET]
+        if (
+            regs[OPERATING_MODE] == OperatingMode.POSITION
+            and not -HOMING_OFFSET_POSITION_MODE_LIMIT <= off <= HOMING_OFFSET_POSITION_MODE_LIMIT
+        ):
+            return 0
+        return off
 
     def trajectory_at(self, t: float) -> tuple[float, float]:
         """Trajectory (position, velocity) at time ``t`` from the current plan."""
@@ -266,6 +360,9 @@ class Motion:
         m = self.model
         scale = max(0.0, self.volts / m.nominal_voltage_v) * self._regs[PWM_LIMIT] / PWM_FULL_SCALE
         self._vmax = m.no_load_speed_pulse_s * scale
+        if self.load_nm:  # the motor's speed-torque line at this voltage and duty
+            stall = m.stall_torque_nm * scale
+            self._vmax *= max(0.0, 1.0 - abs(self.load_nm) / stall) if stall > 0.0 else 0.0
 
     def moving(self) -> int:
         return 1 if abs(self.present_velocity()) > self._regs[MOVING_THRESHOLD] else 0
@@ -274,17 +371,26 @@ class Motion:
         status = self.profile_type << 4
         if self.now < self.profile_end:
             status |= 0x02
-        if (
-            self._regs[OPERATING_MODE] in POSITION_MODES
-            and self._regs[TORQUE_ENABLE]
-            and abs(self._regs[GOAL_POSITION] - self.present_position())
-            <= self.model.in_position_pulses
-        ):
-            status |= 0x01
+        regs = self._regs
+        if regs[OPERATING_MODE] in POSITION_MODES and regs[TORQUE_ENABLE]:
+            if abs(regs[GOAL_POSITION] - self.present_position()) <= self.model.in_position_pulses:
+                status |= 0x01
+            if self.following_error():
+                status |= 0x08
         return status
 
+    def following_error(self) -> bool:
+        """Moving Status bit 3: the horn is more than :data:`FOLLOWING_ERROR_PULSES` off
+        its position trajectory during a profiled move or while the horn is still catching
+        up with its end (Position modes only, see :meth:`moving_status`). A step (Profile
+        Velocity 0) has no trajectory to follow: never set."""
+        if self.profile_type == ProfileType.STEP or self.idle:
+            return False
+        return abs(self.r - self.x) > FOLLOWING_ERROR_PULSES
+
     def current_a(self) -> float:
-        if not self._regs[TORQUE_ENABLE] or (self.v == 0.0 and self.acc == 0.0):
+        load = self.load_nm
+        if not self._regs[TORQUE_ENABLE] or (self.v == 0.0 and self.acc == 0.0 and not load):
             return 0.0
         m = self.model
         rad_per_pulse = 2.0 * math.pi / PULSES_PER_REV
@@ -292,6 +398,8 @@ class Motion:
         amps = m.reflected_inertia_kgm2 * self.acc * rad_per_pulse / kt
         if self.v:
             amps += math.copysign(m.running_current_a, self.v)
+        if load:
+            amps += load / kt  # holding the external torque
         return max(-m.stall_current_a, min(m.stall_current_a, amps))
 
     def present_current(self) -> int:
@@ -317,13 +425,13 @@ class Motion:
         return round(self.v / PULSE_PER_S_PER_VELOCITY_UNIT)
 
     def present_position(self) -> int:
-        return math.floor(self.x + 0.5) + self._regs[HOMING_OFFSET]
+        return math.floor(self.x + 0.5) + self.offset()
 
     def velocity_trajectory(self) -> int:
         return round(self.rv / PULSE_PER_S_PER_VELOCITY_UNIT)
 
     def position_trajectory(self) -> int:
-        return math.floor(self.r + 0.5) + self._regs[HOMING_OFFSET]
+        return math.floor(self.r + 0.5) + self.offset()
 
     def present_input_voltage(self) -> int:
         return round(self.volts * 10.0)

@@ -3,7 +3,8 @@
 A plan is a list of :data:`Segment` pieces of constant acceleration in the servo's pulse units
 (pulse, pulse/s, pulse/s²), the last one possibly endless. :func:`plan_profile` plans a move to a
 position (Position modes: trapezoid or triangle from rest, as in the e-Manual, and braking first
-when already moving), :func:`plan_velocity` a ramp to a velocity (Velocity, PWM and Current
+when already moving), :func:`plan_time_profile` the time-based move of Drive Mode bit 2,
+:func:`plan_velocity` a ramp to a velocity (Velocity, PWM and Current
 modes). No control table here: :mod:`drivers.dxlsim.servo` turns registers into these arguments
 and steps the horn after the plan.
 """
@@ -83,6 +84,48 @@ def plan_profile(
     if t3 > 0.0:
         segs.append((t, t + t3, p, s * vp, -s * a))
     kind = ProfileType.TRAPEZOIDAL if d2 > 1e-9 * max(1.0, dist) else ProfileType.TRIANGULAR
+    return segs, kind
+
+
+def plan_time_profile(
+    t0: float, p0: float, v0: float, goal: float, t_span: float, t_acc: float
+) -> tuple[list[Segment], ProfileType]:
+    """Plan a time-based move (Drive Mode bit 2): from ``(p0, v0)`` at ``t0`` to rest at
+    ``goal`` in exactly ``t_span`` s, accelerating for ``t_acc`` s and decelerating for
+    ``t_acc`` s (e-Manual ``control_table_profile_velocity.md``: Profile Velocity(112) is
+    the time span t3, Profile Acceleration(108) the accelerating time t1, "will not exceed
+    50 % of Profile Velocity").
+
+    ``t_acc`` is clamped to ``t_span / 2`` here; ``t_acc`` 0 is a rectangular profile (the
+    velocity jumps), ``t_acc == t_span / 2`` a triangle, anything between a trapezoid. The
+    move takes ``t_span`` whatever its distance: the peak velocity ``vp`` solves
+    ``goal - p0 = v0·t_acc/2 + vp·(t_span - t_acc)`` (velocity continuous from ``v0``, so a
+    new goal mid-move keeps the Velocity Override). No speed cap: the motor bounds the horn,
+    which falls behind when the distance cannot be covered in the time.
+    """
+    segs: list[Segment] = []
+    t_acc = min(max(t_acc, 0.0), 0.5 * t_span)
+    t_cruise = t_span - 2.0 * t_acc
+    if t_acc == 0.0:
+        kind = ProfileType.RECTANGULAR
+    else:
+        kind = ProfileType.TRAPEZOIDAL if t_cruise > 0.0 else ProfileType.TRIANGULAR
+    d = goal - p0
+    if d == 0.0 and v0 == 0.0:
+        return segs, kind
+    if t_acc == 0.0:
+        segs.append((t0, t0 + t_span, p0, d / t_span, 0.0))
+        return segs, kind
+    vp = (d - 0.5 * v0 * t_acc) / (t_span - t_acc)
+    p, t = p0, t0
+    segs.append((t, t + t_acc, p, v0, (vp - v0) / t_acc))
+    p += 0.5 * (v0 + vp) * t_acc
+    t += t_acc
+    if t_cruise > 0.0:
+        segs.append((t, t + t_cruise, p, vp, 0.0))
+        p += vp * t_cruise
+        t += t_cruise
+    segs.append((t, t0 + t_span, p, vp, -vp / t_acc))
     return segs, kind
 
 
