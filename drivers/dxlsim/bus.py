@@ -20,6 +20,15 @@ from an injected clock (virtual or real); every byte has a time:
 So "instruction start -> last reply byte readable" = wire time + Return Delay +
 turnaround (+ L), exactly, on either clock.
 
+Addressing (e-Manual protocol2.md, ``control_table_shadowid.md``): a packet to an ID is
+executed and answered by the servo with that ID (ID(7) has priority) and executed, never
+answered, by every other servo whose Secondary ID(12) is that ID (0-252; 253-255 turn it
+off). Through a Secondary ID the EEPROM area cannot be changed: a Write or Reg Write that
+touches an address below 64 is dropped there, as are Factory Reset and Control Table
+Backup; Ping and Read would only produce an answer, which is never sent. A broadcast
+Factory Reset with option 0xFF is ignored by firmware 42 and up (nothing executed, no
+reply, as for every broadcast but Ping and the reads).
+
 Not modelled (named so nobody relies on them): the host transmitting over a reply
 still on the wire (no collision between host and servos), electrical noise other than
 the fault plan, and a servo's own processing time depending on the instruction.
@@ -44,12 +53,19 @@ from drivers.dxlsim.protocol import (
     encode_status,
 )
 from drivers.dxlsim.servo import VirtualServo
+from drivers.protocol2.control_table import EEPROM_END
 from drivers.protocol2.wire_time import DEFAULT_TURNAROUND_S, USB_CHUNK
 
 #: A servo drops a half-received instruction packet after this much silence (e-Manual).
 INTER_BYTE_TIMEOUT_S = 1.5e-3
+#: From this firmware a broadcast Factory Reset with option 0xFF (Reset All) is not
+#: executed (protocol2.md Factory Reset: "MX(2.0) FW42, X-series FW42 or above").
+BROADCAST_RESET_ALL_MIN_FIRMWARE = 42
+RESET_ALL = b"\xff"
 
 Inst = Instruction
+#: What a servo executes when addressed by its Secondary ID (never answered).
+_BY_SECONDARY_ID = frozenset((Inst.WRITE, Inst.REG_WRITE, Inst.ACTION, Inst.REBOOT, Inst.CLEAR))
 
 
 @dataclass(frozen=True, slots=True)
@@ -277,6 +293,10 @@ class DxlBus:
             err, data = self._execute(s, inst, params, t)
             if self._replies(s, inst):  # answers as the ID it was asked as, even after an ID write
                 replies.append((s, encode_status(pkt.id, err, data)))
+        for s in hearing:
+            if s.id != pkt.id and s.secondary_id == pkt.id and s not in targets:
+                s.touch(t)
+                self._execute_secondary(s, inst, params, t)
         self._send_unicast(replies, t)
 
     @staticmethod
@@ -314,7 +334,19 @@ class DxlBus:
             return (s.factory_reset(params[0], t), b"") if len(params) == 1 else (bad, b"")
         if inst == Inst.CLEAR:
             return s.clear(params, t), b""
+        if inst == Inst.BACKUP:
+            return s.backup(params, t), b""
         return bad, b""  # unknown, or a broadcast-only instruction sent to one ID
+
+    def _execute_secondary(self, s: VirtualServo, inst: int, params: bytes, t: float) -> None:
+        """An instruction for ``s``'s Secondary ID: RAM only, executed, never answered."""
+        if inst not in _BY_SECONDARY_ID:
+            return
+        if inst in (Inst.WRITE, Inst.REG_WRITE) and (
+            len(params) < 3 or (params[0] | params[1] << 8) < EEPROM_END
+        ):
+            return  # the EEPROM area cannot be modified with the Secondary ID
+        self._execute(s, inst, params, t)
 
     def _broadcast(self, inst: int, params: bytes, hearing: list[VirtualServo], t: float) -> None:
         if inst == Inst.PING:
@@ -374,9 +406,16 @@ class DxlBus:
             Inst.REBOOT,
             Inst.FACTORY_RESET,
             Inst.CLEAR,
+            Inst.BACKUP,
         ):
             for s in hearing:
                 s.touch(t)
+                if (
+                    inst == Inst.FACTORY_RESET
+                    and params == RESET_ALL
+                    and s.firmware >= BROADCAST_RESET_ALL_MIN_FIRMWARE
+                ):
+                    continue  # the FW42+ safety rule: a broadcast Reset All is not executed
                 self._execute(s, inst, params, t)  # broadcast: executed, never answered
 
     def _read_chain(

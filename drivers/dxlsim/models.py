@@ -4,12 +4,14 @@ A :class:`ServoModel` is a frozen record: the model's control table as a tuple o
 :class:`Field` (address, size, access, default, own range), the figures the motion model
 needs (no-load speed, nominal voltage, current unit, lag) and the firmware threshold for
 Fast Sync/Bulk Read. The tables follow the ROBOTIS e-Manual (Protocol 2.0, addresses
-0-146; the indirect addresses from 168 up are left out, so they read as undefined).
+0-146, and the two Indirect Address / Indirect Data blocks: 168-251 and 578-661).
 
 Every model starts from one shared X-series table (:data:`_X_TABLE`, the XM430-W350
 layout) and differs only by the rows listed in :data:`_MODEL_DATA`: changed defaults and
-ranges, dropped rows (XL430 has no current control) and added rows (XL330 Startup
-Configuration / PWM Slope, XM540 External Port Mode). Field names are snake_case of the
+ranges (Drive Mode 0-13 on the X430s, XL430-W250 table and ``control_table_drivemode.md``;
+the firmware gate of bits 2/3 is in :mod:`~drivers.dxlsim.registers`), dropped rows (XL430
+has no current control) and added rows (XL330 Startup Configuration / PWM Slope, XL430 Startup
+Configuration / Backup Ready, XM540 External Port Mode). Field names are snake_case of the
 e-Manual names (``"Goal Position"`` -> ``goal_position``); lookups also accept the
 e-Manual spelling.
 
@@ -104,6 +106,9 @@ class ServoModel:
     stall_torque_nm: float
     stall_current_a: float
     fast_read_min_firmware: int
+    #: First firmware with Control Table Backup (0x20), Backup Ready, Startup Configuration
+    #: and Drive Mode bit 3 (e-Manual: V45 on X430/X540, V46 on X330).
+    backup_min_firmware: int = 45
     reflected_inertia_kgm2: float = 0.01  # rotor inertia seen at the horn (× gear ratio²)
     running_current_a: float = 0.1  # friction current while turning
     lag_time_constant_s: float = 0.008  # first-order lag of the horn behind the trajectory
@@ -120,6 +125,17 @@ class ServoModel:
         return {f.name: f for f in self.fields}
 
     @cached_property
+    def indirect(self) -> dict[int, int]:
+        """Indirect Data n's address -> Indirect Address n's address, from this model's own
+        rows (X430/X540: 56 pairs in two blocks; X330: 20 pairs at 168-206 / 208-227)."""
+        by_name = self._by_name
+        return {
+            f.addr: by_name[f"indirect_address_{f.name.removeprefix('indirect_data_')}"].addr
+            for f in self.fields
+            if f.name.startswith("indirect_data_")
+        }
+
+    @cached_property
     def byte_owner(self) -> tuple[Field | None, ...]:
         """``byte_owner[a]`` is the field covering address ``a`` (None in gaps)."""
         owner: list[Field | None] = [None] * self.table_end
@@ -130,7 +146,7 @@ class ServoModel:
 
     @cached_property
     def table_end(self) -> int:
-        """First address after the last defined field (147 for the X series)."""
+        """First address after the last defined field (662: Indirect Data 56 is at 661)."""
         return max(f.end for f in self.fields)
 
     @cached_property
@@ -196,6 +212,27 @@ def normalize_name(name: str) -> str:
 _INT32_LO, _INT32_HI = -(2**31), 2**31 - 1
 _R, _RW = "R", "RW"
 
+#: Indirect Address n points anywhere in the RAM area (e-Manual XL430-W250/XM430-W350 tables).
+INDIRECT_TARGET_LO, INDIRECT_TARGET_HI = 64, 661
+#: The two blocks: (first n, Indirect Address n's address, Indirect Data n's address, count).
+INDIRECT_BLOCKS = (
+    (1, _ct.INDIRECT_ADDRESS_1.addr, _ct.INDIRECT_DATA_1.addr, _ct.INDIRECT_COUNT // 2),
+    (29, _ct.INDIRECT_ADDRESS_29.addr, _ct.INDIRECT_DATA_29.addr, _ct.INDIRECT_COUNT // 2),
+)
+
+
+def _indirect_rows() -> list[tuple[int, int, str, str, int, int, int, bool]]:
+    """Indirect Address 1-56 (2 bytes, RW, default: the address of Indirect Data n, range
+    64-661) and Indirect Data 1-56 (1 byte, RW, 0-255), both in the RAM area."""
+    lo, hi, rows = INDIRECT_TARGET_LO, INDIRECT_TARGET_HI, []
+    for first, addr_at, data_at, count in INDIRECT_BLOCKS:
+        for k in range(count):
+            n, a, d = first + k, addr_at + 2 * k, data_at + k
+            rows.append((a, 2, f"indirect_address_{n}", _RW, d, lo, hi, False))
+            rows.append((d, 1, f"indirect_data_{n}", _RW, 0, 0, 255, False))
+    return rows
+
+
 # The X-series control table (XM430-W350 as reference). Row:
 # (addr, size, name, access, default, lo, hi, signed)
 # Goal PWM/Current/Velocity ranges are derived from the matching limit field's maximum.
@@ -251,6 +288,7 @@ _X_TABLE: tuple[tuple[int, int, str, str, int, int, int, bool], ...] = (
     (140, 4, "position_trajectory", _R, 0, _INT32_LO, _INT32_HI, True),
     (144, 2, "present_input_voltage", _R, 0, 0, 65535, False),
     (146, 1, "present_temperature", _R, 0, 0, 255, False),
+    *_indirect_rows(),
 )
 
 #: Address of every X-series field by name (the same on every model that has the field).
@@ -264,6 +302,16 @@ _GOAL_RANGE_FROM = {
 }
 
 _ALL_MODES = (0, 1, 3, 4, 5, 16)
+
+#: X330 servos have 20 indirect pairs, not 56: Indirect Address 1-20 at 168-206 (default the
+#: address of Indirect Data n, range 64-227) and Indirect Data 1-20 at 208-227 (e-Manual
+#: docs/en/dxl/x/xl330-m288.md, xc330-*.md control tables).
+_X330_INDIRECT_DROP = tuple(f"indirect_address_{n}" for n in range(21, 57)) + tuple(
+    f"indirect_data_{n}" for n in range(21, 57)
+)
+_X330_INDIRECT_ADD = tuple(
+    (168 + 2 * k, 2, f"indirect_address_{k + 1}", _RW, 208 + k, 64, 227, False) for k in range(20)
+) + tuple((208 + k, 1, f"indirect_data_{k + 1}", _RW, 0, 0, 255, False) for k in range(20))
 
 # Per model: motor figures and the table rows that differ from _X_TABLE.
 # "table": {name: (default, lo, hi)}; "drop": names removed; "add": extra rows.
@@ -280,7 +328,7 @@ _MODEL_DATA: dict[str, dict] = {
         "reflected_inertia_kgm2": 0.012,
         "running_current_a": 0.12,
         "modes": _ALL_MODES,
-        "table": {},
+        "table": {"drive_mode": (0, 0, 13)},
     },
     "XM430-W210": {
         "model_number": 1030,
@@ -294,7 +342,7 @@ _MODEL_DATA: dict[str, dict] = {
         "reflected_inertia_kgm2": 0.0045,
         "running_current_a": 0.12,
         "modes": _ALL_MODES,
-        "table": {"velocity_limit": (330, 0, 1023)},
+        "table": {"velocity_limit": (330, 0, 1023), "drive_mode": (0, 0, 13)},
     },
     "XL430-W250": {
         "model_number": 1060,
@@ -309,6 +357,7 @@ _MODEL_DATA: dict[str, dict] = {
         "running_current_a": 0.1,
         "modes": (1, 3, 4, 16),
         "table": {
+            "drive_mode": (0, 0, 13),
             "temperature_limit": (72, 0, 100),
             "max_voltage_limit": (140, 60, 140),
             "min_voltage_limit": (60, 60, 140),
@@ -318,7 +367,11 @@ _MODEL_DATA: dict[str, dict] = {
             "position_p_gain": (640, 0, 16383),
         },
         "drop": ("current_limit", "goal_current", "present_current"),
-        "add": ((126, 2, "present_load", _R, 0, -1000, 1000, True),),
+        "add": (
+            (60, 1, "startup_configuration", _RW, 0, 0, 3, False),
+            (126, 2, "present_load", _R, 0, -1000, 1000, True),
+            (147, 1, "backup_ready", _R, 0, 0, 1, False),
+        ),
     },
     "XL330-M288": {
         "model_number": 1200,
@@ -329,6 +382,7 @@ _MODEL_DATA: dict[str, dict] = {
         "stall_torque_nm": 0.52,
         "stall_current_a": 1.47,
         "fast_read_min_firmware": 46,
+        "backup_min_firmware": 46,
         "reflected_inertia_kgm2": 0.0008,
         "running_current_a": 0.06,
         "modes": _ALL_MODES,
@@ -345,7 +399,9 @@ _MODEL_DATA: dict[str, dict] = {
             "velocity_p_gain": (180, 0, 16383),
             "position_p_gain": (400, 0, 16383),
         },
+        "drop": _X330_INDIRECT_DROP,
         "add": (
+            *_X330_INDIRECT_ADD,
             (60, 1, "startup_configuration", _RW, 0, 0, 3, False),
             (62, 1, "pwm_slope", _RW, 140, 1, 255, False),
         ),

@@ -9,9 +9,26 @@ effects on motion and the watchdog) is the servo's job.
 Choices where the e-Manual is silent or ambiguous (all deliberate, all tested):
 
 - Read of a span with gaps returns 0 for the undefined bytes (as a real X-series
-  returns reserved data); a read reaching past the last field (addr 146) is an Access
-  Error; a read may start or end inside a field (its bytes are sliced). Length 0 is a
-  Data Length Error. An erroneous read returns ``(err, b"")``.
+  returns reserved data: DynamixelSDK#148, a 4-byte read at 611 on an XM430-W350 gave
+  the default Indirect Address 45-47 bytes); a read reaching past the last field
+  (Indirect Data 56, addr 661) is an Access Error; a read may start or end inside a
+  field (its bytes are sliced). Length 0 is a Data Length Error. An erroneous read
+  returns ``(err, b"")``.
+- Indirect Data n (e-Manual ``control_table_indirect_data.md``) reads and writes the byte
+  at the address Indirect Address n holds, inheriting that item's access and range; a
+  multi-byte item must be written whole in one packet (all of its bytes mapped), else
+  Data Length Error. An Indirect Address pointing at an Indirect Data byte (the default:
+  n points at itself) reaches that byte's own stored value (one level, no chains); one
+  pointing into a gap reads 0 and refuses writes (Access Error).
+- Drive Mode (10): bit 2 (Time-based Profile) needs firmware 42, bit 3 (Torque On by
+  Goal Update) the model's ``backup_min_firmware`` (45 on X430/X540, 46 on X330;
+  ``control_table_drivemode.md``); on older firmware those bits are a Data Range Error.
+- Control Table Backup (protocol2.md "Control Table Backup"): :meth:`store_backup`
+  keeps all EEPROM data, the velocity/position gains, the feed-forward gains, Profile
+  Acceleration/Velocity and the Indirect Addresses; the backup outlives Reboot (the
+  servo keeps it in flash) and Backup Ready (147) reads 1 while it exists.
+  :meth:`restore_eeprom` puts the EEPROM part back; :meth:`boot_ram` puts the RAM part
+  back at boot when Startup Configuration (60) bit 1 (RAM Restore) is set.
 - Write: atomic; checks per field in address order: undefined/read-only/EEPROM with
   torque on -> Access Error 7, partial multi-byte field -> Data Length Error 5, own
   range -> Data Range Error 4 (also every goal register while the Bus Watchdog is
@@ -77,6 +94,30 @@ VELOCITY_TRAJECTORY = X_ADDRESSES["velocity_trajectory"]
 POSITION_TRAJECTORY = X_ADDRESSES["position_trajectory"]
 PRESENT_INPUT_VOLTAGE = ct.PRESENT_INPUT_VOLTAGE.addr
 PRESENT_TEMPERATURE = ct.PRESENT_TEMPERATURE.addr
+DRIVE_MODE = ct.DRIVE_MODE.addr
+STARTUP_CONFIGURATION = 60  # e-Manual XL430-W250 / XL330 tables (not on every model)
+BACKUP_READY = 147  # e-Manual XL430-W250 table (not on every model)
+
+#: Drive Mode bits that need a newer firmware (``control_table_drivemode.md``).
+DRIVE_MODE_TIME_PROFILE = 0x04  # firmware 42
+DRIVE_MODE_TORQUE_ON_BY_GOAL = 0x08  # the model's backup_min_firmware (45/46)
+TIME_PROFILE_MIN_FIRMWARE = 42
+#: Startup Configuration (60) bits.
+STARTUP_TORQUE_ON = 0x01
+STARTUP_RAM_RESTORE = 0x02
+#: The RAM items a Control Table Backup keeps besides every EEPROM item (and the Indirect
+#: Addresses), protocol2.md "Control Table Backup".
+BACKUP_RAM_ITEMS = (
+    "velocity_i_gain",
+    "velocity_p_gain",
+    "position_d_gain",
+    "position_i_gain",
+    "position_p_gain",
+    "feedforward_2nd_gain",
+    "feedforward_1st_gain",
+    "profile_acceleration",
+    "profile_velocity",
+)
 
 #: The goal registers: a write to one replans the motion.
 GOAL_ADDRS = frozenset((GOAL_PWM, GOAL_CURRENT, GOAL_VELOCITY, GOAL_POSITION))
@@ -92,6 +133,10 @@ class RegisterFile:
         self.values: dict[int, int] = {}
         #: registers computed on read: address -> getter (the servo fills this in)
         self.dynamic: dict[int, Callable[[], int]] = {}
+        #: the Control Table Backup (address -> value), None until one is stored
+        self.backup: dict[int, int] | None = None
+        if model.has(BACKUP_READY):
+            self.dynamic[BACKUP_READY] = lambda: int(self.backup is not None)
         self.reset_eeprom(keep=())
         self.values[FIRMWARE_VERSION] = firmware
         self.reset_ram()
@@ -120,8 +165,9 @@ class RegisterFile:
         Length Error. A span may start or end inside a field (its bytes are sliced).
         """
         m = self.model
+        indirect = m.indirect
         f = m.by_addr.get(addr)
-        if f is not None and f.size == length:  # the common case: one whole field
+        if f is not None and f.size == length and addr not in indirect:  # one whole field
             getter = self.dynamic.get(addr)
             value = getter() if getter is not None else self.values[addr]
             return 0, (value & MASKS[length]).to_bytes(length, "little")
@@ -132,19 +178,41 @@ class RegisterFile:
             return StatusError.ACCESS, b""
         out = bytearray(length)
         owner = m.byte_owner
+        raws: dict[int, bytes] = {}  # each field computed once per read
         a = addr
         while a < end:
             f = owner[a]
             if f is None:
                 a += 1
                 continue
-            getter = self.dynamic.get(f.addr)
-            value = getter() if getter is not None else self.values[f.addr]
-            raw = (value & MASKS[f.size]).to_bytes(f.size, "little")
+            if a in indirect:
+                out[a - addr] = self._indirect_byte(a, raws)
+                a += 1
+                continue
+            raw = self._raw(f, raws)
             lo, hi = a - f.addr, min(f.end, end) - f.addr
             out[a - addr : a - addr + hi - lo] = raw[lo:hi]
             a = f.addr + hi
         return 0, bytes(out)
+
+    def _raw(self, f: Field, raws: dict[int, bytes]) -> bytes:
+        raw = raws.get(f.addr)
+        if raw is None:
+            getter = self.dynamic.get(f.addr)
+            value = getter() if getter is not None else self.values[f.addr]
+            raw = raws[f.addr] = (value & MASKS[f.size]).to_bytes(f.size, "little")
+        return raw
+
+    def indirect_target(self, data_addr: int) -> int:
+        """The address Indirect Data at ``data_addr`` stands for (its Indirect Address)."""
+        return self.values[self.model.indirect[data_addr]]
+
+    def _indirect_byte(self, data_addr: int, raws: dict[int, bytes]) -> int:
+        target = self.indirect_target(data_addr)
+        if target in self.model.indirect:  # an Indirect Data byte: its own stored value
+            return self.values[target] & 0xFF
+        f = self.model.field_at(target)
+        return 0 if f is None else self._raw(f, raws)[target - f.addr]
 
     # --- Write -----------------------------------------------------------------------------
     def validate(self, addr: int, data: bytes) -> tuple[int, Updates]:
@@ -159,7 +227,7 @@ class RegisterFile:
         regs = self.values
         n = len(data)
         f = m.by_addr.get(addr)
-        if f is not None and f.size == n:  # one whole field: the Sync Write case
+        if f is not None and f.size == n and addr not in m.indirect:  # the Sync Write case
             if not f.writable or (addr < EEPROM_END and regs[TORQUE_ENABLE]):
                 return StatusError.ACCESS, []
             updates = [(f, int.from_bytes(data, "little", signed=f.signed))]
@@ -169,21 +237,12 @@ class RegisterFile:
             end = addr + n
             if addr < 0 or end > m.table_end:
                 return StatusError.ACCESS, []
-            updates = []
-            owner = m.byte_owner
-            a = addr
-            while a < end:
-                f = owner[a]
-                if f is None or not f.writable or (f.addr < EEPROM_END and regs[TORQUE_ENABLE]):
-                    return StatusError.ACCESS, []
-                if f.addr != a or f.end > end:
-                    return StatusError.DATA_LENGTH, []
-                value = int.from_bytes(data[a - addr : f.end - addr], "little", signed=f.signed)
-                updates.append((f, value))
-                a = f.end
+            err, updates = self._span_updates(addr, data)
+            if err:
+                return err, []
         tripped = regs[BUS_WATCHDOG] == ct.WATCHDOG_TRIPPED
         for f, value in updates:
-            if not f.accepts(value):
+            if not f.accepts(value) or (f.addr == DRIVE_MODE and self._drive_mode_refused(value)):
                 return StatusError.DATA_RANGE, []
             if tripped and (f.addr in GOAL_ADDRS or (f.addr == BUS_WATCHDOG and value != 0)):
                 return StatusError.DATA_RANGE, []
@@ -198,6 +257,80 @@ class RegisterFile:
             ):
                 return StatusError.RESULT_FAIL, []
         return StatusError.NONE, updates
+
+    def _span_updates(self, addr: int, data: bytes) -> tuple[int, Updates]:
+        """The fields a Write of ``data`` at ``addr`` changes, Indirect Data resolved to the
+        bytes they stand for: ``(error number, updates)`` in the order first touched."""
+        m = self.model
+        locked = bool(self.values[TORQUE_ENABLE])
+        owner, indirect = m.byte_owner, m.indirect
+        end = addr + len(data)
+        # field address -> (field, its bytes so far, offsets written)
+        slots: dict[int, tuple[Field, bytearray, set[int]]] = {}
+        a = addr
+        while a < end:
+            f = owner[a]
+            if f is not None and a in indirect:
+                target = self.indirect_target(a)
+                # an Indirect Data byte (itself by default): its own stored value
+                f = owner[target] if target in indirect else m.field_at(target)
+                if f is None or not f.writable or (f.eeprom and locked):
+                    return StatusError.ACCESS, []
+                slot = slots.setdefault(f.addr, (f, bytearray(f.size), set()))
+                slot[1][target - f.addr] = data[a - addr]
+                slot[2].add(target - f.addr)
+                a += 1
+                continue
+            if f is None or not f.writable or (f.eeprom and locked):
+                return StatusError.ACCESS, []
+            if f.addr != a or f.end > end:
+                return StatusError.DATA_LENGTH, []
+            slots[f.addr] = (f, bytearray(data[a - addr : f.end - addr]), set(range(f.size)))
+            a = f.end
+        updates = []
+        for f, raw, written in slots.values():
+            if len(written) != f.size:  # part of a multi-byte item mapped: not writable alone
+                return StatusError.DATA_LENGTH, []
+            updates.append((f, int.from_bytes(raw, "little", signed=f.signed)))
+        return StatusError.NONE, updates
+
+    def _drive_mode_refused(self, value: int) -> bool:
+        """Drive Mode bits this firmware does not have (Data Range Error)."""
+        fw = self.values[FIRMWARE_VERSION]
+        if value & DRIVE_MODE_TORQUE_ON_BY_GOAL and fw < self.model.backup_min_firmware:
+            return True
+        return bool(value & DRIVE_MODE_TIME_PROFILE and fw < TIME_PROFILE_MIN_FIRMWARE)
+
+    # --- Control Table Backup ---------------------------------------------------------------
+    def backup_fields(self) -> list[Field]:
+        """What a Control Table Backup keeps: every writable EEPROM item, the gains, Profile
+        Acceleration/Velocity and the Indirect Addresses."""
+        m = self.model
+        ram = {m.field(name).addr for name in BACKUP_RAM_ITEMS if m.has(name)}
+        ram.update(m.indirect.values())
+        return [f for f in m.fields if (f.eeprom and f.writable) or f.addr in ram]
+
+    def store_backup(self) -> None:
+        self.backup = {f.addr: self.values[f.addr] for f in self.backup_fields()}
+
+    def restore_eeprom(self) -> bool:
+        """The backup's EEPROM items back in place; False (nothing done) without a backup."""
+        if self.backup is None:
+            return False
+        for a, value in self.backup.items():
+            if a < EEPROM_END:
+                self.values[a] = value
+        return True
+
+    def boot_ram(self) -> bool:
+        """At boot, after the RAM defaults: the backup's RAM items back when Startup
+        Configuration has RAM Restore. Returns True when Startup Torque On is set."""
+        startup = self.values.get(STARTUP_CONFIGURATION, 0)
+        if startup & STARTUP_RAM_RESTORE and self.backup is not None:
+            for a, value in self.backup.items():
+                if a >= EEPROM_END:
+                    self.values[a] = value
+        return bool(startup & STARTUP_TORQUE_ON)
 
     def within_limits(self, addr: int, value: int, updates: Updates) -> bool:
         """Goal registers against the limit registers as they will be after this write."""

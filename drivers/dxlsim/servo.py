@@ -25,8 +25,14 @@ Choices where the e-Manual is silent or ambiguous (all deliberate, all tested):
 - Torque off stops the horn where it is (no coasting); the trajectory follows it.
 - Bus Watchdog trip stops at once (the e-Manual: profile applied as 0): the trajectory
   holds where the horn is.
-- Action with nothing registered -> Result Fail. Action re-validates the registered
-  write against the state at Action time.
+- Action with nothing registered -> Instruction Error (protocol2.md error table). Action
+  re-validates the registered write against the state at Action time.
+- Control Table Backup (0x20, protocol2.md): on firmware below the model's
+  ``backup_min_firmware`` an undefined instruction (Instruction Error); torque on ->
+  Result Fail; P1 0x01 stores, 0x02 restores the EEPROM part and reboots (Result Fail
+  when nothing was stored); P2-P5 other than ``43 54 52 4C`` or another P1 -> Data Range
+  Error, other lengths -> Data Length Error. Every boot (Reboot, Restore, brownout) then
+  applies Startup Configuration (60): RAM Restore, Startup Torque On.
 - Factory Reset while torque is on -> Access Error (it writes EEPROM).
 - Clear (multi-turn) while moving -> Result Fail; other Clear parameters -> Data Range
   Error, wrong length -> Data Length Error. After it Goal Position = Present Position.
@@ -45,13 +51,15 @@ from drivers.protocol2.control_table import OperatingMode, StatusError
 
 from . import registers as rg
 from .models import ServoModel, get_model
-from .motion import Motion, MotionState
+from .motion import Motion, MotionState, torque_on_by_goal
 from .profile import ProfileType
 from .registers import ALERT as ALERT  # re-exported
 from .registers import RegisterFile, Updates
+from .thermal import thermal_step
 
 CLEAR_MULTI_TURN = b"\x01\x44\x58\x4c\x22"
 FACTORY_RESET_ALL, FACTORY_RESET_KEEP_ID, FACTORY_RESET_KEEP_ID_BAUD = 0xFF, 0x01, 0x02
+BACKUP_STORE, BACKUP_RESTORE, BACKUP_MAGIC = 0x01, 0x02, b"CTRL"  # 43 54 52 4C
 #: Limits that can put the present supply state outside: a write re-checks it.
 _SUPPLY_LIMITS = frozenset(
     (rg.TEMPERATURE_LIMIT, rg.MAX_VOLTAGE_LIMIT, rg.MIN_VOLTAGE_LIMIT, rg.PWM_LIMIT)
@@ -139,7 +147,7 @@ class VirtualServo:
         for name, value in sorted(eeprom.items(), key=lambda kv: self.model.field(kv[0]).addr):
             self._initial_write(name, value)
         if "present_position" in state:
-            self._mo.x = float(state["present_position"] - self._regs[rg.HOMING_OFFSET])
+            self._mo.x = float(state["present_position"] - self._mo.offset())
             self._mo.hold(self._mo.x)
         if "present_input_voltage" in state:
             self.set_input_voltage(state["present_input_voltage"] / 10.0)
@@ -237,6 +245,8 @@ class VirtualServo:
             if t < mo.now - 1e-9:
                 raise ValueError(f"time went back: {t!r} < {mo.now!r}")
             return
+        if t > mo.now:
+            self._heat(t - mo.now)
         if t > self._wd_deadline:
             mo.run_to(self._wd_deadline)
             mo.now = self._wd_deadline
@@ -287,10 +297,11 @@ class VirtualServo:
         return err | self._reg.alert
 
     def action(self, t: float) -> int:
-        """Action: apply the pending Reg Write (re-validated now); Result Fail if none."""
+        """Action: apply the pending Reg Write (re-validated now); Instruction Error if none
+        (protocol2.md error table: "Action has been used without Reg Write")."""
         self.advance(t)
         if self._pending is None:
-            return StatusError.RESULT_FAIL | self._reg.alert
+            return StatusError.INSTRUCTION | self._reg.alert
         addr, data = self._pending
         self._pending = None
         self._regs[rg.REGISTERED_INSTRUCTION] = 0
@@ -324,6 +335,28 @@ class VirtualServo:
             return alert | StatusError.ACCESS
         self._reg.reset_eeprom(keep)
         self._restart(t)
+        return alert
+
+    def backup(self, params: bytes, t: float) -> int:
+        """Control Table Backup (0x20): ``01 43 54 52 4C`` stores the backup, ``02 43 54 52
+        4C`` restores its EEPROM part and reboots (the reply leaves first). Only with torque
+        off (else Result Fail) and on firmware that has it (else Instruction Error)."""
+        self.advance(t)
+        alert = self._reg.alert
+        if self.firmware < self.model.backup_min_firmware:
+            return alert | StatusError.INSTRUCTION
+        if len(params) != 1 + len(BACKUP_MAGIC):
+            return alert | StatusError.DATA_LENGTH
+        if bytes(params[1:]) != BACKUP_MAGIC or params[0] not in (BACKUP_STORE, BACKUP_RESTORE):
+            return alert | StatusError.DATA_RANGE
+        if self._regs[rg.TORQUE_ENABLE]:
+            return alert | StatusError.RESULT_FAIL
+        if params[0] == BACKUP_STORE:
+            self._reg.store_backup()
+        elif self._reg.restore_eeprom():
+            self._restart(t)
+        else:
+            return alert | StatusError.RESULT_FAIL  # nothing stored to restore
         return alert
 
     def clear(self, params: bytes, t: float) -> int:
@@ -380,6 +413,24 @@ class VirtualServo:
         self._temp_c = float(celsius)
         self._check_supply()
 
+    def set_load(self, torque_nm: float, t: float | None = None) -> None:
+        """Steady external torque on the horn, N·m (from ``t``, s, if given); positive
+        pushes towards lower positions. It slows the horn, costs holding current (which
+        heats the motor) and at the stall torque stalls it: see :mod:`drivers.dxlsim.motion`."""
+        if t is not None:
+            self.advance(t)
+        self._mo.load_nm = float(torque_nm)
+        self._mo.update_speed_limit()
+
+    def _heat(self, dt: float) -> None:
+        """First-order thermal model over ``dt`` s at the present motor current (see
+        :mod:`drivers.dxlsim.thermal`); latches Overheating."""
+        temp = thermal_step(self.model, self._temp_c, self._mo.current_a(), dt)
+        if temp != self._temp_c:
+            self._temp_c = temp
+            if round(temp) > self._regs[rg.TEMPERATURE_LIMIT]:
+                self._latch(_OVERHEATING_ERROR)
+
     # --- side effects of writes ----------------------------------------------------------
     def _apply(self, updates: Updates) -> None:
         regs = self._regs
@@ -394,6 +445,8 @@ class VirtualServo:
                 elif old and not value:
                     self._torque_off()
                 continue
+            if not regs[rg.TORQUE_ENABLE] and torque_on_by_goal(regs, self.model, a):
+                self._torque_on()  # Drive Mode bit 3: a goal with torque off turns it on
             regs[a] = value
             if a == rg.OPERATING_MODE and value != old:
                 regs[rg.PROFILE_ACCELERATION] = regs[rg.PROFILE_VELOCITY] = 0
@@ -460,6 +513,7 @@ class VirtualServo:
     def _restart(self, t: float) -> None:
         mo = self._mo
         self._reg.reset_ram()
+        startup_torque = self._reg.boot_ram()  # Startup Configuration (60), if the model has it
         self._pending = None
         self._torque_off()
         mo.fold_one_turn()
@@ -467,6 +521,8 @@ class VirtualServo:
         mo.profile_type = ProfileType.STEP
         self._boot_t = t
         mo.update_speed_limit()
+        if startup_torque:
+            self._torque_on()
 
     # --- registers computed on read the motion does not own ------------------------------
     def _realtime_tick(self) -> int:

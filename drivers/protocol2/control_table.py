@@ -59,6 +59,35 @@ PRESENT_POSITION = Item("Present Position", 132, 4, signed=True)
 PRESENT_LOAD = Item("Present Load", 126, 2, signed=True)  # current (mA units) on XM, 0.1 % on XL
 PRESENT_INPUT_VOLTAGE = Item("Present Input Voltage", 144, 2)  # 0.1 V
 PRESENT_TEMPERATURE = Item("Present Temperature", 146, 1)  # °C
+#: Indirect Address n (2 bytes) holds the address that Indirect Data n (1 byte) stands for;
+#: two blocks of 28, n = 1..28 and 29..56 (e-Manual X-series control tables).
+INDIRECT_ADDRESS_1 = Item("Indirect Address 1", 168, 2)
+INDIRECT_DATA_1 = Item("Indirect Data 1", 224, 1)
+INDIRECT_ADDRESS_29 = Item("Indirect Address 29", 578, 2)
+INDIRECT_DATA_29 = Item("Indirect Data 29", 634, 1)
+INDIRECT_COUNT = 56
+
+
+
+def indirect_address(n: int) -> Item:
+    """Indirect Address ``n`` (1..56): 168, 170, ... 222, then 578, 580, ... 632."""
+    first = _indirect_block(n)
+    base = INDIRECT_ADDRESS_1 if first == 1 else INDIRECT_ADDRESS_29
+    return Item(f"Indirect Address {n}", base.addr + 2 * (n - first), 2)
+
+
+def indirect_data(n: int) -> Item:
+    """Indirect Data ``n`` (1..56): 224, 225, ... 251, then 634, 635, ... 661."""
+    first = _indirect_block(n)
+    base = INDIRECT_DATA_1 if first == 1 else INDIRECT_DATA_29
+    return Item(f"Indirect Data {n}", base.addr + n - first, 1)
+
+
+def _indirect_block(n: int) -> int:
+    if not 1 <= n <= INDIRECT_COUNT:
+        raise ValueError(f"indirect index must be 1..{INDIRECT_COUNT}, got {n}")
+    return 1 if n <= INDIRECT_COUNT // 2 else INDIRECT_COUNT // 2 + 1
+
 
 #: One Read from address 0 of this many bytes covers every item the start-up check needs
 #: (EEPROM, Torque Enable, Status Return Level, Hardware Error, Bus Watchdog, Goal and

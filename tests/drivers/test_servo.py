@@ -165,7 +165,8 @@ def test_read_gaps_as_zero_and_slices_partial_fields(servo):
 
 @pytest.mark.parametrize(
     ("addr", "length", "code"),
-    [(146, 2, ACCESS), (147, 1, ACCESS), (200, 4, ACCESS), (-1, 2, ACCESS), (64, 0, LENGTH)],
+    # past Indirect Data 56 (661), the last field since the indirect blocks (issue 11)
+    [(661, 2, ACCESS), (662, 1, ACCESS), (700, 4, ACCESS), (-1, 2, ACCESS), (64, 0, LENGTH)],
 )
 def test_read_errors_return_no_data(servo, addr, length, code):
     assert servo.read(addr, length, 0.0) == (code, b"")
@@ -290,7 +291,7 @@ def test_hardware_error_sets_alert_in_every_error_byte_and_cuts_torque(on):
     assert on.alert and not on.torque_enabled
     assert on.ping(0.2)[0] == ALERT
     assert on.read(132, 4, 0.2)[0] == ALERT
-    assert on.read(200, 4, 0.2) == (ALERT | ACCESS, b"")
+    assert on.read(700, 4, 0.2) == (ALERT | ACCESS, b"")
     assert put(on, "led", 1, 0.2) == ALERT
     assert put(on, "torque_enable", 1, 0.2) == ALERT | FAIL  # refused until reboot
     assert get(on, "torque_enable") == 0 and get(on, "hardware_error_status") == 0x20
@@ -322,7 +323,7 @@ def test_reg_write_waits_for_action(servo):
     assert get(servo, "registered_instruction") == 1 and get(servo, "led") == 0
     assert servo.action(0.1) == OK
     assert get(servo, "registered_instruction") == 0 and get(servo, "led") == 1
-    assert servo.action(0.2) == FAIL  # nothing pending
+    assert servo.action(0.2) == StatusError.INSTRUCTION  # nothing pending (protocol2.md)
 
 
 def test_reg_write_validates_and_action_revalidates(servo):
