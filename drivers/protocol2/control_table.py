@@ -68,7 +68,6 @@ INDIRECT_DATA_29 = Item("Indirect Data 29", 634, 1)
 INDIRECT_COUNT = 56
 
 
-
 def indirect_address(n: int) -> Item:
     """Indirect Address ``n`` (1..56): 168, 170, ... 222, then 578, 580, ... 632."""
     first = _indirect_block(n)

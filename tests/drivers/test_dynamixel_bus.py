@@ -86,7 +86,9 @@ def pos_bytes(tick: int) -> bytes:
 
 # ------------------------------------------------------------------ open / close
 def test_open_close_context_manager_and_close_twice():
-    with DynamixelBus.open("dxlsim://?ids=1-4&rdt_us=0&clock=virtual", baud=1_000_000, ids=[1, 2, 3, 4]) as bus:
+    with DynamixelBus.open(
+        "dxlsim://?ids=1-4&rdt_us=0&clock=virtual", baud=1_000_000, ids=[1, 2, 3, 4]
+    ) as bus:
         assert not bus.closed and bus.ids == (1, 2, 3, 4) and bus.n == 4
         assert bus.read_present().all_ok
         assert bus.clock.virtual

@@ -74,7 +74,10 @@ def test_scan_baud_notation(text, bps):
 
 
 def test_scan_accepts_1M_as_the_help_writes_it(capsys):
-    assert main(["scan", "--port", "dxlsim://?ids=1-2&clock=virtual", "--baud", "1M", "--ids", "1-3"]) == 0
+    assert (
+        main(["scan", "--port", "dxlsim://?ids=1-2&clock=virtual", "--baud", "1M", "--ids", "1-3"])
+        == 0
+    )
     assert len(capsys.readouterr().out.splitlines()) == 2
 
 
