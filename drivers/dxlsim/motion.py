@@ -64,6 +64,8 @@ from .models import (
 from .profile import ProfileType, _segments_end, plan_profile, plan_time_profile, plan_velocity
 from .registers import (
     CURRENT_LIMIT,
+    DRIVE_MODE_TIME_PROFILE,
+    DRIVE_MODE_TORQUE_ON_BY_GOAL,
     FIRMWARE_VERSION,
     GOAL_CURRENT,
     GOAL_POSITION,
@@ -85,6 +87,7 @@ from .registers import (
     PROFILE_VELOCITY,
     PWM_LIMIT,
     SHUTDOWN,
+    TIME_PROFILE_MIN_FIRMWARE,
     TORQUE_ENABLE,
     VELOCITY_LIMIT,
     VELOCITY_TRAJECTORY,
@@ -93,8 +96,6 @@ from .registers import (
 _SETTLE_PULSES = 1e-3  # horn this close to a finished trajectory: snap and go idle
 _GRID_EPS = 1e-7  # grid steps are counted with this slack against float round-off
 _DRIVE_MODE = DRIVE_MODE.addr
-DRIVE_MODE_TIME_BASED = 0x04  # Drive Mode bit 2: time-based profile
-TIME_PROFILE_MIN_FIRMWARE = 42  # e-Manual control_table_drivemode.md NOTE
 HOMING_OFFSET_POSITION_MODE_LIMIT = 1024  # e-Manual control_table_homingoffset.md NOTE
 #: Moving Status bit 3 threshold, pulses between Position Trajectory(140) and the horn.
 #: The e-Manual gives no number. 128 pulses = 1/32 turn = 11.25°: about five times the
@@ -103,10 +104,6 @@ HOMING_OFFSET_POSITION_MODE_LIMIT = 1024  # e-Manual control_table_homingoffset.
 #: motor can follow never sets it; and of the order of hilsim's own host-side tracking
 #: tolerance (``tracking_tolerance_deg`` default 10°, docs/rig.md).
 FOLLOWING_ERROR_PULSES = 128
-DRIVE_MODE_TORQUE_ON_BY_GOAL = 0x08  # Drive Mode bit 3
-#: Torque On by Goal Update is "available from firmware V45" (V46 on XL330/XC330).
-TORQUE_ON_BY_GOAL_MIN_FIRMWARE = 45
-TORQUE_ON_BY_GOAL_MIN_FIRMWARE_X330 = 46
 #: The goal register that commands each Operating Mode (the "given command" of Drive Mode
 #: bit 3; Goal Current in Current-based Position mode is a limit, not the command).
 COMMAND_GOAL = {
@@ -126,8 +123,9 @@ def torque_on_by_goal(regs: dict[int, int], model: ServoModel, addr: int) -> boo
     refused (Result Fail) there too, so the goal is stored and nothing moves."""
     if not regs[_DRIVE_MODE] & DRIVE_MODE_TORQUE_ON_BY_GOAL:
         return False
-    x330 = model.name.startswith(("XL330", "XC330"))
-    min_fw = TORQUE_ON_BY_GOAL_MIN_FIRMWARE_X330 if x330 else TORQUE_ON_BY_GOAL_MIN_FIRMWARE
+    # "available from firmware V45" (V46 on XL330/XC330): the model's backup_min_firmware,
+    # the same gate the register file applies to writing the bit
+    min_fw = model.backup_min_firmware
     return (
         regs[FIRMWARE_VERSION] >= min_fw
         and COMMAND_GOAL.get(regs[OPERATING_MODE]) == addr
@@ -313,7 +311,7 @@ class Motion:
         """Drive Mode bit 2 selects the time-based profile (firmware 42 and later)."""
         regs = self._regs
         return bool(
-            regs[_DRIVE_MODE] & DRIVE_MODE_TIME_BASED
+            regs[_DRIVE_MODE] & DRIVE_MODE_TIME_PROFILE
             and regs[FIRMWARE_VERSION] >= TIME_PROFILE_MIN_FIRMWARE
         )
 

@@ -25,6 +25,7 @@ from drivers.dxlsim.models import MODELS
 from drivers.dxlsim.protocol import Instruction, encode_instruction, split_status_stream
 from drivers.protocol2.control_table import StatusError
 from tests.drivers.conftest import make_bus, open_session
+from tests.drivers.test_servo import le
 
 OK = StatusError.NONE
 LED, TORQUE, RDT, PROFILE_VELOCITY, GOAL_POSITION = 65, 64, 9, 112, 116
@@ -32,10 +33,6 @@ PRESENT_VELOCITY, PRESENT_POSITION = 128, 132
 DRIVE_MODE, STARTUP_CONFIGURATION, BACKUP_READY = 10, 60, 147
 BACKUP_STORE = b"\x01CTRL"  # P1 0x01, P2-P5 43 54 52 4C
 BACKUP_RESTORE = b"\x02CTRL"
-
-
-def le(value: int, size: int) -> bytes:
-    return (value & ((1 << (8 * size)) - 1)).to_bytes(size, "little")
 
 
 def value(servo: VirtualServo, addr: int, size: int, t: float = 0.0) -> int:

@@ -16,27 +16,12 @@ from drivers.dxlsim.profile import ProfileType, plan_time_profile
 from drivers.dxlsim.servo import ALERT, VirtualServo
 from drivers.dxlsim.thermal import THERMAL_STALL_RISE_K, THERMAL_TIME_CONSTANT_S
 from drivers.protocol2.control_table import HardwareError
+from tests.drivers.test_servo import get, put
 
 DT = 0.001  # the servo's control period (motion grid)
 OK = 0
 TIME_BASED, TORQUE_ON_BY_GOAL = 0x04, 0x08
 FOLLOWING = 0x08
-
-
-def le(value: int, size: int) -> bytes:
-    return (value & (1 << 8 * size) - 1).to_bytes(size, "little")
-
-
-def get(s: VirtualServo, name: str, t: float | None = None) -> int:
-    f = s.model.field(name)
-    err, data = s.read(f.addr, f.size, s.now if t is None else t)
-    assert err & 0x7F == 0, (name, err)
-    return int.from_bytes(data, "little", signed=f.signed)
-
-
-def put(s: VirtualServo, name: str, value: int, t: float | None = None) -> int:
-    f = s.model.field(name)
-    return s.write(f.addr, le(value, f.size), s.now if t is None else t)
 
 
 def run_until(s: VirtualServo, pred, t: float, limit: float = 10.0) -> float:
