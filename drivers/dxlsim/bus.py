@@ -228,7 +228,7 @@ class DxlBus:
                 return False
             del self._offline[id(servo)]
             servo.brownout(back)  # power returns: RAM comes back at defaults
-        return servo.baud == self.baud
+        return servo.listening_baud == self.baud
 
     def _apply_events(self, t: float) -> None:
         while self._events and self.t0 + self._events[0].at <= t:
@@ -267,7 +267,7 @@ class DxlBus:
             hearing = [s for s in self.servos if self._hears(s, t)]
         else:  # the common case: nobody is browned out
             baud = self.baud
-            hearing = [s for s in self.servos if s.baud == baud]
+            hearing = [s for s in self.servos if s.listening_baud == baud]
         if not frame.crc_ok:
             self.stats["crc_errors"] += 1
             # Never executed. A servo that recognises its ID complains (CRC Error).

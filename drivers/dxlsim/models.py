@@ -1,19 +1,13 @@
-"""Dynamixel X-series servo models as data: control tables, ranges, motor figures.
+"""Dynamixel X-series servo models: control tables, ranges, motor figures.
 
 A :class:`ServoModel` is a frozen record: the model's control table as a tuple of
 :class:`Field` (address, size, access, default, own range), the figures the motion model
-needs (no-load speed, nominal voltage, current unit, lag) and the firmware threshold for
-Fast Sync/Bulk Read. The tables follow the ROBOTIS e-Manual (Protocol 2.0, addresses
-0-146, and the two Indirect Address / Indirect Data blocks: 168-251 and 578-661).
-
-Every model starts from one shared X-series table (:data:`_X_TABLE`, the XM430-W350
-layout) and differs only by the rows listed in :data:`_MODEL_DATA`: changed defaults and
-ranges (Drive Mode 0-13 on the X430s, XL430-W250 table and ``control_table_drivemode.md``;
-the firmware gate of bits 2/3 is in :mod:`~drivers.dxlsim.registers`), dropped rows (XL430
-has no current control) and added rows (XL330 Startup Configuration / PWM Slope, XL430 Startup
-Configuration / Backup Ready, XM540 External Port Mode). Field names are snake_case of the
-e-Manual names (``"Goal Position"`` -> ``goal_position``); lookups also accept the
-e-Manual spelling.
+needs (no-load speed, nominal voltage, current unit, lag) and the firmware thresholds for
+Fast Sync/Bulk Read and Control Table Backup. The e-Manual's tables themselves, with the
+page each model follows, are data in :mod:`drivers.dxlsim.model_data`; this module builds
+the models from them (:data:`MODELS`) and looks them up (:func:`get_model`). Field names
+are snake_case of the e-Manual names (``"Goal Position"`` -> ``goal_position``); lookups
+also accept the e-Manual spelling.
 
 Units used throughout the emulator (e-Manual):
 
@@ -24,11 +18,22 @@ Units used throughout the emulator (e-Manual):
 
 from __future__ import annotations
 
+import difflib
+from collections.abc import Iterable
 from dataclasses import dataclass
 from functools import cached_property
 
 # Protocol and control-table facts shared with the host-side driver live in one place.
 import drivers.protocol2.control_table as _ct
+from drivers.protocol2.ids import format_ids, parse_ids
+
+from .model_data import (
+    ALIASES,
+    BACKUP_MIN_FIRMWARE,
+    GOAL_RANGE_FROM,
+    MODEL_DATA,
+    X_TABLE,
+)
 
 PULSES_PER_REV = 4096
 #: Present/Goal/Profile Velocity unit, rev/min.
@@ -109,6 +114,8 @@ class ServoModel:
     #: First firmware with Control Table Backup (0x20), Backup Ready, Startup Configuration
     #: and Drive Mode bit 3 (e-Manual: V45 on X430/X540, V46 on X330).
     backup_min_firmware: int = 45
+    #: Axes in one case sharing one communication module (2 on the 2XL430).
+    axes: int = 1
     reflected_inertia_kgm2: float = 0.01  # rotor inertia seen at the horn (× gear ratio²)
     running_current_a: float = 0.1  # friction current while turning
     lag_time_constant_s: float = 0.008  # first-order lag of the horn behind the trajectory
@@ -208,249 +215,44 @@ def normalize_name(name: str) -> str:
     return "_".join(part for part in "".join(out).split("_") if part)
 
 
-# --- data -----------------------------------------------------------------------------
-_INT32_LO, _INT32_HI = -(2**31), 2**31 - 1
-_R, _RW = "R", "RW"
-
-#: Indirect Address n points anywhere in the RAM area (e-Manual XL430-W250/XM430-W350 tables).
-INDIRECT_TARGET_LO, INDIRECT_TARGET_HI = 64, 661
-#: The two blocks: (first n, Indirect Address n's address, Indirect Data n's address, count).
-INDIRECT_BLOCKS = (
-    (1, _ct.INDIRECT_ADDRESS_1.addr, _ct.INDIRECT_DATA_1.addr, _ct.INDIRECT_COUNT // 2),
-    (29, _ct.INDIRECT_ADDRESS_29.addr, _ct.INDIRECT_DATA_29.addr, _ct.INDIRECT_COUNT // 2),
-)
-
-
-def _indirect_rows() -> list[tuple[int, int, str, str, int, int, int, bool]]:
-    """Indirect Address 1-56 (2 bytes, RW, default: the address of Indirect Data n, range
-    64-661) and Indirect Data 1-56 (1 byte, RW, 0-255), both in the RAM area."""
-    lo, hi, rows = INDIRECT_TARGET_LO, INDIRECT_TARGET_HI, []
-    for first, addr_at, data_at, count in INDIRECT_BLOCKS:
-        for k in range(count):
-            n, a, d = first + k, addr_at + 2 * k, data_at + k
-            rows.append((a, 2, f"indirect_address_{n}", _RW, d, lo, hi, False))
-            rows.append((d, 1, f"indirect_data_{n}", _RW, 0, 0, 255, False))
-    return rows
-
-
-# The X-series control table (XM430-W350 as reference). Row:
-# (addr, size, name, access, default, lo, hi, signed)
-# Goal PWM/Current/Velocity ranges are derived from the matching limit field's maximum.
-_X_TABLE: tuple[tuple[int, int, str, str, int, int, int, bool], ...] = (
-    (0, 2, "model_number", _R, 0, 0, 65535, False),
-    (2, 4, "model_information", _R, 0, 0, 2**32 - 1, False),
-    (6, 1, "firmware_version", _R, 0, 0, 255, False),
-    (7, 1, "id", _RW, 1, 0, 252, False),
-    (8, 1, "baud_rate", _RW, 1, 0, 7, False),
-    (9, 1, "return_delay_time", _RW, 250, 0, 254, False),
-    (10, 1, "drive_mode", _RW, 0, 0, 5, False),
-    (11, 1, "operating_mode", _RW, 3, 0, 16, False),
-    (12, 1, "secondary_id", _RW, 255, 0, 255, False),
-    (13, 1, "protocol_type", _RW, 2, 1, 2, False),
-    (20, 4, "homing_offset", _RW, 0, -1_044_479, 1_044_479, True),
-    (24, 4, "moving_threshold", _RW, 10, 0, 1023, False),
-    (31, 1, "temperature_limit", _RW, 80, 0, 100, False),
-    (32, 2, "max_voltage_limit", _RW, 160, 95, 160, False),
-    (34, 2, "min_voltage_limit", _RW, 95, 95, 160, False),
-    (36, 2, "pwm_limit", _RW, 885, 0, 885, False),
-    (38, 2, "current_limit", _RW, 1193, 0, 1193, False),
-    (44, 4, "velocity_limit", _RW, 200, 0, 1023, False),
-    (48, 4, "max_position_limit", _RW, 4095, 0, 4095, False),
-    (52, 4, "min_position_limit", _RW, 0, 0, 4095, False),
-    (63, 1, "shutdown", _RW, 52, 0, 255, False),
-    (64, 1, "torque_enable", _RW, 0, 0, 1, False),
-    (65, 1, "led", _RW, 0, 0, 1, False),
-    (68, 1, "status_return_level", _RW, 2, 0, 2, False),
-    (69, 1, "registered_instruction", _R, 0, 0, 1, False),
-    (70, 1, "hardware_error_status", _R, 0, 0, 255, False),
-    (76, 2, "velocity_i_gain", _RW, 1920, 0, 16383, False),
-    (78, 2, "velocity_p_gain", _RW, 100, 0, 16383, False),
-    (80, 2, "position_d_gain", _RW, 0, 0, 16383, False),
-    (82, 2, "position_i_gain", _RW, 0, 0, 16383, False),
-    (84, 2, "position_p_gain", _RW, 800, 0, 16383, False),
-    (88, 2, "feedforward_2nd_gain", _RW, 0, 0, 16383, False),
-    (90, 2, "feedforward_1st_gain", _RW, 0, 0, 16383, False),
-    (98, 1, "bus_watchdog", _RW, 0, 0, 127, True),  # reads -1 once tripped
-    (100, 2, "goal_pwm", _RW, 0, 0, 0, True),
-    (102, 2, "goal_current", _RW, 0, 0, 0, True),
-    (104, 4, "goal_velocity", _RW, 0, 0, 0, True),
-    (108, 4, "profile_acceleration", _RW, 0, 0, 32767, False),
-    (112, 4, "profile_velocity", _RW, 0, 0, 32767, False),
-    (116, 4, "goal_position", _RW, 0, -1_048_575, 1_048_575, True),
-    (120, 2, "realtime_tick", _R, 0, 0, 32767, False),
-    (122, 1, "moving", _R, 0, 0, 1, False),
-    (123, 1, "moving_status", _R, 0, 0, 255, False),
-    (124, 2, "present_pwm", _R, 0, -885, 885, True),
-    (126, 2, "present_current", _R, 0, -32768, 32767, True),
-    (128, 4, "present_velocity", _R, 0, _INT32_LO, _INT32_HI, True),
-    (132, 4, "present_position", _R, 0, _INT32_LO, _INT32_HI, True),
-    (136, 4, "velocity_trajectory", _R, 0, _INT32_LO, _INT32_HI, True),
-    (140, 4, "position_trajectory", _R, 0, _INT32_LO, _INT32_HI, True),
-    (144, 2, "present_input_voltage", _R, 0, 0, 65535, False),
-    (146, 1, "present_temperature", _R, 0, 0, 255, False),
-    *_indirect_rows(),
-)
-
-#: Address of every X-series field by name (the same on every model that has the field).
-X_ADDRESSES: dict[str, int] = {row[2]: row[0] for row in _X_TABLE}
-
-# Which limit field bounds each goal field's own range (± the limit's maximum).
-_GOAL_RANGE_FROM = {
-    "goal_pwm": "pwm_limit",
-    "goal_current": "current_limit",
-    "goal_velocity": "velocity_limit",
-}
-
-_ALL_MODES = (0, 1, 3, 4, 5, 16)
-
-#: X330 servos have 20 indirect pairs, not 56: Indirect Address 1-20 at 168-206 (default the
-#: address of Indirect Data n, range 64-227) and Indirect Data 1-20 at 208-227 (e-Manual
-#: docs/en/dxl/x/xl330-m288.md, xc330-*.md control tables).
-_X330_INDIRECT_DROP = tuple(f"indirect_address_{n}" for n in range(21, 57)) + tuple(
-    f"indirect_data_{n}" for n in range(21, 57)
-)
-_X330_INDIRECT_ADD = tuple(
-    (168 + 2 * k, 2, f"indirect_address_{k + 1}", _RW, 208 + k, 64, 227, False) for k in range(20)
-) + tuple((208 + k, 1, f"indirect_data_{k + 1}", _RW, 0, 0, 255, False) for k in range(20))
-
-# Per model: motor figures and the table rows that differ from _X_TABLE.
-# "table": {name: (default, lo, hi)}; "drop": names removed; "add": extra rows.
-_MODEL_DATA: dict[str, dict] = {
-    "XM430-W350": {
-        "model_number": 1020,
-        "firmware": 46,
-        "no_load_speed_rpm": 46.0,
-        "nominal_voltage_v": 12.0,
-        "current_unit_ma": 2.69,
-        "stall_torque_nm": 4.1,
-        "stall_current_a": 2.3,
-        "fast_read_min_firmware": 45,
-        "reflected_inertia_kgm2": 0.012,
-        "running_current_a": 0.12,
-        "modes": _ALL_MODES,
-        "table": {"drive_mode": (0, 0, 13)},
-    },
-    "XM430-W210": {
-        "model_number": 1030,
-        "firmware": 46,
-        "no_load_speed_rpm": 77.0,
-        "nominal_voltage_v": 12.0,
-        "current_unit_ma": 2.69,
-        "stall_torque_nm": 3.0,
-        "stall_current_a": 2.3,
-        "fast_read_min_firmware": 45,
-        "reflected_inertia_kgm2": 0.0045,
-        "running_current_a": 0.12,
-        "modes": _ALL_MODES,
-        "table": {"velocity_limit": (330, 0, 1023), "drive_mode": (0, 0, 13)},
-    },
-    "XL430-W250": {
-        "model_number": 1060,
-        "firmware": 46,
-        "no_load_speed_rpm": 57.0,
-        "nominal_voltage_v": 11.1,
-        "current_unit_ma": None,  # no current sensing: addr 126 is Present Load
-        "stall_torque_nm": 1.4,
-        "stall_current_a": 1.3,
-        "fast_read_min_firmware": 45,
-        "reflected_inertia_kgm2": 0.004,
-        "running_current_a": 0.1,
-        "modes": (1, 3, 4, 16),
-        "table": {
-            "drive_mode": (0, 0, 13),
-            "temperature_limit": (72, 0, 100),
-            "max_voltage_limit": (140, 60, 140),
-            "min_voltage_limit": (60, 60, 140),
-            "velocity_limit": (265, 0, 1023),
-            "velocity_i_gain": (1000, 0, 16383),
-            "position_d_gain": (4000, 0, 16383),
-            "position_p_gain": (640, 0, 16383),
-        },
-        "drop": ("current_limit", "goal_current", "present_current"),
-        "add": (
-            (60, 1, "startup_configuration", _RW, 0, 0, 3, False),
-            (126, 2, "present_load", _R, 0, -1000, 1000, True),
-            (147, 1, "backup_ready", _R, 0, 0, 1, False),
-        ),
-    },
-    "XL330-M288": {
-        "model_number": 1200,
-        "firmware": 46,
-        "no_load_speed_rpm": 103.0,
-        "nominal_voltage_v": 5.0,
-        "current_unit_ma": 1.0,
-        "stall_torque_nm": 0.52,
-        "stall_current_a": 1.47,
-        "fast_read_min_firmware": 46,
-        "backup_min_firmware": 46,
-        "reflected_inertia_kgm2": 0.0008,
-        "running_current_a": 0.06,
-        "modes": _ALL_MODES,
-        "table": {
-            "baud_rate": (1, 0, 6),
-            "protocol_type": (2, 2, 22),
-            "temperature_limit": (70, 0, 100),
-            "max_voltage_limit": (70, 31, 70),
-            "min_voltage_limit": (35, 31, 70),
-            "current_limit": (1750, 0, 1750),
-            "velocity_limit": (445, 0, 2047),
-            "shutdown": (53, 0, 255),
-            "velocity_i_gain": (1600, 0, 16383),
-            "velocity_p_gain": (180, 0, 16383),
-            "position_p_gain": (400, 0, 16383),
-        },
-        "drop": _X330_INDIRECT_DROP,
-        "add": (
-            *_X330_INDIRECT_ADD,
-            (60, 1, "startup_configuration", _RW, 0, 0, 3, False),
-            (62, 1, "pwm_slope", _RW, 140, 1, 255, False),
-        ),
-    },
-    "XM540-W270": {
-        "model_number": 1120,
-        "firmware": 46,
-        "no_load_speed_rpm": 30.0,
-        "nominal_voltage_v": 12.0,
-        "current_unit_ma": 2.69,
-        "stall_torque_nm": 10.6,
-        "stall_current_a": 4.4,
-        "fast_read_min_firmware": 45,
-        "reflected_inertia_kgm2": 0.03,
-        "running_current_a": 0.2,
-        "modes": _ALL_MODES,
-        "table": {"current_limit": (2047, 0, 2047), "velocity_limit": (128, 0, 1023)},
-        "add": (
-            (56, 1, "external_port_mode_1", _RW, 3, 0, 3, False),
-            (57, 1, "external_port_mode_2", _RW, 3, 0, 3, False),
-            (58, 1, "external_port_mode_3", _RW, 3, 0, 3, False),
-        ),
-    },
-}
+# --- building a model from the data ---------------------------------------------------
+#: Firmware a model reports by default (addr 6): every model here has Fast Sync Read,
+#: Control Table Backup and Drive Mode bit 3 on it.
+DEFAULT_FIRMWARE = 46
 
 
 def _build(name: str, data: dict) -> ServoModel:
-    """Apply one model's differences to the shared table (the only code in this module)."""
-    rows = {row[2]: list(row) for row in _X_TABLE if row[2] not in data.get("drop", ())}
+    """Apply one model's differences to the shared table (the only code for the data)."""
+    rows = {row[2]: list(row) for row in X_TABLE if row[2] not in data.get("drop", ())}
     for row in data.get("add", ()):
         rows[row[2]] = list(row)
     for fname, (default, lo, hi) in data["table"].items():
         rows[fname][4:7] = [default, lo, hi]
     rows["model_number"][4] = data["model_number"]
-    rows["firmware_version"][4] = data["firmware"]
-    for goal, limit in _GOAL_RANGE_FROM.items():
+    rows["firmware_version"][4] = data.get("firmware", DEFAULT_FIRMWARE)
+    for goal, limit in GOAL_RANGE_FROM.items():
         if goal in rows:
             hi = rows[limit][6]
             rows[goal][5:7] = [-hi, hi]
-    fields = []
-    for r in sorted(rows.values()):
-        choices = tuple(data["modes"]) if r[2] == "operating_mode" else ()
-        fields.append(Field(*r, choices=choices))
-    motor = {k: v for k, v in data.items() if k not in ("modes", "table", "drop", "add")}
-    return ServoModel(name=name, fields=tuple(fields), **motor)
+    choices = {"operating_mode": tuple(data["modes"]), **data.get("choices", {})}
+    fields = tuple(Field(*r, choices=choices.get(r[2], ())) for r in sorted(rows.values()))
+    family = _ct.series(name)
+    motor = {k: v for k, v in data.items() if k not in _NOT_MOTOR}
+    return ServoModel(
+        name=name,
+        fields=fields,
+        firmware=data.get("firmware", DEFAULT_FIRMWARE),
+        fast_read_min_firmware=_ct.FAST_READ_MIN_FIRMWARE[family],
+        backup_min_firmware=BACKUP_MIN_FIRMWARE[family],
+        **motor,
+    )
+
+
+_NOT_MOTOR = ("modes", "table", "drop", "add", "choices", "firmware")
 
 
 #: All known models by name.
-MODELS: dict[str, ServoModel] = {name: _build(name, data) for name, data in _MODEL_DATA.items()}
+MODELS: dict[str, ServoModel] = {name: _build(name, data) for name, data in MODEL_DATA.items()}
 
 
 def get_model(name_or_number: str | int | ServoModel) -> ServoModel:
@@ -470,7 +272,63 @@ def get_model(name_or_number: str | int | ServoModel) -> ServoModel:
         for suffix in ("-T", "-R"):
             if wanted.endswith(suffix) and wanted[: -len(suffix)] in MODELS:
                 wanted = wanted[: -len(suffix)]
+        wanted = ALIASES.get(wanted, wanted)
         if wanted in MODELS:
             return MODELS[wanted]
-    choices = ", ".join(f"{m.name} ({m.model_number})" for m in MODELS.values())
-    raise ValueError(f"unknown servo model {name_or_number!r}; choose one of: {choices}")
+    close = difflib.get_close_matches(str(name_or_number).strip().upper(), [*MODELS, *ALIASES], 1)
+    hint = f"did you mean {close[0]}? " if close else ""
+    raise ValueError(
+        f"unknown servo model {name_or_number!r}; {hint}known: {', '.join(MODELS)} "
+        "(or their Model Numbers)"
+    )
+
+
+def models_by_id(text: str, ids: Iterable[int]) -> dict[int, ServoModel]:
+    """ID -> model for every ID on a bus, from the ``model`` key of a ``dxlsim://`` URL or
+    ``hilsim emulate --model``. ``text`` is a model for all
+    (``XM430-W350``) and/or ``IDS:MODEL`` items (``1-2:2XL430-W250,3:XM540-W270``), comma
+    separated; a 2XL430-W250's axes are taken two by two in ID order, so their count is even.
+    Raises ValueError (one line) on an unknown model, an ID not on the bus or named twice, an
+    ID left without a model, or an odd number of dual-axis IDs."""
+    ids = tuple(ids)
+    default: ServoModel | None = None
+    named: dict[int, ServoModel] = {}
+    for item in str(text).split(","):
+        where, sep, name = item.strip().rpartition(":")
+        model = get_model(name.strip())
+        if not sep:
+            if default is not None:
+                raise ValueError(f"two models for all IDs: {default.name} and {model.name}")
+            default = model
+            continue
+        for i in parse_ids(where):
+            if i not in ids:
+                raise ValueError(
+                    f"ID {i} ({item.strip()}) is not on the bus (ids={format_ids(ids)})"
+                )
+            if i in named:
+                raise ValueError(f"ID {i} is given two models")
+            named[i] = model
+    missing = [i for i in ids if i not in named and default is None]
+    if missing:
+        raise ValueError(f"no model for ID {format_ids(missing)}; add one for all, e.g. XM430-W350")
+    models = {i: named.get(i, default) for i in ids}
+    dual = [i for i in sorted(ids) if models[i].axes == 2]
+    if len(dual) % 2:
+        raise ValueError(
+            f"a 2XL430-W250 has two axes, each with its own ID: give it an even number of IDs "
+            f"(got {format_ids(dual)}; its axes are paired in ID order)"
+        )
+    return models  # type: ignore[return-value]
+
+
+def format_models(models: dict[int, ServoModel]) -> str:
+    """The normal form of the ``model`` key: the most common model for all, then
+    ``IDS:MODEL`` for the others (first-seen order)."""
+    names = [m.name for m in models.values()]
+    common = max(dict.fromkeys(names), key=names.count)
+    others: dict[str, list[int]] = {}
+    for i, m in models.items():
+        if m.name != common:
+            others.setdefault(m.name, []).append(i)
+    return ",".join([common, *(f"{format_ids(ids)}:{name}" for name, ids in others.items())])

@@ -48,7 +48,8 @@ from collections.abc import Callable
 import drivers.protocol2.control_table as ct
 from drivers.protocol2.control_table import ALERT_BIT, OperatingMode, StatusError
 
-from .models import EEPROM_END, X_ADDRESSES, Field, ServoModel
+from .model_data import X_ADDRESSES
+from .models import EEPROM_END, Field, ServoModel
 
 ALERT = ALERT_BIT  # bit 7 of the ERR byte: Hardware Error Status is not 0
 MASKS = {1: 0xFF, 2: 0xFFFF, 4: 0xFFFFFFFF}
@@ -61,6 +62,7 @@ BAUD_RATE = ct.BAUD_RATE.addr
 RETURN_DELAY_TIME = ct.RETURN_DELAY_TIME.addr
 OPERATING_MODE = ct.OPERATING_MODE.addr
 SECONDARY_ID = X_ADDRESSES["secondary_id"]
+PROTOCOL_TYPE = X_ADDRESSES["protocol_type"]
 HOMING_OFFSET = ct.HOMING_OFFSET.addr
 MOVING_THRESHOLD = X_ADDRESSES["moving_threshold"]
 TEMPERATURE_LIMIT = X_ADDRESSES["temperature_limit"]

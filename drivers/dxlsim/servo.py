@@ -70,6 +70,9 @@ _OVERHEATING_ERROR = int(ct.HardwareError.OVERHEATING)
 _INITIAL_STATE_FIELDS = ("present_position", "present_input_voltage", "present_temperature")
 
 
+_PROTOCOL_2 = 2  # Protocol Type (addr 13) value of Protocol 2.0
+
+
 class VirtualServo:
     """A Dynamixel X-series servo without the wire.
 
@@ -122,6 +125,9 @@ class VirtualServo:
         self._wd_ref = self._mo.now
         self._wd_deadline = math.inf
         self._pending: tuple[int, bytes] | None = None
+        #: the other axis in the same case (2XL430: :func:`pair_axes`), sharing one
+        #: communication module
+        self.partner: VirtualServo | None = None
         self._reg.dynamic.update(self._mo.present_getters())
         self._reg.dynamic[rg.REALTIME_TICK] = self._realtime_tick
         self._reg.dynamic[rg.PRESENT_TEMPERATURE] = self._present_temperature
@@ -186,6 +192,15 @@ class VirtualServo:
     @property
     def baud(self) -> int:
         """Baud rate, bps (from addr 8)."""
+        return self.model.baud_rates[self._regs[rg.BAUD_RATE]]
+
+    @property
+    def listening_baud(self) -> int:
+        """The line rate at which this servo hears Protocol 2.0 packets; 0 when Protocol Type
+        (addr 13) selects another protocol (1.0, or the X330's S.BUS/iBUS/RC-PWM), which
+        dxlsim does not speak: the servo is then deaf to the bus, as a real one is to 2.0."""
+        if self._regs[rg.PROTOCOL_TYPE] != _PROTOCOL_2:
+            return 0
         return self.model.baud_rates[self._regs[rg.BAUD_RATE]]
 
     @property
@@ -283,8 +298,17 @@ class VirtualServo:
         """Write ``data`` at ``addr`` atomically; returns the error byte."""
         self.advance(t)
         err, updates = self._reg.validate(addr, data)
+        partner = self.partner
+        if (
+            partner is not None
+            and not err
+            and any(f.addr == rg.ID and value == partner.id for f, value in updates)
+        ):
+            err = StatusError.DATA_LIMIT  # 2xl430-w250.md: both axes one ID -> 0x06
         if not err:
             self._apply(updates)
+            if partner is not None:
+                self._share_module()
         return err | self._reg.alert
 
     def reg_write(self, addr: int, data: bytes, t: float) -> int:
@@ -335,6 +359,7 @@ class VirtualServo:
             return alert | StatusError.ACCESS
         self._reg.reset_eeprom(keep)
         self._restart(t)
+        self._share_module()
         return alert
 
     def backup(self, params: bytes, t: float) -> int:
@@ -355,6 +380,7 @@ class VirtualServo:
             self._reg.store_backup()
         elif self._reg.restore_eeprom():
             self._restart(t)
+            self._share_module()
         else:
             return alert | StatusError.RESULT_FAIL  # nothing stored to restore
         return alert
@@ -524,6 +550,15 @@ class VirtualServo:
         if startup_torque:
             self._torque_on()
 
+    def _share_module(self) -> None:
+        """A 2XL430's axes have one communication module: Baud Rate and Protocol Type, once
+        changed on one axis, are the other's too (2xl430-w250.md, Baud Rate and Protocol
+        Type cautions)."""
+        partner = self.partner
+        if partner is not None:
+            for a in (rg.BAUD_RATE, rg.PROTOCOL_TYPE):
+                partner._regs[a] = self._regs[a]
+
     # --- registers computed on read the motion does not own ------------------------------
     def _realtime_tick(self) -> int:
         return int((self._mo.now - self._boot_t) * 1000.0 + 1e-6) % 32768
@@ -536,3 +571,16 @@ class VirtualServo:
             f"VirtualServo({self.model.name!r}, id={self.id}, t={self._mo.now:.6f}, "
             f"position={self._mo.present_position()}, torque={self._regs[rg.TORQUE_ENABLE]})"
         )
+
+
+def pair_axes(a: VirtualServo, b: VirtualServo) -> None:
+    """Make ``a`` and ``b`` the two axes of one dual-axis case (2XL430-W250): one Baud Rate
+    and Protocol Type between them (``b`` takes ``a``'s), and neither may take the other's
+    ID. Raises ValueError when the model has no second axis or the IDs are equal."""
+    for s in (a, b):
+        if s.model.axes != 2:
+            raise ValueError(f"{s.model.name} has one axis; only a dual-axis model pairs")
+    if a.id == b.id:
+        raise ValueError(f"the two axes of one {a.model.name} need two IDs, got {a.id} twice")
+    a.partner, b.partner = b, a
+    a._share_module()

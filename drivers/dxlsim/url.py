@@ -8,7 +8,10 @@ defaults are :class:`DxlsimUrl`'s field defaults (and nowhere else):
 key             meaning                                              default
 =============== ==================================================== ===============
 ids             servo IDs, e.g. ``1-4`` or ``1,3,5``                 ``1``
-model           servo model for all of them (``XM430-W350``, ...)     ``XM430-W350``
+model           servo model: one for all (``XM430-W350``), or per ID   ``XM430-W350``
+                (``XM430-W350,5-6:XL330-M288``: a model, then
+                ``IDS:MODEL`` items for the IDs that differ;
+                a 2XL430-W250's two axes are consecutive IDs)
 baud            the servos' baud rate (bit/s); the host's rate is     the port's rate
                 whatever the port is opened at
 rdt_us          Return Delay Time in µs (multiple of 2, 0..508)       ``500`` (factory)
@@ -59,16 +62,15 @@ import math
 import threading
 import urllib.parse
 import weakref
-from collections.abc import Iterable
 from dataclasses import dataclass, field
 from typing import Any
 
 from drivers.clock import DEFAULT_SPIN_S, MonotonicClock, VirtualClock
 from drivers.dxlsim.bus import DxlBus
 from drivers.dxlsim.faults import FaultPlan, parse_fault_plan
-from drivers.dxlsim.models import get_model
-from drivers.dxlsim.servo import VirtualServo
-from drivers.protocol2.ids import parse_ids
+from drivers.dxlsim.models import format_models, models_by_id
+from drivers.dxlsim.servo import VirtualServo, pair_axes
+from drivers.protocol2.ids import format_ids, parse_ids
 from drivers.protocol2.wire_time import DEFAULT_TURNAROUND_S
 
 #: The host's line rate when a port is opened without one (bit/s).
@@ -147,6 +149,10 @@ class DxlsimUrl:
             "baud": None if self.baud is None else int(self.baud),
             "firmware": None if self.firmware is None else int(self.firmware),
         }
+        try:  # the normal form names each model once, in its e-Manual spelling
+            values["model"] = format_models(models_by_id(self.model, values["ids"]))
+        except ValueError:
+            values["model"] = str(self.model)  # reported by _fault_plan(), naming the key
         for key, value in values.items():
             object.__setattr__(self, key, value)
         if self.clock not in CLOCKS:
@@ -251,7 +257,7 @@ class DxlsimUrl:
 
     def _fault_plan(self) -> FaultPlan:
         try:
-            get_model(self.model)
+            models_by_id(self.model, self.ids)
         except ValueError as exc:
             raise self._bad("model", str(exc)) from None
         try:
@@ -278,10 +284,11 @@ class DxlsimUrl:
             raise self._bad("spin_us", str(exc)) from None
         t = clock.now()
         servo_baud = host_baud if self.baud is None else self.baud
+        models = models_by_id(self.model, self.ids)
         try:
             servos = [
                 VirtualServo(
-                    self.model,
+                    models[i],
                     i,
                     baud=servo_baud,
                     return_delay_us=self.rdt_us,
@@ -290,6 +297,9 @@ class DxlsimUrl:
                 )
                 for i in self.ids
             ]
+            pairs = [s for s in servos if s.model.axes == 2]
+            for a, b in zip(pairs[::2], pairs[1::2], strict=True):
+                pair_axes(a, b)
         except ValueError as exc:  # the model refuses the baud, the Return Delay Time or firmware
             key = next((k for k in ("baud", "rdt_us", "firmware") if k in str(exc)), "servos")
             key = "rdt_us" if "return_delay" in str(exc) else key
@@ -319,19 +329,8 @@ def _text(value: object) -> str:
     if isinstance(value, float):
         return str(int(value)) if value.is_integer() and abs(value) < 1e15 else repr(value)
     if isinstance(value, tuple):
-        return _format_ids(value)
+        return format_ids(value)
     return str(value)
-
-
-def _format_ids(ids: Iterable[int]) -> str:
-    """``(1, 2, 3, 5)`` -> ``"1-3,5"`` (order kept)."""
-    runs: list[list[int]] = []
-    for i in ids:
-        if runs and i == runs[-1][1] + 1:
-            runs[-1][1] = i
-        else:
-            runs.append([i, i])
-    return ",".join(f"{a}-{b}" if b > a else str(a) for a, b in runs)
 
 
 def bus_from_url(url: str, host_baud: int = DEFAULT_HOST_BAUD) -> DxlBus:

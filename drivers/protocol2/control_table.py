@@ -220,12 +220,22 @@ def error_name(number: int) -> str:
 #: Model Number (addr 0) -> model name.
 MODEL_NAMES: dict[int, str] = {
     1000: "XH430-W350",
+    1010: "XH430-W210",
     1020: "XM430-W350",
     1030: "XM430-W210",
+    1040: "XH430-V350",
+    1050: "XH430-V210",
     1060: "XL430-W250",
+    1070: "XC430-W150",
+    1080: "XC430-W240",
+    1090: "2XL430-W250",
     1120: "XM540-W270",
+    1130: "XM540-W150",
     1190: "XL330-M077",
     1200: "XL330-M288",
+    1210: "XC330-T181",
+    1220: "XC330-T288",
+    1230: "XC330-M181",
     1240: "XC330-M288",
 }
 MODEL_NUMBERS: dict[str, int] = {name: number for number, name in MODEL_NAMES.items()}
@@ -256,8 +266,10 @@ def model_number(name: str) -> int:
 
 
 def series(name: str) -> str:
-    """``"XM430-W350"`` -> ``"X430"``: the family that sets firmware features."""
-    return "X" + name[2:5] if len(name) >= 5 and name.startswith("X") else name
+    """``"XM430-W350"`` -> ``"X430"`` (``"2XL430-W250"`` too): the family that sets firmware
+    features."""
+    core = name.lstrip("0123456789")
+    return "X" + core[2:5] if len(core) >= 5 and core.startswith("X") else name
 
 
 def fast_read_min_firmware(number: int) -> int | None:

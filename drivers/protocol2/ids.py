@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from collections.abc import Iterable
+
 
 def parse_ids(text: str) -> list[int]:
     """Parse an ID list; IDs must be 0..252 and unique. Raises ValueError naming the problem."""
@@ -27,3 +29,14 @@ def parse_ids(text: str) -> list[int]:
     if len(set(ids)) != len(ids):
         raise ValueError(f"repeated servo ID in {text!r}")
     return ids
+
+
+def format_ids(ids: Iterable[int]) -> str:
+    """``(1, 2, 3, 5)`` -> ``"1-3,5"`` (order kept)."""
+    runs: list[list[int]] = []
+    for i in ids:
+        if runs and i == runs[-1][1] + 1:
+            runs[-1][1] = i
+        else:
+            runs.append([i, i])
+    return ",".join(f"{a}-{b}" if b > a else str(a) for a, b in runs)

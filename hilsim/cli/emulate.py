@@ -36,7 +36,13 @@ _FIELDS = ("ids", "model", "rdt_us", "turnaround_us", "latency_ms", "firmware", 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     keep = argparse.SUPPRESS  # a flag not given leaves BASE's value
     add_ids(p, default=keep, help="servo IDs, e.g. 1-4 or 1,3,5 (default 1-4: the demo figure)")
-    p.add_argument("--model", default=keep, help=f"servo model (default {BASE.model})")
+    p.add_argument(
+        "--model",
+        default=keep,
+        help=f"servo model for all, and IDS:MODEL for the IDs that differ, e.g. "
+        f"'XM430-W350,5-6:XL330-M288' (default {BASE.model}; the models: hilsim scan names "
+        "them, the README lists them)",
+    )
     add_baud(
         p,
         default=str(DEFAULT_HOST_BAUD),
@@ -115,7 +121,7 @@ def run(args: argparse.Namespace) -> int:
     print(server.path, flush=True)
     print(usage_lines(server.path, args), flush=True)
     print(
-        f"hilsim emulate: {len(bus.servos)} x {url.model} ({url}) at {args.baud} bps "
+        f"hilsim emulate: {len(bus.servos)} servos, {url.model} ({url}) at {args.baud} bps "
         f"on {server.path}; Ctrl-C to stop",
         file=sys.stderr,
         flush=True,

@@ -110,7 +110,7 @@ def test_scan_with_a_bad_emulator_url_is_a_usage_error(capsys):
         ("idz=1", "unknown key(s) idz; allowed: ids, model, baud"),
         ("ids=abc", "ids: bad servo ID 'abc'"),
         ("ids=1-999", "ids: servo IDs must be 0..252, got 253, 254, 255, 256, 257 … (747 in all)"),
-        ("model=XM999", "model: unknown servo model 'XM999'; choose one of: XM430-W350"),
+        ("model=XM999", "model: unknown servo model 'XM999'; known: XM430-W350"),
         ("faults=brownout:at=4", "faults: 'brownout:at=4': brownout is an event on one servo"),
         ("faults=dorp:id=1", "faults: unknown fault kind 'dorp' in 'dorp:id=1'; choose from:"),
         ("faults=drop:id=1,nbytes=0", "faults: 'drop:id=1,nbytes=0': drop: nbytes must be >= 1"),
