@@ -29,9 +29,8 @@ Backup; Ping and Read would only produce an answer, which is never sent. A broad
 Factory Reset with option 0xFF is ignored by firmware 42 and up (nothing executed, no
 reply, as for every broadcast but Ping and the reads).
 
-Not modelled (named so nobody relies on them): the host transmitting over a reply
-still on the wire (no collision between host and servos), electrical noise other than
-the fault plan, and a servo's own processing time depending on the instruction.
+Not modelled (host/servo collisions, noise beyond the fault plan, ...): the one list is
+``docs/dxlsim.md``.
 """
 
 from __future__ import annotations

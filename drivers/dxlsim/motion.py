@@ -40,10 +40,8 @@ e-Manual rules modelled here (``_includes/en/dxl/...``):
   current. A load at or above the stall torque stalls the horn where it is (a simplification:
   no back-driving).
 
-Not modelled: Drive Mode bit 0 (reverse) is stored but ignored; in step moves (Profile
-Velocity 0) only the motor's speed bounds the horn, not Velocity Limit. Current mode is
-crude: the goal current fraction of Current Limit sets a fraction of no-load speed (an
-unloaded horn).
+Not modelled (the gains, reverse mode, a crude Current mode, no back-driving ...): the one
+list is ``docs/dxlsim.md``.
 """
 
 from __future__ import annotations

@@ -39,7 +39,7 @@ Choices where the e-Manual is silent or ambiguous (all deliberate, all tested):
 - Reboot/brownout: RAM to defaults, Goal Position = Present Position (folded), Realtime
   Tick restarts at 0. Reboot's returned error still carries the pre-reboot Alert bit
   (the real servo replies before it reboots).
-- Not modelled: see :mod:`drivers.dxlsim.motion`.
+- Not modelled: ``docs/dxlsim.md`` has the one list.
 """
 
 from __future__ import annotations

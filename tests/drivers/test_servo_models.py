@@ -192,3 +192,16 @@ def test_protocol_type_1_leaves_the_servo_deaf_to_protocol_2():
         port.closePort()
     finally:
         unregister_bus("proto1")
+
+
+def test_the_docs_name_every_model():
+    """docs/dxlsim.md (the limits, one place) and the README list the same servos as the code."""
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[2]
+    limits = (root / "docs" / "dxlsim.md").read_text()
+    readme = " ".join((root / "README.md").read_text().split())
+    for name in MODELS:
+        assert name in limits, name
+        family, _, variant = name.partition("-")
+        assert name in readme or (family in readme and variant in readme), name
