@@ -6,6 +6,17 @@ the dxlsim:// PortHandler, with servos moving. Prints cycles per wall-clock seco
 how much faster than real time a show at RATE Hz would rehearse.
 
     python tools/bench_emulator.py [--servos 4] [--rate 500] [--cycles 5000] [--plain]
+
+``--direct`` measures the emulator alone: no SDK, no PortHandler. It drives a
+:class:`~drivers.dxlsim.DxlBus` with precomputed packet bytes as a host would (per cycle
+one Sync Write of 4-byte goals that change every cycle, the servos moving, and one Fast
+Sync Read of Present Position; the virtual clock jumps to the cycle's deadline, then to
+when the whole reply is readable through a USB adapter with ``--latency-ms``, and every
+reply byte is read) and prints µs per emulated Sync Write + Fast Sync Read, best of
+``--repeats`` runs, for 4 and 16 servos at 1 and 4 Mbit/s (or ``--servos``/``--baud``
+when given):
+
+    python tools/bench_emulator.py --direct [--repeats 7] [--cycles 2000] [--rate 250]
 """
 
 from __future__ import annotations
@@ -13,6 +24,7 @@ from __future__ import annotations
 import argparse
 import cProfile
 import math
+import os
 import pstats
 import time
 
@@ -20,18 +32,113 @@ import dynamixel_sdk as sdk
 
 from drivers.clock import VirtualClock
 from drivers.dxlsim import DxlBus, VirtualServo, register_bus
-from drivers.dynamixel.port import PortHandler
+from drivers.dxlsim.protocol import Instruction, encode_instruction
+
+GOAL_POSITION, PRESENT_POSITION, TORQUE_ENABLE = 116, 132, 64
+
+
+def _goal(k: int, period: float) -> int:
+    return int(2048 + 800 * math.sin(2 * math.pi * 0.5 * k * period))
+
+
+def direct_cycles(n_servos: int, baud: int, rate: float, cycles: int, latency_ms: float) -> tuple:
+    """One run of the emulator alone: returns (wall s per cycle, failed cycles, bus)."""
+    clock = VirtualClock()
+    ids = list(range(1, n_servos + 1))
+    servos = [VirtualServo("XM430-W350", i, baud=baud, return_delay_us=0, t=0.0) for i in ids]
+    bus = DxlBus(servos, baud=baud, clock=clock, latency_timer_ms=latency_ms)
+    period = 1.0 / rate
+    for i in ids:  # torque on, one Write each, its reply read like any other
+        bus.write(encode_instruction(i, Instruction.WRITE, bytes((TORQUE_ENABLE, 0, 1))))
+        clock.wait_until(bus.visible_at(bus.pending_rx))
+        bus.read(bus.pending_rx)
+    # Precomputed host bytes: a Sync Write per cycle of one period of the 0.5 Hz sine (the
+    # goals move every cycle) ...
+    head = bytes((GOAL_POSITION & 0xFF, GOAL_POSITION >> 8, 4, 0))
+    writes = []
+    for k in range(min(cycles, max(1, round(2.0 * rate)))):
+        goal = _goal(k, period).to_bytes(4, "little")
+        body = b"".join(bytes((i,)) + goal for i in ids)
+        writes.append(encode_instruction(0xFE, Instruction.SYNC_WRITE, head + body))
+    # ... and the same Fast Sync Read of Present Position every cycle.
+    fast_read = encode_instruction(
+        0xFE, Instruction.FAST_SYNC_READ, bytes((PRESENT_POSITION, 0, 4, 0, *ids))
+    )
+    reply = 8 + 8 * n_servos  # header, ID, LEN, INST + per servo ERR ID data(4) CRC(2)
+    failures = 0
+    deadline = clock.now()
+    n_writes = len(writes)
+    t0 = time.perf_counter()
+    for k in range(cycles):
+        packet = writes[k % n_writes]
+        deadline += period
+        clock.wait_until(deadline)
+        bus.write(packet)
+        bus.write(fast_read)
+        due = bus.visible_at(reply)
+        if due is None:
+            failures += 1
+            continue
+        clock.wait_until(due)
+        failures += len(bus.read(reply)) != reply
+    wall = time.perf_counter() - t0
+    return wall / cycles, failures, bus
+
+
+def direct(args) -> int:
+    combos = [
+        (n, b)
+        for n in ([args.servos] if args.servos_given else [4, 16])
+        for b in ([args.baud] if args.baud_given else [1_000_000, 4_000_000])
+    ]
+    print(
+        f"emulator alone (DxlBus, no SDK): Sync Write + Fast Sync Read per cycle, "
+        f"{args.cycles} cycles at {args.rate:g} Hz virtual, latency timer {args.latency_ms:g} "
+        f"ms, best of {args.repeats}; load average {' '.join(f'{x:.2f}' for x in os.getloadavg())}"
+    )
+    failed = 0
+    for n, baud in combos:
+        runs = []
+        for _ in range(args.repeats):
+            per_cycle, failures, bus = direct_cycles(
+                n, baud, args.rate, args.cycles, args.latency_ms
+            )
+            runs.append(per_cycle)
+            failed += failures
+        moved = [s.now for s in bus.servos]
+        print(
+            f"  {n:2d} servos {baud / 1e6:g} Mbit/s: best {min(runs) * 1e6:7.1f} µs/cycle, "
+            f"median {sorted(runs)[len(runs) // 2] * 1e6:7.1f}, "
+            f"{bus.stats['instructions']} instructions, {failures} failed, "
+            f"servo time {min(moved):.3f} s"
+        )
+    return 0 if failed == 0 else 1
 
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--servos", type=int, default=4)
-    ap.add_argument("--rate", type=float, default=500.0, help="virtual loop rate, Hz")
-    ap.add_argument("--cycles", type=int, default=5000)
-    ap.add_argument("--baud", type=int, default=1_000_000)
+    ap.add_argument("--servos", type=int, default=None)
+    ap.add_argument("--rate", type=float, default=None, help="virtual loop rate, Hz")
+    ap.add_argument("--cycles", type=int, default=None)
+    ap.add_argument("--baud", type=int, default=None)
     ap.add_argument("--plain", action="store_true", help="plain Sync Read instead of Fast")
-    ap.add_argument("--profile", action="store_true", help="print the top cProfile entries")
+    ap.add_argument("--profile", action="store_true", help="print the top cProfile entries (SDK)")
+    ap.add_argument("--direct", action="store_true", help="the emulator alone, no SDK")
+    ap.add_argument("--repeats", type=int, default=7, help="--direct: runs per case")
+    ap.add_argument("--latency-ms", type=float, default=1.0, help="--direct: USB latency timer")
     args = ap.parse_args(argv)
+    args.servos_given, args.baud_given = args.servos is not None, args.baud is not None
+    if args.direct:
+        args.servos = args.servos or 4
+        args.baud = args.baud or 1_000_000
+        args.rate = args.rate or 250.0
+        args.cycles = args.cycles or 2000
+        return direct(args)
+    args.servos = args.servos or 4
+    args.baud = args.baud or 1_000_000
+    args.rate = args.rate or 500.0
+    args.cycles = args.cycles or 5000
+    from drivers.dynamixel.port import PortHandler  # the SDK path only
 
     clock = VirtualClock()
     ids = list(range(1, args.servos + 1))

@@ -36,8 +36,12 @@ Not modelled (host/servo collisions, noise beyond the fault plan, ...): the one 
 from __future__ import annotations
 
 import bisect
+import math
 from collections.abc import Iterable
 from dataclasses import dataclass
+from itertools import repeat
+from operator import itemgetter
+from types import SimpleNamespace
 
 from drivers.clock import Clock, VirtualClock
 from drivers.dxlsim.faults import FaultKind, FaultPlan, parse_fault_plan
@@ -45,7 +49,6 @@ from drivers.dxlsim.protocol import (
     BROADCAST_ID,
     HEADER,
     ErrorCode,
-    Frame,
     Instruction,
     StreamParser,
     crc16,
@@ -53,6 +56,7 @@ from drivers.dxlsim.protocol import (
 )
 from drivers.dxlsim.servo import VirtualServo
 from drivers.protocol2.control_table import EEPROM_END
+from drivers.protocol2.crc import crc16_blocks, word_table
 from drivers.protocol2.wire_time import DEFAULT_TURNAROUND_S, USB_CHUNK
 
 #: A servo drops a half-received instruction packet after this much silence (e-Manual).
@@ -62,7 +66,9 @@ INTER_BYTE_TIMEOUT_S = 1.5e-3
 BROADCAST_RESET_ALL_MIN_FIRMWARE = 42
 RESET_ALL = b"\xff"
 
-Inst = Instruction
+#: The instruction codes as plain ints: each lookup of an enum member through its class
+#: costs ~0.15 µs on CPython 3.11, several per packet; the comparisons are the same.
+Inst = SimpleNamespace(**{m.name: int(m) for m in Instruction})
 #: What a servo executes when addressed by its Secondary ID (never answered).
 _BY_SECONDARY_ID = frozenset((Inst.WRITE, Inst.REG_WRITE, Inst.ACTION, Inst.REBOOT, Inst.CLEAR))
 
@@ -128,6 +134,7 @@ class DxlBus:
         self.t0 = self.clock.now()
         self.trace: list[TraceRecord] | None = [] if trace else None
 
+        word_table()  # build the CRC's table now, not when the first packet is due
         self._parser = StreamParser()
         self._stream_pos = 0  # stream index of the next host byte fed to the parser
         self._tx_free = self.t0  # when the host's last byte has left
@@ -135,6 +142,16 @@ class DxlBus:
         self._rx_data = bytearray()
         self._rx_wire: list[float] = []
         self._rx_vis: list[float] = []
+        # What the last visibility computation found (see _update_visibility): the stream
+        # index of _rx_data[0], the stream indices where its USB chunks started, and the
+        # clock and latency it ran with.
+        self._rx_base = 0
+        self._chunk_starts: list[int] = []
+        self._vis_now = -math.inf
+        self._vis_latency = self.latency_s
+        self._fast_headers: dict[int, tuple[bytes, int]] = {}  # size -> (header, its CRC)
+        self._steps: list[float] = []  # k · byte time, k = 1, 2, ... (see _byte_steps)
+        self._steps_bt = 0.0
         self._events = self.faults.events
         self._offline: dict[int, float] = {}  # id(servo) -> back-online time
         self.unplugged_at: float | None = None
@@ -162,11 +179,12 @@ class DxlBus:
         (bus clock). A ``t`` in the past is for a server that was not running when the bytes
         came (see :mod:`drivers.dxlsim.pty_server`)."""
         now = self.clock.now() if t is None else t
-        self._apply_events(now)
-        bt = self.byte_time
+        if self._events:
+            self._apply_events(now)
+        bt = 10.0 / self.baud  # byte_time
         start = max(now, self._tx_free)
         end = start + len(data) * bt
-        if self._parser.pending and start - self._tx_free > INTER_BYTE_TIMEOUT_S:
+        if start - self._tx_free > INTER_BYTE_TIMEOUT_S and self._parser.pending:
             self._parser.reset()  # the servos gave up on the half-received packet
         base = self._stream_pos
         self._stream_pos += len(data)
@@ -174,10 +192,11 @@ class DxlBus:
         self.stats["bytes_tx"] += len(data)
         if self.trace is not None:
             self.trace.append(TraceRecord(start, end, "tx", bytes(data)))
-        for frame in self._parser.feed(data):
-            t_frame = start + (frame.end - base) * bt
-            self._apply_events(t_frame)
-            self._process(frame, t_frame)
+        for frame_end, (_, fid, crc_ok, inst, params) in self._parser.feed_decoded(data):
+            t_frame = start + (frame_end - base) * bt
+            if self._events:
+                self._apply_events(t_frame)
+            self._process(fid, crc_ok, inst, params, t_frame)
         return end
 
     def in_waiting(self, t: float | None = None) -> int:
@@ -192,6 +211,7 @@ class DxlBus:
             return b""
         out = bytes(self._rx_data[:n])
         del self._rx_data[:n], self._rx_wire[:n], self._rx_vis[:n]
+        self._rx_base += n
         return out
 
     def visible_at(self, count: int = 1) -> float | None:
@@ -211,6 +231,7 @@ class DxlBus:
         """Discard what the host could read at ``t`` (bytes still on the wire survive)."""
         n = self.in_waiting(t)
         del self._rx_data[:n], self._rx_wire[:n], self._rx_vis[:n]
+        self._rx_base += n
 
     # ------------------------------------------------------------------ servos
     def servo(self, servo_id: int) -> VirtualServo:
@@ -260,17 +281,19 @@ class DxlBus:
                 self.servos.append(twin)
 
     # ------------------------------------------------------------------ dispatch
-    def _process(self, frame: Frame, t: float) -> None:
+    def _process(self, fid: int, crc_ok: bool, inst: int, params: bytes, t: float) -> None:
+        """One instruction packet complete at ``t``: its ID byte, whether its CRC held, its
+        instruction and (unstuffed) parameters."""
         self.stats["instructions"] += 1
         if self._offline:
             hearing = [s for s in self.servos if self._hears(s, t)]
         else:  # the common case: nobody is browned out
             baud = self.baud
             hearing = [s for s in self.servos if s.listening_baud == baud]
-        if not frame.crc_ok:
+        if not crc_ok:
             self.stats["crc_errors"] += 1
             # Never executed. A servo that recognises its ID complains (CRC Error).
-            targets = [s for s in hearing if s.id == frame.id]
+            targets = [s for s in hearing if s.id == fid]
             for s in targets:
                 s.touch(t)
             replies = [
@@ -280,20 +303,18 @@ class DxlBus:
             ]
             self._send_unicast(replies, t)
             return
-        pkt = frame.packet
-        inst, params = pkt.instruction, pkt.params
-        if pkt.id == BROADCAST_ID:
+        if fid == BROADCAST_ID:
             self._broadcast(inst, params, hearing, t)
             return
-        targets = [s for s in hearing if s.id == pkt.id]
+        targets = [s for s in hearing if s.id == fid]
         replies = []
         for s in targets:
             s.touch(t)
             err, data = self._execute(s, inst, params, t)
             if self._replies(s, inst):  # answers as the ID it was asked as, even after an ID write
-                replies.append((s, encode_status(pkt.id, err, data)))
+                replies.append((s, encode_status(fid, err, data)))
         for s in hearing:
-            if s.id != pkt.id and s.secondary_id == pkt.id and s not in targets:
+            if s.id != fid and s.secondary_id == fid and s not in targets:
                 s.touch(t)
                 self._execute_secondary(s, inst, params, t)
         self._send_unicast(replies, t)
@@ -348,27 +369,8 @@ class DxlBus:
         self._execute(s, inst, params, t)
 
     def _broadcast(self, inst: int, params: bytes, hearing: list[VirtualServo], t: float) -> None:
-        if inst == Inst.PING:
-            chain = sorted(hearing, key=lambda s: s.id)
-            for s in chain:
-                s.touch(t)
-            self._send_chain([(s, *s.ping(t)) for s in chain], t)
-        elif inst in (Inst.SYNC_READ, Inst.FAST_SYNC_READ):
-            if len(params) < 5:
-                return
-            addr, length = params[0] | params[1] << 8, params[2] | params[3] << 8
-            self._read_chain(
-                inst == Inst.FAST_SYNC_READ, [(i, addr, length) for i in params[4:]], hearing, t
-            )
-        elif inst in (Inst.BULK_READ, Inst.FAST_BULK_READ):
-            if len(params) < 5 or len(params) % 5:
-                return
-            items = [
-                (params[k], params[k + 1] | params[k + 2] << 8, params[k + 3] | params[k + 4] << 8)
-                for k in range(0, len(params), 5)
-            ]
-            self._read_chain(inst == Inst.FAST_BULK_READ, items, hearing, t)
-        elif inst == Inst.SYNC_WRITE:
+        # the instructions of every tick first (the branches exclude each other)
+        if inst == Inst.SYNC_WRITE:
             if len(params) < 4:
                 return
             addr, length = params[0] | params[1] << 8, params[2] | params[3] << 8
@@ -383,6 +385,25 @@ class DxlBus:
                 if data is not None:
                     s.touch(t)
                     s.write(addr, data, t)
+        elif inst in (Inst.SYNC_READ, Inst.FAST_SYNC_READ):
+            if len(params) < 5:
+                return
+            addr, length = params[0] | params[1] << 8, params[2] | params[3] << 8
+            items = list(zip(params[4:], repeat(addr), repeat(length)))  # (id, addr, length)
+            self._read_chain(inst == Inst.FAST_SYNC_READ, items, hearing, t)
+        elif inst == Inst.PING:
+            chain = sorted(hearing, key=lambda s: s.id)
+            for s in chain:
+                s.touch(t)
+            self._send_chain([(s, *s.ping(t)) for s in chain], t)
+        elif inst in (Inst.BULK_READ, Inst.FAST_BULK_READ):
+            if len(params) < 5 or len(params) % 5:
+                return
+            items = [
+                (params[k], params[k + 1] | params[k + 2] << 8, params[k + 3] | params[k + 4] << 8)
+                for k in range(0, len(params), 5)
+            ]
+            self._read_chain(inst == Inst.FAST_BULK_READ, items, hearing, t)
         elif inst == Inst.BULK_WRITE:
             k, items = 0, {}
             while k + 5 <= len(params):
@@ -426,12 +447,25 @@ class DxlBus:
         data)`` for every servo on that ID (several only with a duplicate-ID fault) and is
         empty when nobody answers, which stops the chain there.
         """
-        links = []
+        # The servos on each ID, in bus order, looked up once (IDs and firmware do not change
+        # while the chain is read, so this is the same list the scan per item would find).
+        by_id: dict[int, list[VirtualServo]] = {}
+        for s in hearing:
+            if not fast or s.supports_fast_read:
+                by_id.setdefault(s.id, []).append(s)
+        links: list[tuple[list, int]] = []
         for sid, addr, length in items:
-            members = [s for s in hearing if s.id == sid and (not fast or s.supports_fast_read)]
-            for s in members:
+            members = by_id.get(sid)
+            if members is None:
+                links.append(([], length))
+            elif len(members) == 1:  # the usual case, without a comprehension
+                s = members[0]
                 s.touch(t)
-            links.append(([(s, *s.read(addr, length, t)) for s in members], length))
+                links.append(([(s, *s.read(addr, length, t))], length))
+            else:
+                for s in members:
+                    s.touch(t)
+                links.append(([(s, *s.read(addr, length, t)) for s in members], length))
         if fast:
             self._send_fast(links, t)
         else:
@@ -465,12 +499,15 @@ class DxlBus:
         Returns when its last byte ends, or None if the chain must stop here.
         """
         lead = packets[0][0]
-        data = _merge([p for _, p in packets])
-        note = f"id={lead.id}" + " collision" * (len(packets) - 1)
-        fault = self.faults.reply_fault(lead.id, start - self.t0)
+        data = packets[0][1] if len(packets) == 1 else _merge([p for _, p in packets])
+        note = ""  # only the trace reads it
+        if self.trace is not None:
+            note = f"id={lead.id}" + " collision" * (len(packets) - 1)
+        fault = self.faults.reply_fault(lead.id, start - self.t0) if self.faults.faults else None
         keep_chain = True
         if fault is not None:
-            note += f" fault={fault.kind}"
+            if self.trace is not None:
+                note += f" fault={fault.kind}"
             data, start, keep_chain = self._apply_reply_fault(fault, data, start)
         end = self._emit(data, start, note) if data else start
         self.stats["replies"] += 1
@@ -512,27 +549,99 @@ class DxlBus:
             answered.append(answers)
         if not answered:
             return
-        size = 1 + sum(n + 4 for _, n in links)  # the first servo announces every block
-        header = HEADER + bytes((BROADCAST_ID, size & 0xFF, size >> 8, Inst.STATUS))
-        heard = crc16(header)  # running CRC of the line so far, as every servo hears it
+        # the first servo announces every block: INST + (ERR ID data CRC) per link
+        size = 1 + 4 * len(links) + sum(map(itemgetter(1), links))
+        cached = self._fast_headers.get(size)
+        if cached is None:
+            header = HEADER + bytes((BROADCAST_ID, size & 0xFF, size >> 8, Inst.STATUS))
+            cached = self._fast_headers[size] = (header, crc16(header))
+        header, heard = cached  # heard: the running CRC of the line so far, as servos hear it
         ready = t + answered[0][0][0].return_delay_s + self.turnaround_s
-        for k, answers in enumerate(answered):
-            length = links[k][1]
-            blocks = []
+        bodies = []  # per link: what each of its servos sends, ERR ID data (and then CRC)
+        collision = False
+        for answers, (_, length) in zip(answered, links, strict=False):
+            link = []
             for s, err, data in answers:
-                body = bytes((err, s.id)) + (data if len(data) == length else bytes(length))
-                crc = crc16(body, heard)
-                blocks.append((s, body + bytes((crc & 0xFF, crc >> 8))))
-            heard = crc16(_merge([b for _, b in blocks]), heard)
-            head = header if k == 0 else b""
-            end = self._emit_group([(s, head + b) for s, b in blocks], ready)
+                link.append(
+                    (s, bytes((err, s.id)) + (data if len(data) == length else bytes(length)))
+                )
+            bodies.append(link)
+            collision = collision or len(link) > 1
+        if not collision:  # one servo per link: the line carries each block as it is
+            crcs = crc16_blocks([link[0][1] for link in bodies], heard)
+            groups = [
+                [(s, body + bytes((crc & 0xFF, crc >> 8)))]
+                for ((s, body),), crc in zip(bodies, crcs, strict=True)
+            ]
+        else:
+            groups = []  # per link: the block each of its servos sends
+            for link in bodies:
+                blocks = []
+                for s, body in link:
+                    crc = crc16(body, heard)
+                    blocks.append((s, body + bytes((crc & 0xFF, crc >> 8))))
+                heard = crc16(_merge([b for _, b in blocks]), heard)
+                groups.append(blocks)
+        groups[0] = [(s, header + b) for s, b in groups[0]]  # the first with the header
+        if self._emit_burst(groups, ready):
+            return
+        for packets in groups:
+            end = self._emit_group(packets, ready)
             if end is None:
                 return
             ready = end
 
+    def _emit_burst(self, groups: list[list[tuple[VirtualServo, bytes]]], start: float) -> bool:
+        """Put the groups on the wire back to back from ``start`` as :meth:`_emit_group`
+        would one by one, and work out the USB visibility once at the end; False (nothing
+        done) where that would not be the same.
+
+        It is the same when no fault rule can strike a group (then every group is sent and
+        the next starts where it ended), the bytes go after those already received, and
+        every byte arrives after ``now`` on a clock that stands still meanwhile (virtual):
+        one by one, no byte of the burst could be seen before the burst is complete (its
+        chunk's time is at or after its own arrival), so the intermediate visibilities
+        leave no trace, and the chunks are cut where the full computation cuts them.
+        """
+        if self.faults.faults or not getattr(self.clock, "virtual", False):
+            return False
+        if not start > self.clock.now():
+            return False
+        bt = 10.0 / self.baud  # byte_time
+        wire = self._rx_wire
+        if wire and start + bt < wire[-1]:
+            return False  # a late reply ahead of it: the merge in _emit
+        steps = self._byte_steps(bt, 0)
+        first = start
+        rx = self._rx_data
+        trace = self.trace
+        n_bytes = 0
+        for packets in groups:
+            data = packets[0][1] if len(packets) == 1 else _merge([p for _, p in packets])
+            n = len(data)
+            if n > len(steps):
+                steps = self._byte_steps(bt, n)
+            wire += map(start.__add__, steps[:n])  # start + k·bt, k = 1..n
+            end = wire[-1]
+            rx += data
+            n_bytes += n
+            if trace is not None:
+                note = f"id={packets[0][0].id}" + " collision" * (len(packets) - 1)
+                trace.append(TraceRecord(start, end, "rx", bytes(data), note))
+            start = end
+        self.stats["bytes_rx"] += n_bytes
+        self.stats["replies"] += len(groups)
+        if self.latency_s <= 0.0:
+            self._rx_vis += wire[len(self._rx_vis) :]
+        else:
+            self._update_visibility(bt + 4.0 * math.ulp(abs(first) + abs(start)) < self.latency_s)
+        return True
+
     def _emit(self, data: bytes, start: float, note: str) -> float:
-        bt = self.byte_time
-        times = [start + k * bt for k in range(1, len(data) + 1)]
+        bt = 10.0 / self.baud  # byte_time
+        n = len(data)
+        steps = self._byte_steps(bt, n)
+        times = list(map(start.__add__, steps[:n]))  # start + k·bt, k = 1..n
         end = times[-1]
         if not self._rx_wire or times[0] >= self._rx_wire[-1]:
             self._rx_data += data
@@ -540,42 +649,143 @@ class DxlBus:
             if self.latency_s <= 0.0:
                 self._rx_vis += times  # ideal adapter: readable when the stop bit ends
             else:
-                self._update_visibility()
+                # No gap inside this burst can exceed the latency timer when a byte time
+                # (plus the round-off of start + k·bt, a few ulps) stays below it.
+                even = bt + 4.0 * math.ulp(abs(start) + abs(end)) < self.latency_s
+                self._update_visibility(even)
         else:  # a late reply overtaken by newer ones: merge by wire time
             merged = sorted(
                 zip(self._rx_wire + times, self._rx_data + data, strict=True), key=lambda p: p[0]
             )
             self._rx_wire = [w for w, _ in merged]
             self._rx_data = bytearray(b for _, b in merged)
-            self._update_visibility()
-        self.stats["bytes_rx"] += len(data)
+            self._chunk_starts = []  # chunks no longer line up: recompute them all
+            self._update_visibility(False)
+        self.stats["bytes_rx"] += n
         if self.trace is not None:
             self.trace.append(TraceRecord(start, end, "rx", bytes(data), note))
         return end
 
-    def _update_visibility(self) -> None:
-        """Recompute when each unread byte reaches the host through the USB adapter."""
+    def _byte_steps(self, bt: float, n: int) -> list[float]:
+        """``[k * bt for k in 1..]``, at least ``n`` long, kept while the baud rate holds."""
+        steps = self._steps
+        if bt != self._steps_bt or len(steps) < n:
+            steps = self._steps = [k * bt for k in range(1, max(n, 2 * len(steps), 256) + 1)]
+            self._steps_bt = bt
+        return steps
+
+    def _update_visibility(self, even: bool) -> None:
+        """When each unread byte reaches the host through the USB adapter, after bytes joined
+        the buffer (``even``: they came at the end, one burst with no gap over the latency).
+
+        Equal to :func:`full_visibility` (the definition; a test holds the two equal), but it
+        only redoes the part that can change. The full computation cuts the unread bytes
+        into chunks from the first one: a chunk ends after 62 bytes (readable when its last
+        byte arrives), at a gap longer than the latency timer or at the last byte (readable
+        ``latency`` after its last byte); then a byte the host could already see keeps its
+        earlier time. Bytes appended at the end change neither the chunks that closed before
+        the last one nor their times: the same cuts come back, and a kept earlier time is
+        kept again (the clock has not gone back). So the chunks are cut again from the last
+        chunk's start only, provided the host's reads since ended on a chunk boundary (else
+        the chunks start elsewhere now, and all unread bytes are cut again). Inside the last
+        chunk and inside one burst there is no gap over the latency, so with ``even`` the
+        only possible cut by a gap is where the burst joins the buffer.
+        """
         wire = self._rx_wire
         latency = self.latency_s
-        if latency <= 0.0:
+        if latency <= 0.0:  # an ideal adapter: readable when the stop bit ends
             self._rx_vis = list(wire)
+            self._chunk_starts = []
             return
         now = self.clock.now()
-        old = self._rx_vis
-        vis = [0.0] * len(wire)
-        chunk_start = 0
-        for i in range(len(wire)):
-            last = i + 1 == len(wire) or wire[i + 1] - wire[i] > latency
-            if i + 1 - chunk_start == USB_CHUNK or last:
-                flush = wire[i] if i + 1 - chunk_start == USB_CHUNK else wire[i] + latency
-                for j in range(chunk_start, i + 1):
-                    vis[j] = flush
-                chunk_start = i + 1
-        # A byte the host could already see stays visible.
-        for j in range(min(len(old), len(vis))):
-            if old[j] <= now and wire[j] <= old[j]:
-                vis[j] = min(vis[j], old[j])
-        self._rx_vis = vis
+        vis = self._rx_vis
+        m = len(vis)
+        base = self._rx_base
+        starts = self._chunk_starts
+        lo, kept, incremental = 0, [], False
+        if starts and now >= self._vis_now and latency == self._vis_latency:
+            i = bisect.bisect_left(starts, base)
+            if i < len(starts) and starts[i] == base:
+                lo, kept, incremental = starts[-1] - base, starts[i:-1], True
+        if even and (incremental or m == 0):
+            values, cuts = _even_chunks(wire, lo, m, latency)
+        else:
+            values, cuts = _chunks(wire, lo, latency)
+        if lo < m and min(vis[lo:m]) <= now:  # a byte the host could already see stays visible
+            for j in range(lo, m):
+                old = vis[j]
+                if old <= now and wire[j] <= old:
+                    values[j - lo] = min(values[j - lo], old)
+        vis[lo:] = values
+        kept.extend(base + c for c in cuts)
+        self._chunk_starts = kept
+        self._vis_now = now
+        self._vis_latency = latency
+
+
+def _chunks(wire: list[float], lo: int, latency: float) -> tuple[list[float], list[int]]:
+    """USB chunks of ``wire[lo:]`` cut from ``lo``, byte by byte: ``(the time each byte is
+    readable, the chunks' first indices)``. Any gaps."""
+    n = len(wire)
+    values: list[float] = []
+    cuts = []
+    chunk_start = lo
+    for i in range(lo, n):
+        full = i + 1 - chunk_start == USB_CHUNK
+        if full or i + 1 == n or wire[i + 1] - wire[i] > latency:
+            flush = wire[i] if full else wire[i] + latency
+            values += [flush] * (i + 1 - chunk_start)
+            cuts.append(chunk_start)
+            chunk_start = i + 1
+    return values, cuts
+
+
+def _even_chunks(
+    wire: list[float], lo: int, m: int, latency: float
+) -> tuple[list[float], list[int]]:
+    """:func:`_chunks` when no gap in ``wire[lo:]`` can exceed ``latency`` but the one
+    between ``m - 1`` and ``m`` (where a burst joined the last chunk): whole chunks at a
+    time instead of byte by byte."""
+    n = len(wire)
+    runs = [(lo, n)]
+    if lo < m and wire[m] - wire[m - 1] > latency:
+        runs = [(lo, m), (m, n)]
+    values: list[float] = []
+    cuts = []
+    for a, b in runs:
+        for c in range(a, b, USB_CHUNK):
+            e = c + USB_CHUNK
+            if e <= b:
+                values += [wire[e - 1]] * USB_CHUNK
+            else:
+                e = b
+                values += [wire[e - 1] + latency] * (e - c)
+            cuts.append(c)
+    return values, cuts
+
+
+def full_visibility(wire: list[float], old: list[float], now: float, latency: float) -> list[float]:
+    """When each unread byte (arriving at ``wire``) reaches the host through a USB adapter
+    with latency timer ``latency`` > 0, given the times ``old`` computed before and the
+    clock ``now``: the definition :meth:`DxlBus._update_visibility` computes incrementally.
+
+    Chunks are cut from the first byte: a chunk ends after 62 bytes (readable when its last
+    byte arrives), at a gap longer than ``latency`` or at the last byte (readable
+    ``latency`` after its last byte). A byte the host could already see stays visible.
+    """
+    vis = [0.0] * len(wire)
+    chunk_start = 0
+    for i in range(len(wire)):
+        last = i + 1 == len(wire) or wire[i + 1] - wire[i] > latency
+        if i + 1 - chunk_start == USB_CHUNK or last:
+            flush = wire[i] if i + 1 - chunk_start == USB_CHUNK else wire[i] + latency
+            for j in range(chunk_start, i + 1):
+                vis[j] = flush
+            chunk_start = i + 1
+    for j in range(min(len(old), len(vis))):
+        if old[j] <= now and wire[j] <= old[j]:
+            vis[j] = min(vis[j], old[j])
+    return vis
 
 
 def _merge(packets: list[bytes]) -> bytes:

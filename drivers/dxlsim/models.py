@@ -72,16 +72,17 @@ class Field:
     signed: bool = False
     choices: tuple[int, ...] = ()
 
-    @property
+    # Computed once per field (a Write checks them on every packet); the field is frozen.
+    @cached_property
     def eeprom(self) -> bool:
         """True for addresses < 64 (locked while torque is on)."""
         return self.addr < EEPROM_END
 
-    @property
+    @cached_property
     def writable(self) -> bool:
         return self.access == "RW"
 
-    @property
+    @cached_property
     def end(self) -> int:
         """First address after this field."""
         return self.addr + self.size

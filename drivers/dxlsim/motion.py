@@ -91,6 +91,8 @@ from .registers import (
     VELOCITY_TRAJECTORY,
 )
 
+_RAD_PER_PULSE = 2.0 * math.pi / PULSES_PER_REV
+_POSITION_MODE, _STEP = OperatingMode.POSITION, ProfileType.STEP  # one lookup (~0.15 µs each)
 _SETTLE_PULSES = 1e-3  # horn this close to a finished trajectory: snap and go idle
 _GRID_EPS = 1e-7  # grid steps are counted with this slack against float round-off
 _DRIVE_MODE = DRIVE_MODE.addr
@@ -161,6 +163,7 @@ class Motion:
         self.hold(self.x)
         self.profile_type = ProfileType.STEP
         self._alpha = 1.0 - math.exp(-self._dt / m.lag_time_constant_s)
+        self._kt = m.stall_torque_nm / m.stall_current_a  # torque constant, N·m/A
         self.update_speed_limit()
 
     def present_getters(self) -> dict[int, Callable[[], int]]:
@@ -189,6 +192,26 @@ class Motion:
             return
         if self.idle:
             self.k = k_end
+            return
+        if not self.velocity_loop and self.seg_i >= len(self.segs):
+            # No trajectory left (a step, or a profile over), Position modes: the loop below with
+            # r = end_p every step and only the last two dx kept (v, acc computed as it does).
+            inv_dt, alpha, settle = self._inv_dt, self._alpha, _SETTLE_PULSES
+            x, r, lim, steps = self.x, self.end_p, self._vmax * self._dt, k_end - k
+            dx = prev = 0.0
+            for _ in range(steps):
+                prev, dx = dx, (r - x) * alpha
+                if dx > lim:
+                    dx = lim
+                elif dx < -lim:
+                    dx = -lim
+                x += dx
+                if -settle < r - x < settle:
+                    self.k, self.x, self.v, self.acc = k_end, r, 0.0, 0.0
+                    self.hold(r)
+                    return
+            self.acc = (dx * inv_dt - (prev * inv_dt if steps > 1 else self.v)) * inv_dt
+            self.k, self.x, self.v, self.r, self.rv = k_end, x, dx * inv_dt, r, 0.0
             return
         dt, inv_dt, t0, alpha = self._dt, self._inv_dt, self._t0, self._alpha
         vmax = self._vmax
@@ -262,18 +285,20 @@ class Motion:
         regs = self._regs
         mode = regs[OPERATING_MODE]
         t = self.now
-        p0, v0 = self.trajectory_at(t)
         accel = regs[PROFILE_ACCELERATION] * PULSE_PER_S2_PER_ACCEL_UNIT or math.inf
         if mode in POSITION_MODES:
             self.velocity_loop = False
             goal = float(regs[GOAL_POSITION] - self.offset())
             vel = regs[PROFILE_VELOCITY]
+            if vel == 0:  # a step (a cap cannot raise 0): nothing to plan, nowhere to start
+                self.segs, self.seg_i, self.end_p, self.profile_end = [], 0, goal, t
+                self.profile_type, self.idle = _STEP, False
+                return
             time_based = self.time_based()
             if not time_based and regs[VELOCITY_LIMIT] > 0:
-                vel = min(vel, regs[VELOCITY_LIMIT])  # Velocity Limit caps the profile
-            if vel == 0:
-                segs, kind = [], ProfileType.STEP
-            elif time_based:  # Profile Velocity = span, Profile Acceleration = t1, in ms
+                vel = min(vel, regs[VELOCITY_LIMIT])  # Velocity Limit caps the profile (> 0)
+            p0, v0 = self.trajectory_at(t)
+            if time_based:  # Profile Velocity = span, Profile Acceleration = t1, in ms
                 span, acc = vel / 1000.0, regs[PROFILE_ACCELERATION] / 1000.0
                 segs, kind = plan_time_profile(t, p0, v0, goal, span, acc)
             else:
@@ -282,6 +307,7 @@ class Motion:
             end_p = goal
         else:
             self.velocity_loop = True
+            p0, v0 = self.trajectory_at(t)
             if mode == OperatingMode.VELOCITY:
                 target = regs[GOAL_VELOCITY] * PULSE_PER_S_PER_VELOCITY_UNIT
                 kind = ProfileType.TRAPEZOIDAL if regs[PROFILE_ACCELERATION] else ProfileType.STEP
@@ -318,7 +344,7 @@ class Motion:
         regs = self._regs
         off = regs[HOMING_OFFSET]
         if (
-            regs[OPERATING_MODE] == OperatingMode.POSITION
+            regs[OPERATING_MODE] == _POSITION_MODE
             and not -HOMING_OFFSET_POSITION_MODE_LIMIT <= off <= HOMING_OFFSET_POSITION_MODE_LIMIT
         ):
             return 0
@@ -380,23 +406,24 @@ class Motion:
         its position trajectory during a profiled move or while the horn is still catching
         up with its end (Position modes only, see :meth:`moving_status`). A step (Profile
         Velocity 0) has no trajectory to follow: never set."""
-        if self.profile_type == ProfileType.STEP or self.idle:
+        if self.profile_type == _STEP or self.idle:
             return False
         return abs(self.r - self.x) > FOLLOWING_ERROR_PULSES
 
     def current_a(self) -> float:
         load = self.load_nm
-        if not self._regs[TORQUE_ENABLE] or (self.v == 0.0 and self.acc == 0.0 and not load):
+        v = self.v
+        if not self._regs[TORQUE_ENABLE] or (v == 0.0 and self.acc == 0.0 and not load):
             return 0.0
         m = self.model
-        rad_per_pulse = 2.0 * math.pi / PULSES_PER_REV
-        kt = m.stall_torque_nm / m.stall_current_a
-        amps = m.reflected_inertia_kgm2 * self.acc * rad_per_pulse / kt
-        if self.v:
-            amps += math.copysign(m.running_current_a, self.v)
+        kt = self._kt
+        amps = m.reflected_inertia_kgm2 * self.acc * _RAD_PER_PULSE / kt
+        if v:
+            amps += math.copysign(m.running_current_a, v)
         if load:
             amps += load / kt  # holding the external torque
-        return max(-m.stall_current_a, min(m.stall_current_a, amps))
+        stall = m.stall_current_a  # max(-stall, min(stall, amps)) without the two calls
+        return stall if amps > stall else -stall if amps < -stall else amps
 
     def present_current(self) -> int:
         m = self.model

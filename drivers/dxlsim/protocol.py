@@ -192,6 +192,11 @@ class Frame:
     raw: bytes
 
 
+#: A frame as :meth:`StreamParser.feed_decoded` gives it: raw, id, crc_ok, instruction, params.
+Decoded = tuple[bytes, int, bool, int, bytes]
+_DECODED_KEPT = 64  # frames StreamParser remembers decoded
+
+
 class StreamParser:
     """Cut instruction frames out of a byte stream, resynchronising after garbage.
 
@@ -206,6 +211,7 @@ class StreamParser:
         self._base = 0  # stream index of _buf[0]
         self.max_length = max_length
         self.skipped = 0  # bytes discarded while hunting for a header
+        self._decoded: dict[bytes, Decoded] = {}  # frames seen lately, see feed_decoded
 
     @property
     def pending(self) -> int:
@@ -219,9 +225,28 @@ class StreamParser:
         self._buf.clear()
 
     def feed(self, data: bytes) -> list[Frame]:
+        return [
+            Frame(fid, end, ok, Packet(fid, inst, params) if ok else None, raw)
+            for end, (raw, fid, ok, inst, params) in self.feed_decoded(data)
+        ]
+
+    def feed_decoded(self, data: bytes) -> list[tuple[int, Decoded]]:
+        """:meth:`feed` without the objects: each frame as ``(end, (raw, id, crc_ok,
+        instruction, params))``, ``params`` unstuffed (``b""`` when the CRC failed), as
+        :class:`Frame` and :class:`Packet` would hold them (the emulator's bus takes this,
+        every packet). The same bytes decode the same way, so a frame seen lately (a host
+        sends the same Sync Read every tick) is looked up, not decoded again."""
         buf = self._buf
+        if not buf and data[:4] == HEADER and len(data) >= 7:
+            # The usual case: nothing held, and ``data`` is exactly one frame. The loop below
+            # would find the header at 0, take the whole of ``data`` and then hold nothing.
+            length = data[5] | data[6] << 8
+            total = 7 + length
+            if total == len(data) and 3 <= length <= self.max_length:
+                self._base += total
+                return [(self._base, self._decode(bytes(data)))]
         buf += data
-        frames: list[Frame] = []
+        frames: list[tuple[int, Decoded]] = []
         while True:
             start = buf.find(HEADER)
             if start < 0:
@@ -248,9 +273,17 @@ class StreamParser:
             end = self._base + total
             del buf[:total]
             self._base += total
+            frames.append((end, self._decode(raw)))
+
+    def _decode(self, raw: bytes) -> Decoded:
+        decoded = self._decoded.get(raw)
+        if decoded is None:
             crc_ok = crc16(raw[:-2]) == (raw[-2] | raw[-1] << 8)
-            packet = Packet(raw[4], raw[7], unstuff(raw[8:-2])) if crc_ok else None
-            frames.append(Frame(raw[4], end, crc_ok, packet, raw))
+            decoded = (raw, raw[4], crc_ok, raw[7], unstuff(raw[8:-2]) if crc_ok else b"")
+            if len(self._decoded) >= _DECODED_KEPT:
+                self._decoded.clear()
+            self._decoded[raw] = decoded
+        return decoded
 
     def _drop(self, n: int) -> None:
         if n > 0:

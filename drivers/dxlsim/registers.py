@@ -125,6 +125,9 @@ BACKUP_RAM_ITEMS = (
 GOAL_ADDRS = frozenset((GOAL_PWM, GOAL_CURRENT, GOAL_VELOCITY, GOAL_POSITION))
 
 Updates = list[tuple[Field, int]]
+# Enum members looked up once (through the class it costs ~0.15 µs a time on CPython 3.11).
+_OK = StatusError.NONE
+_POSITION_MODE = OperatingMode.POSITION
 
 
 class RegisterFile:
@@ -232,16 +235,40 @@ class RegisterFile:
         if f is not None and f.size == n and addr not in m.indirect:  # the Sync Write case
             if not f.writable or (addr < EEPROM_END and regs[TORQUE_ENABLE]):
                 return StatusError.ACCESS, []
-            updates = [(f, int.from_bytes(data, "little", signed=f.signed))]
-        else:
-            if n == 0:
-                return StatusError.DATA_LENGTH, []
-            end = addr + n
-            if addr < 0 or end > m.table_end:
-                return StatusError.ACCESS, []
-            err, updates = self._span_updates(addr, data)
-            if err:
-                return err, []
+            value = int.from_bytes(data, "little", signed=f.signed)
+            updates = [(f, value)]
+            # The two loops below for this one field, in their order, without the loops.
+            if not f.accepts(value) or (addr == DRIVE_MODE and self._drive_mode_refused(value)):
+                return StatusError.DATA_RANGE, []
+            if addr in GOAL_ADDRS:
+                if regs[BUS_WATCHDOG] == ct.WATCHDOG_TRIPPED:
+                    return StatusError.DATA_RANGE, []
+                if addr == GOAL_POSITION:  # within_limits() for it: no limit changes here
+                    if regs[OPERATING_MODE] == _POSITION_MODE and not (
+                        regs[MIN_POSITION_LIMIT] <= value <= regs[MAX_POSITION_LIMIT]
+                    ):
+                        return StatusError.DATA_LIMIT, []
+                elif not self.within_limits(addr, value, updates):
+                    return StatusError.DATA_LIMIT, []
+            elif addr == BUS_WATCHDOG:
+                if value != 0 and regs[BUS_WATCHDOG] == ct.WATCHDOG_TRIPPED:
+                    return StatusError.DATA_RANGE, []
+            elif (
+                addr == TORQUE_ENABLE
+                and value
+                and not regs[TORQUE_ENABLE]
+                and regs[HARDWARE_ERROR_STATUS] & regs[SHUTDOWN]
+            ):
+                return StatusError.RESULT_FAIL, []
+            return _OK, updates
+        if n == 0:
+            return StatusError.DATA_LENGTH, []
+        end = addr + n
+        if addr < 0 or end > m.table_end:
+            return StatusError.ACCESS, []
+        err, updates = self._span_updates(addr, data)
+        if err:
+            return err, []
         tripped = regs[BUS_WATCHDOG] == ct.WATCHDOG_TRIPPED
         for f, value in updates:
             if not f.accepts(value) or (f.addr == DRIVE_MODE and self._drive_mode_refused(value)):
@@ -336,17 +363,20 @@ class RegisterFile:
 
     def within_limits(self, addr: int, value: int, updates: Updates) -> bool:
         """Goal registers against the limit registers as they will be after this write."""
+        if len(updates) == 1 and updates[0][0].addr == addr and addr in GOAL_ADDRS:
+            reg = self.values.__getitem__  # the write changes no limit: the stored values
+        else:
 
-        def reg(a: int) -> int:
-            for f, v in updates:
-                if f.addr == a:
-                    return v
-            return self.values[a]
+            def reg(a: int) -> int:
+                for f, v in updates:
+                    if f.addr == a:
+                        return v
+                return self.values[a]
 
         if addr == GOAL_POSITION:
-            return reg(OPERATING_MODE) != OperatingMode.POSITION or reg(
-                MIN_POSITION_LIMIT
-            ) <= value <= reg(MAX_POSITION_LIMIT)
+            if reg(OPERATING_MODE) != _POSITION_MODE:
+                return True
+            return reg(MIN_POSITION_LIMIT) <= value <= reg(MAX_POSITION_LIMIT)
         if addr == GOAL_VELOCITY:
             return abs(value) <= reg(VELOCITY_LIMIT)
         if addr == GOAL_CURRENT:

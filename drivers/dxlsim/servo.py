@@ -71,6 +71,11 @@ _INITIAL_STATE_FIELDS = ("present_position", "present_input_voltage", "present_t
 
 
 _PROTOCOL_2 = 2  # Protocol Type (addr 13) value of Protocol 2.0
+_ID, _BAUD_RATE, _PROTOCOL_TYPE = rg.ID, rg.BAUD_RATE, rg.PROTOCOL_TYPE
+_FIRMWARE_VERSION = rg.FIRMWARE_VERSION
+_BUS_WATCHDOG, _TORQUE_ENABLE = rg.BUS_WATCHDOG, rg.TORQUE_ENABLE
+_TEMPERATURE_LIMIT, _HARDWARE_ERROR_STATUS = rg.TEMPERATURE_LIMIT, rg.HARDWARE_ERROR_STATUS
+_WATCHDOG_UNIT_S = ct.WATCHDOG_UNIT_S
 
 
 class VirtualServo:
@@ -121,7 +126,7 @@ class VirtualServo:
         self._reg = RegisterFile(m, fw)
         self._regs = self._reg.values  # the same dict: the servo's fast path to the values
         self._mo = Motion(m, self._regs, t, step_s)
-        self._temp_c = m.ambient_temperature_c
+        self._temp_c = self._ambient_c = m.ambient_temperature_c
         self._wd_ref = self._mo.now
         self._wd_deadline = math.inf
         self._pending: tuple[int, bytes] | None = None
@@ -181,7 +186,7 @@ class VirtualServo:
     @property
     def id(self) -> int:
         """ID (addr 7)."""
-        return self._regs[rg.ID]
+        return self._regs[_ID]
 
     @property
     def secondary_id(self) -> int | None:
@@ -199,9 +204,10 @@ class VirtualServo:
         """The line rate at which this servo hears Protocol 2.0 packets; 0 when Protocol Type
         (addr 13) selects another protocol (1.0, or the X330's S.BUS/iBUS/RC-PWM), which
         dxlsim does not speak: the servo is then deaf to the bus, as a real one is to 2.0."""
-        if self._regs[rg.PROTOCOL_TYPE] != _PROTOCOL_2:
+        regs = self._regs
+        if regs[_PROTOCOL_TYPE] != _PROTOCOL_2:
             return 0
-        return self.model.baud_rates[self._regs[rg.BAUD_RATE]]
+        return self.model.baud_rates[regs[_BAUD_RATE]]
 
     @property
     def return_delay_s(self) -> float:
@@ -224,7 +230,7 @@ class VirtualServo:
     @property
     def supports_fast_read(self) -> bool:
         """Fast Sync/Bulk Read available on this firmware."""
-        return self.model.supports_fast_read(self._regs[rg.FIRMWARE_VERSION])
+        return self._regs[_FIRMWARE_VERSION] >= self.model.fast_read_min_firmware
 
     @property
     def alert(self) -> bool:
@@ -251,17 +257,36 @@ class VirtualServo:
 
     # --- time ------------------------------------------------------------------------------
     def advance(self, t: float) -> None:
-        """Evolve motion and watchdog up to ``t`` (s) in fixed steps of ``step_s``.
+        """Evolve temperature, motion and watchdog up to ``t`` (s); the motion in fixed steps
+        of ``step_s``.
 
         Cost: O(1) when nothing moves; about a microsecond per step otherwise.
         """
         mo = self._mo
-        if t < mo.now:
-            if t < mo.now - 1e-9:
-                raise ValueError(f"time went back: {t!r} < {mo.now!r}")
-            return
-        if t > mo.now:
-            self._heat(t - mo.now)
+        now = mo.now
+        if t <= now:
+            if t < now:
+                if t < now - 1e-9:
+                    raise ValueError(f"time went back: {t!r} < {now!r}")
+                return
+            if t <= self._wd_deadline:
+                # The same moment again (a servo is advanced per touch, read and write):
+                # no time to heat over, the watchdog is not due, and the motion has been
+                # run to ``now`` already (every move of ``mo.now`` is followed by run_to).
+                return
+        else:
+            # The first-order thermal model over t - now at the present motor current (see
+            # drivers.dxlsim.thermal); latches Overheating. No current at ambient: nothing
+            # to do (thermal_step would return the temperature as it is).
+            amps = mo.current_a()
+            celsius = self._temp_c
+            if amps or celsius != self._ambient_c:
+                temp = thermal_step(self.model, celsius, amps, t - now)
+                if temp != celsius:
+                    self._temp_c = temp
+                    limit = self._regs[_TEMPERATURE_LIMIT]
+                    if temp > limit - 1 and round(temp) > limit:  # (the first is implied)
+                        self._latch(_OVERHEATING_ERROR)
         if t > self._wd_deadline:
             mo.run_to(self._wd_deadline)
             mo.now = self._wd_deadline
@@ -274,7 +299,12 @@ class VirtualServo:
         Watchdog timer."""
         self.advance(t)
         self._wd_ref = t
-        self._arm_watchdog()
+        regs = self._regs  # _arm_watchdog(), inline: every packet to the servo comes here
+        wd = regs[_BUS_WATCHDOG]
+        if regs[_TORQUE_ENABLE] and wd > 0:
+            self._wd_deadline = t + wd * _WATCHDOG_UNIT_S
+        else:
+            self._wd_deadline = math.inf
 
     # --- instructions --------------------------------------------------------------------
     def ping(self, t: float) -> tuple[int, bytes]:
@@ -290,13 +320,15 @@ class VirtualServo:
         Gaps read as 0; a span past the table end is an Access Error; length < 1 a Data
         Length Error.
         """
-        self.advance(t)
+        if t != self._mo.now or t > self._wd_deadline:  # else advance(t) has nothing to do
+            self.advance(t)
         err, data = self._reg.read(addr, length)
-        return self._reg.alert | err, data
+        return (ALERT if self._regs[_HARDWARE_ERROR_STATUS] else 0) | err, data  # + Alert
 
     def write(self, addr: int, data: bytes, t: float) -> int:
         """Write ``data`` at ``addr`` atomically; returns the error byte."""
-        self.advance(t)
+        if t != self._mo.now or t > self._wd_deadline:  # else advance(t) has nothing to do
+            self.advance(t)
         err, updates = self._reg.validate(addr, data)
         partner = self.partner
         if (
@@ -309,7 +341,7 @@ class VirtualServo:
             self._apply(updates)
             if partner is not None:
                 self._share_module()
-        return err | self._reg.alert
+        return err | (ALERT if self._regs[_HARDWARE_ERROR_STATUS] else 0)  # + Alert
 
     def reg_write(self, addr: int, data: bytes, t: float) -> int:
         """Reg Write: validate like Write, keep it pending, set Registered Instruction."""
@@ -448,19 +480,16 @@ class VirtualServo:
         self._mo.load_nm = float(torque_nm)
         self._mo.update_speed_limit()
 
-    def _heat(self, dt: float) -> None:
-        """First-order thermal model over ``dt`` s at the present motor current (see
-        :mod:`drivers.dxlsim.thermal`); latches Overheating."""
-        temp = thermal_step(self.model, self._temp_c, self._mo.current_a(), dt)
-        if temp != self._temp_c:
-            self._temp_c = temp
-            if round(temp) > self._regs[rg.TEMPERATURE_LIMIT]:
-                self._latch(_OVERHEATING_ERROR)
-
     # --- side effects of writes ----------------------------------------------------------
     def _apply(self, updates: Updates) -> None:
         regs = self._regs
         mo = self._mo
+        if len(updates) == 1 and updates[0][0].addr in rg.GOAL_ADDRS and regs[_TORQUE_ENABLE]:
+            # The loop below for one goal with torque on (every Sync Write of goals): no
+            # Torque On by Goal Update, the goal is stored and the motion replanned.
+            regs[updates[0][0].addr] = updates[0][1]
+            mo.plan_goal()
+            return
         replan = False
         for f, value in updates:
             a = f.addr
@@ -512,9 +541,10 @@ class VirtualServo:
         self._mo.stop_now()
 
     def _arm_watchdog(self) -> None:
-        wd = self._regs[rg.BUS_WATCHDOG]
-        if self._regs[rg.TORQUE_ENABLE] and wd > 0:
-            self._wd_deadline = self._wd_ref + wd * ct.WATCHDOG_UNIT_S
+        regs = self._regs
+        wd = regs[_BUS_WATCHDOG]
+        if regs[_TORQUE_ENABLE] and wd > 0:
+            self._wd_deadline = self._wd_ref + wd * _WATCHDOG_UNIT_S
         else:
             self._wd_deadline = math.inf
 
