@@ -10,29 +10,48 @@ packet code:
   clock; hardware uses the monotonic clock. Re-opening a ``dxlsim://`` port (``setBaudRate``,
   which every SDK example calls after ``openPort``; ``closePort`` then ``openPort``) re-uses
   its serial object, so the bus, its servos and its clock stay (a port opened on the same
-  URL while another has it open shares that bus and clock too). On a virtual clock the
-  SDK's busy-poll for a status packet becomes one blocking read up to the packet deadline
-  (a jump), so the SDK's own timeouts still fire and nothing sleeps;
+  URL while another has it open shares that bus and clock too);
+* **waiting costs nothing.** The SDK's ``rxPacket`` busy-polls ``readPort()`` (the port is
+  opened with ``timeout=0``), which burns a core for the whole wire time. Here one
+  :meth:`readPort` waits in the OS until the bytes it is asked for are readable or the
+  packet deadline has passed, whichever is first: on a real port (a device path, a pty,
+  any pyserial URL but ``dxlsim://``) pyserial's ``read`` with the remaining time as its
+  timeout (``select`` on the device and pyserial's ``cancel_read`` pipe: it returns the
+  moment the bytes are there, so a reply is taken as early as by polling); on a virtual
+  clock the bus's read, whose wait is a jump (nothing sleeps, the SDK's timeouts still
+  fire). The SDK asks for exactly the bytes it still expects (the 11 of a minimal status
+  packet, then the rest its LENGTH names), so a read that blocks until they are all there
+  never takes a byte of what follows and hands the SDK the same bytes polling would, in
+  fewer calls; a read that reaches the deadline returns what it has. An in-process
+  ``dxlsim://`` bus on the real clock is still polled (its reads would wait in the
+  emulator's own clock, spin window included);
 * **a timeout is declared only by a poll that began after the deadline.** The SDK's
-  ``rxPacket`` busy-polls ``readPort()`` then ``isPacketTimeout()``; if the process is
+  ``rxPacket`` calls ``readPort()`` then ``isPacketTimeout()``; if the process is
   descheduled between the two, a wall-clock check on wake-up would call the servo silent
   while its whole reply sits in the buffer. :meth:`isPacketTimeout` answers True only when
   the last :meth:`readPort` started after ``packet_start_time + packet_timeout``; otherwise
-  the SDK polls once more and takes whatever arrived. This holds for every transaction
-  (tick reads, unicast, broadcast ping): they all poll through here;
+  the SDK polls once more and takes whatever arrived (a blocking read that timed out began
+  before the deadline, so it is always followed by one that does not wait). This holds for
+  every transaction (tick reads, unicast, broadcast ping): they all poll through here;
 * host stalls are measured: :attr:`host_stall_s` / :attr:`host_stalls` add up, within a
-  transaction (from its transmit), the gaps between this port's calls and the time inside
-  one read or write call, where longer than :data:`HOST_STALL_THRESHOLD_S` (the process was
-  not running: waiting for a device is many quick polls, never a gap). Always 0 on a
-  virtual clock;
+  transaction (from its transmit), the time the process was provably not running: a gap
+  between two of this port's calls, or a call that took longer than it may wait, by more
+  than :data:`HOST_STALL_THRESHOLD_S`. A write or a polling read may not wait at all; a
+  blocking read may wait until its deadline (waiting on the device), so only its return
+  later than that counts, from the deadline on. The figure is a lower bound: a stall
+  while blocked on a reply that was there when the process ran again, before the
+  deadline, cost the tick its time (the loop's overrun books show it) but no servo a
+  reply, and is not seen here; one that made a read return past its deadline always is.
+  Always 0 on a virtual clock;
 * the packet timeout's device allowance is two per-port facts instead of the module
   global ``port_handler.LATENCY_TIMER``: :attr:`latency_timer_ms` (the adapter's latency,
   what a bus-capacity calculation uses) and :attr:`device_allowance_ms` (the least time
   the timeout allows for the device as a whole; see :attr:`timeout_margin_ms`);
 * after a failed read, :meth:`hold_until_quiet` makes the next transmit wait until the
   rest of a reply chain would be over and discard it (:meth:`clearPort`);
-* a ``SerialException`` (adapter unplugged) releases the port before it propagates, so
-  the SDK's ``is_using`` flag is not left stuck at True.
+* a ``SerialException`` (adapter unplugged: pyserial's read raises it when the device
+  reports readiness but gives no data) releases the port before it propagates, so the
+  SDK's ``is_using`` flag is not left stuck at True.
 """
 
 from __future__ import annotations
@@ -44,15 +63,24 @@ from drivers.clock import Clock, MonotonicClock
 
 #: The SDK's default latency-timer allowance (ms), matching an untuned FTDI adapter.
 SDK_LATENCY_TIMER_MS = 16.0
-#: A gap between two polls of one transaction longer than this (s) is a host stall. One
-#: poll (a non-blocking read plus the SDK's bookkeeping) takes 2-20 us in CPython, and
-#: interrupts or a context switch cost tens of us; a gap of a whole millisecond (a quarter
-#: of a 250 Hz tick, a fifth of its read timeout) is the process not running: descheduled
-#: by a busy neighbour, a GC pause, SIGSTOP.
+#: A gap between two polls of one transaction, or a call returning later than it may
+#: wait (a write or a polling read: at once; a blocking read: at its deadline), by more
+#: than this (s) is a host stall. One poll (a read plus the SDK's bookkeeping) takes
+#: 2-20 us in CPython; interrupts, a context switch or ``select``'s timer slack (50 us)
+#: cost tens of us; a whole millisecond (a quarter of a 250 Hz tick, a fifth of its read
+#: timeout) is the process not running: descheduled by a busy neighbour, a GC pause,
+#: SIGSTOP.
 HOST_STALL_THRESHOLD_S = 1e-3
 #: The package whose ``protocol_dxlsim`` module serves ``dxlsim://`` URLs (the emulator).
 #: Named, never imported here: pyserial imports it when such a URL is opened.
 URL_HANDLER_PACKAGE = "drivers.dxlsim"
+#: The SDK's own port handler (``timeout=0``, ``rxPacket`` busy-polls it): the reference
+#: :mod:`hilsim.bench.cpu` measures this one against.
+SdkPortHandler = dynamixel_sdk.PortHandler
+#: pyserial's POSIX port. Its ``timeout`` setter re-applies the port settings on every
+#: assignment (``tcgetattr`` and a rebuild of the termios, ~7 us: three times a tick), while
+#: its ``read`` only looks at the value behind it, so the blocking read sets ``_timeout``.
+_POSIX_SERIAL = getattr(getattr(serial, "serialposix", None), "Serial", None)
 
 
 def register_url_handlers() -> None:
@@ -90,10 +118,12 @@ class PortHandler(dynamixel_sdk.PortHandler):
     Attributes
     ----------
     host_stall_s:
-        Cumulative seconds the host was not running during transactions: the gaps
-        between this port's calls and the time inside one read or write call, each where
-        longer than :data:`HOST_STALL_THRESHOLD_S`, from a transaction's transmit to its
-        last poll. A counter: difference it around a transaction. 0 on a virtual clock.
+        Cumulative seconds the host was not running during transactions, from a
+        transaction's transmit to its last poll: the gaps between this port's calls, and
+        the time a call took beyond what it may wait (a write, a polling read: nothing; a
+        blocking read: until its deadline), each where longer than
+        :data:`HOST_STALL_THRESHOLD_S`. A lower bound (see the module's docstring). A
+        counter: difference it around a transaction. 0 on a virtual clock.
     host_stalls:
         How many such gaps :attr:`host_stall_s` adds up.
     device_wait_s:
@@ -125,6 +155,9 @@ class PortHandler(dynamixel_sdk.PortHandler):
         self._poll_ms: float | None = None  # when the last poll of this transaction began
         self._mark_s: float | None = None  # stall measurement: the previous poll (s)
         self._quiet_at: float | None = None  # replies may still arrive until then (s)
+        # how readPort waits for bytes (setupPort): "poll" (timeout 0, the SDK's way),
+        # "virtual" (the bus's read jumps its clock), "select" (a real port: the OS waits)
+        self._wait = "poll"
 
     @property
     def clock(self) -> Clock:
@@ -168,6 +201,10 @@ class PortHandler(dynamixel_sdk.PortHandler):
         elif self._clock is not None and self._clock.virtual:
             self.ser.close()
             raise ValueError(f"a virtual clock cannot drive a real port ({self.port_name})")
+        if port_clock is None:
+            self._wait = "select"
+        else:
+            self._wait = "virtual" if port_clock.virtual else "poll"
         self.is_open = True
         self.ser.reset_input_buffer()
         self.tx_time_per_byte = (1000.0 / self.baudrate) * 10.0
@@ -198,11 +235,13 @@ class PortHandler(dynamixel_sdk.PortHandler):
         self._poll_ms = None
 
     # -- the host-stall watch. Within a transaction (from its transmit to its last poll)
-    # time goes to waiting on the device, which is many quick polls, never a gap; a gap
-    # between this port's calls, or one read or write call, longer than
-    # HOST_STALL_THRESHOLD_S is the process not running (host_stall_s). All of it is
-    # device_wait_s: the caller's own work is what lies outside.
-    def _watch(self, entry: float, now: float) -> None:
+    # time goes to waiting on the device: quick polls, or reads that block until their
+    # bytes or their deadline. A gap between this port's calls, or a call that returned
+    # later than it was allowed to wait (``may_wait``: 0 for a write or a polling read, the
+    # timeout of a blocking one), by more than HOST_STALL_THRESHOLD_S is the process not
+    # running (host_stall_s). All of it is device_wait_s: the caller's own work is what
+    # lies outside.
+    def _watch(self, entry: float, now: float, may_wait: float = 0.0) -> None:
         mark = self._mark_s
         if mark is None:
             return
@@ -210,8 +249,9 @@ class PortHandler(dynamixel_sdk.PortHandler):
         if not self.clock.virtual:
             if entry - mark > HOST_STALL_THRESHOLD_S:
                 stall += entry - mark
-            if now - entry > HOST_STALL_THRESHOLD_S:
-                stall += now - entry
+            late = now - entry - may_wait
+            if late > HOST_STALL_THRESHOLD_S:
+                stall += late
             if stall:
                 self.host_stall_s += stall
                 self.host_stalls += 1
@@ -230,23 +270,37 @@ class PortHandler(dynamixel_sdk.PortHandler):
         return False
 
     def readPort(self, length):
+        """Up to ``length`` bytes: all of them as soon as they are readable, or what is
+        there at the packet deadline (at once for a poll that begins after it, or while
+        no transaction is timed). A ``dxlsim://`` bus on the real clock is polled."""
         clock = self.clock
         now = clock.now()
         now_ms = now * 1000.0
         self._poll_ms = now_ms
-        if clock.virtual:
-            # Nobody else moves a virtual clock: wait on the port until the bytes are
-            # readable or just past the SDK's deadline, whichever is first. A poll that
-            # begins at or after the deadline takes what is readable and never waits.
+        mode, ser = self._wait, self.ser
+        timeout = 0
+        if mode != "poll":
+            # Wait on the port until the bytes are readable or just past the SDK's
+            # deadline, whichever is first (on a virtual clock the wait is a jump: nobody
+            # else moves it). A poll that begins at or after the deadline takes what is
+            # readable and never waits.
             remaining_ms = self.packet_start_time + self.packet_timeout - now_ms
-            self.ser.timeout = remaining_ms * 1e-3 + 1e-6 if remaining_ms > 0.0 else 0
+            if remaining_ms > 0.0:
+                timeout = remaining_ms * 1e-3 + 1e-6
+        posix = mode == "select" and type(ser) is _POSIX_SERIAL
+        if posix:
+            ser._timeout = timeout  # all read() looks at; the setter would reconfigure
+        elif mode != "poll":
+            ser.timeout = timeout
         try:
-            return self.ser.read(length)
+            return ser.read(length)  # a real port: select() until the bytes or the deadline
         except serial.SerialException:
             self.is_using = False
             raise
         finally:
-            self._watch(now, clock.now())
+            if posix:
+                ser._timeout = 0  # the port stays non-blocking for anyone else reading it
+            self._watch(now, clock.now(), timeout if mode == "select" else 0.0)
 
     def writePort(self, packet):
         clock = self.clock

@@ -8,7 +8,9 @@ Each subcommand lives in its own module that defines::
 
 and is listed in ``SUBCOMMANDS``. Modules are imported only when the parser is
 built, and must not import matplotlib or dynamixel_sdk at module level (do it
-inside ``run``), so ``hilsim --help`` stays fast.
+inside ``run``), so ``hilsim --help`` stays fast. ``hilsim NAME ...`` builds the parser of
+NAME alone (:func:`main`): ``hilsim run`` never imports the emulator's pty server, the
+bench or the integrator study just to list them.
 """
 
 from __future__ import annotations
@@ -31,7 +33,8 @@ SUBCOMMANDS: dict[str, str] = {
 }
 
 
-def build_parser() -> argparse.ArgumentParser:
+def build_parser(only: str | None = None) -> argparse.ArgumentParser:
+    """The ``hilsim`` parser with every subcommand, or with ``only`` that one."""
     parser = argparse.ArgumentParser(
         prog="hilsim",
         description="Drive animatronic joints as damped springs on Dynamixel servos "
@@ -42,6 +45,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--version", action="version", version=f"hilsim {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     for name, module_name in SUBCOMMANDS.items():
+        if only is not None and name != only:
+            continue
         try:
             module = importlib.import_module(module_name)
         except ModuleNotFoundError as exc:  # a subcommand still being written
@@ -55,8 +60,11 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
+    argv = sys.argv[1:] if argv is None else list(argv)
     try:
-        parser = build_parser()
+        # ``hilsim run ...``: that subcommand's module alone (start-up time); anything else
+        # (--help, --version, a typo) gets the whole parser and its list of commands
+        parser = build_parser(argv[0] if argv and argv[0] in SUBCOMMANDS else None)
         args = parser.parse_args(argv)
         if getattr(args, "_run", None) is None:
             parser.print_help()
