@@ -15,6 +15,7 @@ buffers are allocated when the integrator is built, none in :meth:`Integrator.st
 (n ≤ ``small_bank_limit``, 16) steps in pure Python on floats, because numpy spends ~1 µs per
 ufunc call and a step is a few dozen calls; a large bank steps with ``out=`` ufuncs. Both paths
 perform the same floating-point operations in the same order, so they give bit-identical results.
+RK4 with a held target (the loop's case) steps through :func:`hilsim.rk_lists.rk4_held`.
 """
 
 from __future__ import annotations
@@ -27,20 +28,19 @@ from typing import ClassVar
 import numpy as np
 import numpy.typing as npt
 
+from drivers.fill import Packed
 from hilsim._types import FloatArray
+from hilsim.rk_lists import Combo as _Combo
+from hilsim.rk_lists import as_list as _as_list
+from hilsim.rk_lists import combo as _combo
+from hilsim.rk_lists import rk4_held
+from hilsim.rk_lists import scale as _scale
 from hilsim.springs import Spring
 
 #: u(t), u'(t) for every joint at time t (floats or arrays broadcastable to ``(n,)``; rad, rad/s).
 Target = Callable[[float], tuple[npt.ArrayLike, npt.ArrayLike]]
 #: what :meth:`Integrator.step` accepts: None (u = u' = 0), (u, u') held over the step, or u(t)
 TargetLike = Target | tuple[npt.ArrayLike, npt.ArrayLike] | None
-
-
-def _as_list(value: npt.ArrayLike, n: int) -> list[float]:
-    if isinstance(value, float | int):
-        return [float(value)] * n
-    arr = np.asarray(value, dtype=np.float64)
-    return (arr if arr.shape == (n,) else np.broadcast_to(arr, (n,))).tolist()
 
 
 class Integrator(ABC):
@@ -81,6 +81,7 @@ class Integrator(ABC):
         self._g = np.empty((len(self._sample_c), n))  # forcing w2·u + bm·u' per sampling instant
         self._acc = np.empty(n)
         self._tmp = np.empty(n)
+        self._xv = self._vv = Packed()  # x, v as the list path reads and writes them
 
     # -- public -----------------------------------------------------------------------------------
 
@@ -103,9 +104,12 @@ class Integrator(ABC):
             self._step_arrays(x, v, h, t, target)
         else:
             # a numpy-scalar h would turn every float operation below into a slower numpy one
-            xl, vl = self._step_lists(x.tolist(), v.tolist(), float(h), float(t), target)
-            x[:] = xl
-            v[:] = vl
+            xv, vv = self._xv, self._vv
+            if xv.arr is not x or vv.arr is not v:  # the caller's arrays, viewed once
+                xv, vv = self._xv, self._vv = Packed(x, self.n), Packed(v, self.n)
+            xl, vl = self._step_lists(xv.tolist(), vv.tolist(), float(h), float(t), target)
+            xv.put(*xl)
+            vv.put(*vl)
 
     def run(
         self,
@@ -192,23 +196,6 @@ class Integrator(ABC):
     def __repr__(self) -> str:
         path = "vectorized" if self.vectorized else "pure-Python"
         return f"{type(self).__name__}(n={self.n}, {path})"
-
-
-#: a linear combination Σ a_j·K_j of stage slopes with its zero terms dropped, as
-#: (first j, first a, ((j, a), …) for the rest); None when every coefficient is zero
-_Combo = tuple[int, float, tuple[tuple[int, float], ...]]
-
-
-def _combo(coeffs: npt.ArrayLike) -> _Combo | None:
-    terms = [(j, float(a)) for j, a in enumerate(np.asarray(coeffs)) if a != 0.0]
-    return (terms[0][0], terms[0][1], tuple(terms[1:])) if terms else None
-
-
-def _scale(combo: _Combo | None, h: float) -> _Combo | None:
-    if combo is None:
-        return None
-    j0, a0, rest = combo
-    return (j0, h * a0, tuple((j, h * a) for j, a in rest))
 
 
 class RungeKutta(Integrator):
@@ -356,6 +343,19 @@ class RK4(RungeKutta):
     )
     B = np.array([1.0 / 6.0, 1.0 / 3.0, 1.0 / 3.0, 1.0 / 6.0])
     C = np.array([0.0, 0.5, 0.5, 1.0])
+
+    def _step_lists(
+        self, x: list[float], v: list[float], h: float, t: float, target: TargetLike
+    ) -> tuple[list[float], list[float]]:
+        if type(target) is not tuple:  # held (the loop's case): the unrolled kernel
+            return super()._step_lists(x, v, h, t, target)
+        if h != self._scaled_h:
+            self._scaled(h)
+        (u, du), bm = target, self._bm_l if self._has_b else None
+        rk4_held(
+            x, v, self._hrows, self._hweights, self._neg_w2_l, self._neg_cm_l, self._w2_l, u, bm, du
+        )
+        return x, v
 
 
 class SemiImplicitEuler(Integrator):

@@ -24,7 +24,7 @@ from hilsim._types import FloatArray
 class JointMap:
     """Per-joint ``home`` (rad, servo frame) and ``direction`` (±1), in joint order."""
 
-    __slots__ = ("direction", "home")
+    __slots__ = ("_direction_l", "_home_l", "direction", "home")
 
     def __init__(self, home: Sequence[float], direction: Sequence[float]) -> None:
         self.home = np.array(home, dtype=np.float64)
@@ -40,6 +40,8 @@ class JointMap:
             raise ValueError(f"direction must be +1 or -1, got {self.direction.tolist()}")
         self.home.flags.writeable = False
         self.direction.flags.writeable = False
+        self._home_l: list[float] = self.home.tolist()
+        self._direction_l: list[float] = self.direction.tolist()
 
     @classmethod
     def of(cls, joints: Sequence) -> JointMap:
@@ -60,6 +62,21 @@ class JointMap:
         np.subtract(servo, self.home, out=out)
         out *= self.direction
         return out
+
+    def to_servo_list(self, x: Sequence[float]) -> list[float]:
+        """:meth:`to_servo` on Python floats: the same operations, so the same bits, without
+        numpy's per-call cost (the tick's path for a few joints)."""
+        d, h = self._direction_l, self._home_l
+        if len(x) != len(h):
+            raise ValueError(f"{len(x)} joint angles for {len(h)} joints")
+        return [x[j] * d[j] + h[j] for j in range(len(h))]
+
+    def to_joint_list(self, servo: Sequence[float]) -> list[float]:
+        """:meth:`to_joint` on Python floats (NaN stays NaN)."""
+        d, h = self._direction_l, self._home_l
+        if len(servo) != len(h):
+            raise ValueError(f"{len(servo)} servo angles for {len(h)} joints")
+        return [(servo[j] - h[j]) * d[j] for j in range(len(h))]
 
     def joint_angle(self, i: int, servo_rad: float) -> float:
         """One joint's angle from its servo's angle."""

@@ -55,6 +55,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from drivers.fill import Packed
 from drivers.servo_bus import PresentReading, ServoBus, ServoBusError
 from hilsim.exit_codes import ExitCode, for_signal
 from hilsim.monitors import STALL_EVENT_S, WATCHDOG_GAP_FRACTION, HostStalls
@@ -151,12 +152,19 @@ class HilLoop:
         self.duration_s = parts.targets.duration if duration_s is None else duration_s
         self.period = rig.loop.period_s
         n = len(rig.joints)
-        # Preallocated per-tick buffers (joint frame unless named servo_*).
-        self.x, self.v, self.u, self.du = (np.zeros(n) for _ in range(4))
-        self.cmd = np.zeros(n)
-        self.servo_goal = np.zeros(n)
-        self.present = np.zeros(n)
+        # Preallocated per-tick buffers (joint frame unless named servo_*); the recorded ones
+        # are consecutive views of one block in the row's order, copied at once
+        block = np.zeros(5 * n)
+        self.u, self.x, self.v, self.cmd, self.present = (
+            block[k * n : (k + 1) * n] for k in range(5)
+        )
+        self.du = np.zeros(n)
         self.reading = PresentReading.empty(rig.servo_ids)
+        # the tick reads and writes these through views (drivers.fill: no numpy call)
+        self._cmd_view, self._present_view = Packed(self.cmd), Packed(self.present)
+        self._positions_view = Packed(self.reading.positions)
+        self._status_view = Packed(self.reading.status)
+        self._h, self._substeps = rig.loop.h_s, rig.loop.substeps
         self.rec = TickRecord(
             target=self.u,
             sim_x=self.x,
@@ -164,6 +172,7 @@ class HilLoop:
             cmd=self.cmd,
             present=self.present,
             status=self.reading.status,
+            joint_block=block,
         )
         self.stalls = HostStalls()
         self.log = ShowLog(telemetry, self.safety, bus)
@@ -323,6 +332,23 @@ class HilLoop:
         n_ticks = None if self.duration_s is None else round(self.duration_s / period) + 1
         # the telemetry writer formats rows only while we sleep (never during a tick)
         slack = getattr(self.telemetry, "slack", None) if not clock.virtual else None
+        t0 = self._begin()
+        k = 0
+        while n_ticks is None or k < n_ticks:
+            if self._stopping():
+                break
+            t_sched = t0 + k * period
+            t_top = clock.now()
+            t_actual = clock.wait_until(t_sched, slack)
+            self._k = k
+            self._tick(k, t_sched, t_top, t_actual)
+            k = self._after_tick(k + 1, t_sched, t_actual, n_ticks)
+        return k
+
+    def _begin(self) -> float:
+        """The books the ticks keep, started at tick 0 (``hilsim bench`` starts them too, to
+        time :meth:`_tick` as the show runs it). Returns the clock time of tick 0."""
+        clock, period = self.clock, self.period
         self._recent = np.zeros(512)  # lateness ring for the live status line
         t0 = self._t0 = clock.now()
         self.loop_stats["clock_t0"] = t0  # the clock time of tick 0 (fault plans use it)
@@ -336,17 +362,7 @@ class HilLoop:
         self._gaps_mark = self.bus.host_stall_s
         self._limits_every = max(1, round(1.0 / period))  # clamps logged once a second at most
         self._next_limits_tick = self._limits_every
-        k = 0
-        while n_ticks is None or k < n_ticks:
-            if self._stopping():
-                break
-            t_sched = t0 + k * period
-            t_top = clock.now()
-            t_actual = clock.wait_until(t_sched, slack)
-            self._k = k
-            self._tick(k, t_sched, t_top, t_actual)
-            k = self._after_tick(k + 1, t_sched, t_actual, n_ticks)
-        return k
+        return t0
 
     # ------------------------------------------------------------------ one tick
     def _tick(self, k: int, t_sched: float, t_top: float, t_actual: float) -> None:
@@ -375,52 +391,70 @@ class HilLoop:
             )
             if event.fatal:
                 raise LoopFaultError(f"safety: {event}")
+        tb = clock.now()  # (a microsecond before the Sync Write: early, never late)
         if watch.watchdog_s:  # a long silence on the bus: have the servos stopped?
-            gap = clock.now() - watch.last_bus_t
+            gap = tb - watch.last_bus_t
             if gap >= WATCHDOG_GAP_FRACTION * watch.watchdog_s:
                 watch.after_bus_silence(gap, k)
-        self.map.to_servo(self.cmd, self.servo_goal)
-        tb = clock.now()
+                tb = clock.now()
+        # the joint map on Python floats: a few joints cost less than numpy's calls
+        jmap, cmd = self.map, self._cmd_view.tolist()
+        goals = jmap.to_servo_list(cmd)
         c1 = perf()
         try:  # one Sync Write, one (Fast) Sync Read
-            bus.write_goals(self.servo_goal)
+            bus.write_goals(goals)
             reading = bus.read_present(self.reading)
         except ServoBusError as exc:
             raise LoopFaultError(f"bus: {exc}") from exc
         c2 = perf()
         tc = clock.now()
         watch.last_bus_t = tb  # the servos' watchdog counts from the last packet they got
-        self.map.to_joint(reading.positions, self.present)
-        self.targets.sample(t_sim, self.u, self.du)
+        view = self._positions_view
+        if view.arr is not reading.positions:  # another reading (not the loop's own)
+            view = self._positions_view = Packed(reading.positions)
+        present = jmap.to_joint_list(view.tolist())
+        self._present_view.put(*present)
+        # u(t_k) recorded; u and u' as tuples for the springs (u' needs no array of its own)
+        target = self.targets.sample_into(t_sim, self.u)
         c3 = perf()
         # the host's own stall in or just before this tick: a late wake-up, the last
         # iteration's host work beyond its usual cost, and what the driver saw of the host
         # not running inside its bus calls (the health read's too)
-        stall = self.stalls.tick_stall(sleep_late, work, bus.host_stall_s - self._gaps_mark)
-        self._gaps_mark = bus.host_stall_s
-        rec.tick, rec.t_sched, rec.t_actual, rec.status = (
-            k,
-            t_sim,
-            t_actual - self._t0,
-            reading.status,
-        )
+        gaps = bus.host_stall_s
+        stall = self.stalls.tick_stall(sleep_late, work, gaps - self._gaps_mark)
+        self._gaps_mark = gaps
+        status = reading.status
+        view = self._status_view
+        if view.arr is not status:
+            view = self._status_view = Packed(status)
+        all_ok = not any(view.tolist())  # OK is 0; no numpy reduction
+        rec.tick, rec.t_sched, rec.t_actual, rec.status = k, t_sim, t_actual - self._t0, status
         rec.t_sim_us, rec.t_telemetry_us, rec.overrun = math.nan, math.nan, False
         rec.t_safety_us, rec.t_bus_us = (c1 - c0) * 1e6, (c2 - c1) * 1e6
-        rec.comm_errors = watch.comm_errors + int(np.count_nonzero(reading.status))
+        rec.comm_errors = watch.comm_errors + (0 if all_ok else int(np.count_nonzero(status)))
         rec.host_stall_us = stall * 1e6
-        self._record()
+        if self._recording:
+            try:
+                self.telemetry.record(rec)
+            except WriterFailedError as exc:
+                self._telemetry_failed(exc)
         c4 = perf()
         # -- faults that stop the show, raised once the tick is in telemetry
         if stall >= STALL_EVENT_S:
             self.log.host_stall(stall, k, t_sim)
             if stall >= WATCHDOG_GAP_FRACTION * watch.watchdog_s:
                 watch.last_long_gap_t = tc  # explains a watchdog trip found later
-        watch.check_reads(reading, tc, self.stalls.total_s, stall > 0.0)
-        watch.check_following(self.present, self.cmd)
+        watch.check_reads(reading, tc, self.stalls.total_s, stall > 0.0, all_ok)
+        watch.check_following(present, cmd)
         # -- advance the springs to the next tick (target held over each step)
         t_int = clock.now()
-        self._integrate(t_sim, first_target_sampled=True)
-        self._integ_s = min(self._integ_s, clock.now() - t_int)  # the least one tick has cost
+        if self._substeps == 1:  # _integrate's one step, without its call
+            self.integrator.step(self.x, self.v, self._h, t_sim, target)
+        else:
+            self._integrate(t_sim, target)
+        integ_s = clock.now() - t_int
+        if integ_s < self._integ_s:  # the least one tick has cost (min() parses keywords)
+            self._integ_s = integ_s
         c5 = perf()
         rec.t_sim_us, rec.t_telemetry_us = (c5 - c4 + c3 - c2) * 1e6, (c4 - c3) * 1e6
         self._integ_share = (c5 - c4) / self.period
@@ -472,22 +506,17 @@ class HilLoop:
         return k
 
     # ------------------------------------------------------------------ per-tick parts
-    def _record(self) -> None:
-        """Queue the tick's telemetry row; a dead writer stops the show or, with
+    def _telemetry_failed(self, exc: WriterFailedError) -> None:
+        """The writer died recording the tick's row: stop the show or, with
         ``telemetry.on_failure = "continue"``, only the recording (said once, on stderr)."""
-        if not self._recording:
-            return
-        try:
-            self.telemetry.record(self.rec)
-        except WriterFailedError as exc:
-            if self.rig.telemetry.on_failure is not TelemetryFailurePolicy.CONTINUE:
-                raise
-            self._recording = False
-            print(
-                f"hilsim run: telemetry stopped ({exc.__cause__ or exc}); the show goes on "
-                "(telemetry.on_failure = 'continue')",
-                file=sys.stderr,
-            )
+        if self.rig.telemetry.on_failure is not TelemetryFailurePolicy.CONTINUE:
+            raise exc
+        self._recording = False
+        print(
+            f"hilsim run: telemetry stopped ({exc.__cause__ or exc}); the show goes on "
+            "(telemetry.on_failure = 'continue')",
+            file=sys.stderr,
+        )
 
     def _rejoin(self, i: int, joint_rad: float) -> None:
         """Servo i was recovered where it stopped: the filter and this tick's goal start there
@@ -495,15 +524,16 @@ class HilLoop:
         self.safety.rejoin(i, joint_rad)
         self.cmd[i] = joint_rad
 
-    def _integrate(self, t_sim: float, *, first_target_sampled: bool) -> None:
-        """Advance the springs one tick from ``t_sim`` (the target held over each substep)."""
-        loop = self.rig.loop
-        h, substeps = loop.h_s, loop.substeps
+    def _integrate(self, t_sim: float, first: tuple | None = None) -> None:
+        """Advance the springs one tick from ``t_sim`` (the target held over each substep).
+        ``first``: u(t_sim), u'(t_sim) if the tick has sampled them already."""
+        h, substeps = self._h, self._substeps
         x, v, u, du = self.x, self.v, self.u, self.du
         targets, integ = self.targets, self.integrator
-        if not first_target_sampled:
+        if first is None:
             targets.sample(t_sim, u, du)
-        integ.step(x, v, h, t_sim, (u, du))
+            first = (u, du)
+        integ.step(x, v, h, t_sim, first)
         for j in range(1, substeps):
             ts = t_sim + j * h
             targets.sample(ts, u, du)
@@ -518,7 +548,7 @@ class HilLoop:
         for _ in range(max(0, behind)):
             if (n_ticks is not None and k >= n_ticks) or self._stopping():
                 break
-            self._integrate(k * period, first_target_sampled=False)
+            self._integrate(k * period)
             k += 1
             self.loop_stats["skipped_ticks"] += 1
         return k

@@ -21,8 +21,6 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
-import numpy as np
-
 from drivers.servo_bus import HealthPart
 
 #: consecutive failed, not host-late reads before a servo can be declared silent
@@ -57,11 +55,12 @@ class HostStalls:
     total_s: float = 0.0
     count: int = 0
     max_s: float = 0.0
-    _work: np.ndarray = field(init=False, repr=False)
+    _works: list[float] = field(init=False, repr=False)  # the last `window` works, a ring
+    _least: float = field(default=math.inf, init=False, repr=False)  # the least work ever
     _i: int = field(default=0, init=False, repr=False)
 
     def __post_init__(self) -> None:
-        self._work = np.full(self.window, np.inf)
+        self._works = [math.inf] * self.window
 
     def tick_stall(self, sleep_late_s: float, work_s: float | None, poll_gaps_s: float) -> float:
         """This iteration's host stall (s), 0.0 for a healthy one; updates the books.
@@ -69,15 +68,21 @@ class HostStalls:
         ``poll_gaps_s``: what the driver measured inside its bus calls (``ServoBus.host_stall_s``
         differenced): device latency never counts there, only the host not running.
         """
-        stall = max(poll_gaps_s, 0.0)
+        stall = poll_gaps_s if poll_gaps_s > 0.0 else 0.0
         if sleep_late_s > STALL_ALLOWANCE_S:
             stall += sleep_late_s
         if work_s is not None:
-            usual = float(self._work.min())
-            self._work[self._i % self.window] = work_s
-            self._i += 1
-            if math.isfinite(usual) and work_s - usual > STALL_ALLOWANCE_S:
-                stall += work_s - usual
+            # the least of the last `window` works is at least the least ever: only a work
+            # beyond that by the allowance needs the window's own least (rarely: a slow tick)
+            if work_s - self._least > STALL_ALLOWANCE_S:
+                usual = min(self._works)
+                if math.isfinite(usual) and work_s - usual > STALL_ALLOWANCE_S:
+                    stall += work_s - usual
+            i = self._i
+            self._works[i % self.window] = work_s
+            self._i = i + 1
+            if work_s < self._least:
+                self._least = work_s
         if stall > STALL_ALLOWANCE_S:
             self.total_s += stall
             self.count += 1
@@ -108,23 +113,33 @@ class SilenceBudget:
         self._last_ok = [0.0] * n
         self._stall_at_ok = [0.0] * n
         self._failed = [0] * n
+        self._all_ok: tuple[float, float] | None = None  # the last all_ok, not yet applied
 
     def start(self, t: float, stall_total_s: float = 0.0) -> None:
         self.all_ok(t, stall_total_s)
 
     def all_ok(self, t: float, stall_total_s: float) -> None:
-        """Every servo read well at ``t`` (the common tick: one call, no loop per servo)."""
-        n = len(self._last_ok)
-        self._last_ok[:] = [t] * n
-        self._stall_at_ok[:] = [stall_total_s] * n
-        self._failed[:] = [0] * n
+        """Every servo read well at ``t`` (the common tick: one call, no loop per servo;
+        applied to each servo's books when one of them is next looked at)."""
+        self._all_ok = (t, stall_total_s)
+
+    def _settle(self) -> None:
+        if self._all_ok is not None:
+            t, stall_total_s = self._all_ok
+            n = len(self._last_ok)
+            self._last_ok[:] = [t] * n
+            self._stall_at_ok[:] = [stall_total_s] * n
+            self._failed[:] = [0] * n
+            self._all_ok = None
 
     def ok(self, i: int, t: float, stall_total_s: float) -> None:
+        self._settle()
         self._last_ok[i] = t
         self._stall_at_ok[i] = stall_total_s
         self._failed[i] = 0
 
     def failed(self, i: int, t: float, stall_total_s: float, host_late: bool) -> float | None:
+        self._settle()
         if not host_late:
             self._failed[i] += 1
         silent = self.silent_s(i, t, stall_total_s)
@@ -134,9 +149,11 @@ class SilenceBudget:
 
     def silent_s(self, i: int, t: float, stall_total_s: float) -> float:
         """Time since servo ``i``'s last good reading, less the host's stalls since then."""
+        self._settle()
         return (t - self._last_ok[i]) - (stall_total_s - self._stall_at_ok[i])
 
     def failed_reads(self, i: int) -> int:
+        self._settle()
         return self._failed[i]
 
 
@@ -166,12 +183,15 @@ class FollowingMonitor:
     def update(self, present: Sequence[float], cmd: Sequence[float]) -> FollowingError | None:
         """One tick (joint frame, rad; NaN present = no reading). The first joint over its
         time, or None."""
-        count = self._count
-        for j, (p, c) in enumerate(zip(present, cmd, strict=True)):
+        count, tolerance = self._count, self.tolerance
+        if len(present) != len(count) or len(cmd) != len(count):
+            raise ValueError(f"one present and one commanded position per joint ({len(count)})")
+        for j in range(len(count)):
+            p = present[j]
             if p != p:  # NaN: no reading this tick
                 continue
-            err = abs(p - c)
-            if err > self.tolerance[j]:
+            err = abs(p - cmd[j])
+            if err > tolerance[j]:
                 count[j] += 1
                 if count[j] >= self.limit_ticks[j]:
                     return FollowingError(j, err, count[j] * self.period_s)

@@ -78,6 +78,7 @@ from collections.abc import Sequence
 import numpy as np
 import numpy.typing as npt
 
+from drivers.fill import Packed
 from hilsim._types import FloatArray
 from hilsim.safety_types import (
     COUNTER_KINDS,
@@ -169,6 +170,7 @@ class SafetyFilter:
         self._faults = 0
         self._count: dict[str, list[int]] = {}
         self._reset_counters()
+        self._desired = self._out = Packed()  # views of the caller's arrays (drivers.fill)
 
     def _reset_counters(self) -> None:
         n = self.n_joints
@@ -236,8 +238,11 @@ class SafetyFilter:
         p = self._p
         if p is None:
             raise RuntimeError("SafetyFilter.start(present) must be called before filter()")
-        d = desired_rad.tolist()
         n = self.n_joints
+        view = self._desired
+        if view.arr is not desired_rad:  # the caller's array, viewed once (drivers.fill)
+            view = self._desired = Packed(desired_rad)
+        d = view.tolist()
         if len(d) != n:
             raise ValueError(f"desired_rad must be shaped ({n},), got {np.shape(desired_rad)}")
         event = None
@@ -322,7 +327,10 @@ class SafetyFilter:
                     q = lo
             dp[j] = q - pj
             p[j] = q
-        out[:] = p
+        view = self._out
+        if view.arr is not out:
+            view = self._out = Packed(out, n)
+        view.put(*p)
         return event
 
     def rejoin(self, joint: int, position_rad: float) -> None:

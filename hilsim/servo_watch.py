@@ -120,10 +120,16 @@ class ServoWatch:
 
     # ------------------------------------------------------------------ every tick
     def check_reads(
-        self, reading: PresentReading, t_now: float, stall_total_s: float, host_late: bool
+        self,
+        reading: PresentReading,
+        t_now: float,
+        stall_total_s: float,
+        host_late: bool,
+        all_ok: bool | None = None,
     ) -> None:
+        """``all_ok``: the caller knows whether every status is OK (else it is looked up)."""
         status = reading.status
-        if not status.any():  # OK is 0: the common tick stays cheap
+        if (not status.any()) if all_ok is None else all_ok:  # OK is 0: the common tick
             self.silence.all_ok(t_now, stall_total_s)
             return
         for i, s in enumerate(status):
@@ -145,8 +151,11 @@ class ServoWatch:
                 )
 
     def check_following(self, present, cmd) -> None:
-        """``present`` and ``cmd`` in the joint frame (rad)."""
-        err = self.following.update(present.tolist(), cmd.tolist())
+        """``present`` and ``cmd`` in the joint frame (rad): arrays or lists of floats."""
+        err = self.following.update(
+            present if type(present) is list else present.tolist(),
+            cmd if type(cmd) is list else cmd.tolist(),
+        )
         if err is None:
             return
         j = err.joint

@@ -5,21 +5,21 @@ Fast Sync Read (or plain Sync Read) of Present Position per tick with a status f
 every servo, start-up :meth:`~DynamixelBus.check`, watchdog, torque and exit policy.
 Non-tick transactions go through a :class:`~drivers.dynamixel.link.Link` (the per-servo
 start-up check is :func:`~drivers.dynamixel.startup.check_servo`; health, watchdog recovery
-and the exit policy are in :mod:`drivers.dynamixel.health`); the per-tick path calls the
-SDK's packet handler directly and parses Fast Sync Read replies with
-:func:`~drivers.dynamixel.fast_reply.parse_fast_reply`. Read timeouts count bytes with
+and the exit policy are in :mod:`drivers.dynamixel.health`). The per-tick packets are
+built, sent and received by :mod:`drivers.dynamixel.tick_packets`: the SDK's bytes and its
+calls on the port, without its per-call costs. Read timeouts count bytes with
 :mod:`drivers.protocol2.wire_time`.
 
 Per-servo status on every read. The SDK's ``GroupSyncRead`` drops each servo's ERR byte
 and ``getData`` returns 0 for missing data, and its Fast Sync Read reports one result for
-the whole packet, so the bus sends the request with ``syncReadTx`` and parses the replies
-itself: plain Sync Read takes the status packets in chain order with ``rxPacket`` (a
-corrupt one costs only its own place; a reply from an unexpected ID ends the read); Fast
-Sync Read takes the one packet and keeps each block only while every earlier block was
-kept, the block carries the ID asked at its position, and the running CRC over it matches:
-a late reply spliced into this one can never give a previous transaction's value as this
-tick's. After a read with a silent servo the next request waits until the rest of that
-chain would be over, and discards it.
+the whole packet, so the bus parses the replies itself: plain Sync Read takes the status
+packets in chain order (a corrupt one costs only its own place; a reply from an unexpected
+ID ends the read); Fast Sync Read takes the one packet and keeps each block only while
+every earlier block was kept, the block carries the ID asked at its position, and the
+running CRC over it matches (:func:`~drivers.dynamixel.fast_reply.parse_blocks`): a late
+reply spliced into this one can never give a previous transaction's value as this tick's.
+After a read with a silent servo the next request waits until the rest of that chain
+would be over, and discards it.
 
 In a Sync Read chain a silent servo silences those after it (each waits for the previous
 status packet). So after a read with a STALE servo, the first STALE servo moves to the
@@ -28,9 +28,12 @@ back of the read order: one dead servo costs one tick of collateral STALE, not a
 
 from __future__ import annotations
 
+import math
 from collections.abc import Iterable, Sequence
+from operator import le
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from drivers.clock import Clock
 from drivers.dynamixel import health
@@ -41,9 +44,9 @@ from drivers.dynamixel.errors import (
     ServoError,
     StartupMismatch,
 )
-from drivers.dynamixel.fast_reply import ALERT, ERROR, GOOD, STALE, parse_fast_reply
+from drivers.dynamixel.fast_reply import STALE
 from drivers.dynamixel.link import Link
-from drivers.dynamixel.sdk_result import CORRUPT, OK, SERIAL_ERRORS, TIMEOUT, port_gone, raise_for
+from drivers.dynamixel.sdk_result import OK, SERIAL_ERRORS, port_gone, raise_for
 from drivers.dynamixel.startup import (
     Expectation,
     ReadMode,
@@ -52,13 +55,22 @@ from drivers.dynamixel.startup import (
     check_servo,
     retry,
 )
+from drivers.dynamixel.tick_packets import (
+    GoalFrame,
+    finite_goals,
+    goal_range_error,
+    receive_fast_reply,
+    receive_plain_replies,
+    send_goals,
+    sync_read_request,
+    transmit,
+)
 from drivers.dynamixel.units import (
     CENTER_TICK,
-    RAD_PER_TICK,
     TICKS_PER_RAD,
-    decode_position,
     rad_to_ticks,
 )
+from drivers.fill import Packed
 from drivers.protocol2 import control_table as ct
 from drivers.protocol2 import wire_time
 from drivers.servo_bus import (
@@ -99,14 +111,13 @@ class DynamixelBus(ServoBus):
         n = self.n
         self._index = {sid: k for k, sid in enumerate(self.ids)}
         self._set_order(list(range(n)))
-        # write_goals buffers: ticks (float work, int32) and the Sync Write parameters
-        self._tickf = np.empty(n)
-        self._ticks = np.empty(n, dtype="<i4")
-        self._wparam = np.zeros((n, 5), dtype=np.uint8)
-        self._wparam[:, 0] = self.ids
-        self._ticks_u8 = self._ticks.view(np.uint8).reshape(n, 4)
+        self._goal_frame = GoalFrame(self.ids, ct.GOAL_POSITION.addr)  # the tick's Sync Write
         self._lo = np.zeros(n)  # accepted Goal Position ticks (Position mode until check)
         self._hi = np.full(n, 4095.0)
+        self._lo_l, self._hi_l = self._lo.tolist(), self._hi.tolist()  # the same, as lists
+        # read_present's books: the last read all OK; stats.consecutive_bad maybe not all 0
+        self._all_ok, self._bad_counted = False, True
+        self._views = (Packed(), Packed(), Packed())  # of a reading's arrays
         self._rdt_s = np.full(n, FACTORY_RETURN_DELAY_S)
         self._watchdog_units: int | None = None
         #: the bytes of the latest corrupt reply to a tick's read (None until one comes); the
@@ -162,61 +173,89 @@ class DynamixelBus(ServoBus):
         return tuple(self._read_param)
 
     # -- per tick ------------------------------------------------------------------
+    # write_goals and read_present are ServoBus's, with the same checks, errors and books;
+    # the tick's own case (an (n,) float64 array of finite goals, a reading for these IDs)
+    # is checked on Python floats instead of a dozen numpy calls. Anything else goes
+    # through ServoBus's methods, which raise as they always have.
+    def write_goals(self, positions_rad: ArrayLike) -> None:
+        goals = finite_goals(positions_rad, self._n)
+        if goals is None or self._closed:
+            super().write_goals(positions_rad)
+        else:
+            self._send_goals(goals)
+            self.stats.writes += 1
+
+    def read_present(self, out: PresentReading | None = None) -> PresentReading:
+        if out is None or self._closed or (out.ids is not self._ids and out.ids != self._ids):
+            return super().read_present(out)
+        self._read_present(out)
+        st = self.stats
+        st.reads += 1
+        if not self._all_ok:
+            status = out.status
+            st._not_ok[status, self._cols] += 1
+            st.consecutive_bad += 1
+            st.consecutive_bad *= status != 0
+            self._bad_counted = True
+        elif self._bad_counted:  # consecutive_bad is all 0 until a read is not OK
+            st.consecutive_bad.fill(0)
+            self._bad_counted = False
+        return out
+
     def _write_goals(self, goals: np.ndarray) -> None:
-        t = self._tickf
-        np.multiply(goals, TICKS_PER_RAD, out=t)
-        np.rint(t, out=t)
-        t += CENTER_TICK
-        if not ((t >= self._lo) & (t <= self._hi)).all():
-            bad = [
-                f"servo {sid}: {g:+.4f} rad = tick {int(x)} outside [{int(lo)}, {int(hi)}]"
-                for sid, g, x, lo, hi in zip(self.ids, goals, t, self._lo, self._hi, strict=True)
-                if not lo <= x <= hi
-            ]
-            raise ValueError("goal out of range, nothing sent: " + "; ".join(bad))
-        self._ticks[:] = t
-        self._wparam[:, 1:] = self._ticks_u8
+        self._send_goals(goals.tolist())
+
+    def _send_goals(self, goals: list[float]) -> None:
+        # round() rounds halves to even, as np.rint: the ticks the numpy path computed
+        ticks = [round(g * TICKS_PER_RAD) + CENTER_TICK for g in goals]
+        if not (all(map(le, self._lo_l, ticks)) and all(map(le, ticks, self._hi_l))):
+            raise goal_range_error(self.ids, goals, self._lo, self._hi)
         try:
-            result = self._ph.syncWriteTxOnly(
-                self._port, ct.GOAL_POSITION.addr, 4, self._wparam.tobytes(), 5 * self.n
-            )
+            result = send_goals(self._port, self._ph, self._goal_frame, ticks)
         except SERIAL_ERRORS as exc:
             raise port_gone(exc, self.link.name, "Sync Write") from exc
         if result != OK:
             raise_for(result, 0, None, "Sync Write of Goal Position")
 
     def _read_present(self, out: PresentReading) -> None:
-        clock = self.clock
+        clock = self._clock
         out.t = clock.now()
-        out.positions.fill(np.nan)
-        out.status.fill(STALE)
-        out.errors.fill(0)
+        n = self._n
+        pos, status, errors = [math.nan] * n, [STALE] * n, [0] * n
         port, ph = self._port, self._ph
         fast = self._fast
+        request = self._requests[fast]
         try:
-            result = ph.syncReadTx(
-                port, ct.PRESENT_POSITION.addr, 4, self._read_param, self.n, fast
-            )
+            if request is None:
+                result = ph.syncReadTx(port, ct.PRESENT_POSITION.addr, 4, self._read_param, n, fast)
+            else:  # syncReadTx's txPacket; its own packet timeout is replaced just below
+                result = transmit(port, request)
             if result == OK:
+                want, order, sample = self._read_param, self._order, self._sample
                 if fast:
                     port.setPacketTimeoutMillis(self._fast_timeout_ms)
-                    packet, rx = ph.rxPacket(port, True)
-                    if rx == CORRUPT and packet:
-                        self.corrupt_sample = bytes(packet)
-                    if rx == OK or (rx == CORRUPT and packet):
-                        parse_fast_reply(packet, self._read_param, self._order, out)
+                    receive_fast_reply(port, want, order, pos, status, errors, sample)
                 else:
                     port.setPacketTimeoutMillis(self._plain_timeout_ms)
-                    self._receive_plain(out)
+                    receive_plain_replies(ph, port, want, order, pos, status, errors, sample)
         except SERIAL_ERRORS as exc:
             if isinstance(exc, DynamixelError):
                 raise
             raise port_gone(exc, self.link.name, "Sync Read") from exc
+        finally:
+            pv, sv, ev = self._views  # the reading's arrays, viewed once (drivers.fill)
+            if pv.arr is not out.positions or sv.arr is not out.status or ev.arr is not out.errors:
+                pv, sv, ev = self._views = tuple(
+                    Packed(a, n) for a in (out.positions, out.status, out.errors)
+                )
+            pv.put(*pos)
+            sv.put(*status)
+            ev.put(*errors)
+            self._all_ok = not any(status)
         if result != OK:
             raise_for(result, 0, None, "Sync Read of Present Position")
         out.t_done = clock.now()
-        status = out.status
-        if status.any():
+        if STALE in status:
             order = self._order
             for i, k in enumerate(order):
                 if status[k] == STALE:
@@ -246,41 +285,17 @@ class DynamixelBus(ServoBus):
             wait = float(sum(delays[k] for k in order[i:]))
         return wire + wait + self.link.latency_timer_ms * 1e-3
 
-    def _receive_plain(self, out: PresentReading) -> None:
-        """Take the chain's status packets in the order asked (``_read_param``: each servo
-        answers after the one before it). A packet is a reading only if it carries the ID
-        asked at its place. A corrupt one takes its place (that servo only loses this
-        tick); a valid one from another ID - a late reply to an earlier request, whose
-        chain had another order, a stranger, a second reply - ends the read, since what
-        follows it cannot be placed."""
-        pos, status, errors = out.positions, out.status, out.errors
-        want, order, ph, port = self._read_param, self._order, self._ph, self._port
-        p, n = 0, self.n
-        while p < n:
-            packet, result = ph.rxPacket(port, False)
-            if result == OK:
-                if packet[4] != want[p]:
-                    return
-                k = order[p]
-                p += 1
-                err = packet[8]
-                errors[k] = err
-                if err & ct.ERROR_NUMBER_MASK:
-                    status[k] = ALERT if err & ct.ALERT_BIT else ERROR
-                elif (packet[5] | packet[6] << 8) == 8:  # LEN = INST ERR data(4) CRC(2)
-                    v = packet[9] | packet[10] << 8 | packet[11] << 16 | packet[12] << 24
-                    pos[k] = (decode_position(v) - CENTER_TICK) * RAD_PER_TICK
-                    status[k] = ALERT if err & ct.ALERT_BIT else GOOD
-                # else no data and no error, or a reply to another request: not a reading
-            elif result == TIMEOUT:
-                return
-            else:  # corrupt: this place's reply is lost; the next may be fine
-                self.corrupt_sample = bytes(packet)
-                p += 1
-
     def _set_order(self, order: list[int]) -> None:
         self._order = order
         self._read_param = [self.ids[k] for k in order]
+        addr = ct.PRESENT_POSITION.addr
+        self._requests = {
+            fast: sync_read_request(addr, _DATA_BYTES, self._read_param, fast)
+            for fast in (False, True)
+        }
+
+    def _sample(self, packet: bytes) -> None:
+        self.corrupt_sample = packet
 
     def _update_timeouts(self) -> None:
         """Packet timeouts for the reads: the SDK's (wire + 2·latency + 2 ms), the device
@@ -345,6 +360,7 @@ class DynamixelBus(ServoBus):
             notes += found.notes
             if found.goal_range is not None:
                 self._lo[k], self._hi[k] = found.goal_range
+                self._lo_l, self._hi_l = self._lo.tolist(), self._hi.tolist()
             if found.return_delay_s is not None:
                 self._rdt_s[k] = found.return_delay_s
             if found.state is not None:

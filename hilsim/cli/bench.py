@@ -2,8 +2,9 @@
 
 "Why does my loop only reach 60 Hz?" in one command: the tick scheduler's lateness (beside
 cyclictest when installed), the bus's achieved write+read cycle rate beside its wire-time
-model, command/feedback latencies, and a diagnosis of the bus with the fix for each problem
-and the rate it would give.
+model, command/feedback latencies, a diagnosis of the bus with the fix for each problem
+and the rate it would give, and the host's cost of one whole tick beside a bare
+dynamixel-sdk Sync Write + Fast Sync Read cycle (4, 8, 16 servos; :mod:`hilsim.bench.tick`).
 
 Without CONFIG or --port the bus side runs on the built-in emulator on the real clock (1, 4,
 8 and 16 servos at 1 and 4 Mbps). With a rig file it measures that rig's bus and loop rate;
@@ -145,6 +146,12 @@ def run(args: argparse.Namespace) -> int:
         report = run_bench(plan, progress)
     except BenchError as exc:  # the bus cannot be used: nothing was measured
         return usage_error("bench", exc)
+    from hilsim.bench import cpu as cpu_bench  # CPU per cycle over a pty: SDK vs hilsim
+
+    cpu = cpu_bench.for_bench(args, report, progress)
+    from hilsim.bench import tick as tick_bench  # host CPU of a tick: bare SDK cycle vs hilsim
+
+    tick_cost = tick_bench.measure_tick_cost(quick=bool(args.quick), progress=progress)
     out.mkdir(parents=True, exist_ok=True)
     if not args.no_plots:
         progress("plotting")
@@ -154,6 +161,10 @@ def run(args: argparse.Namespace) -> int:
     report.notes.append(f"whole command: {time.perf_counter() - t_start:.1f} s wall time")
     report.write_json(json_path)
     print(report.text(), end="")
+    print(tick_cost.text(), end="")
+    tick_cost.add_to_json(json_path)
+    if cpu is not None:
+        cpu_bench.add_to_bench(cpu, json_path)
     return int(ExitCode.OK)
 
 

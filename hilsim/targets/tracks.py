@@ -50,6 +50,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
+from drivers.fill import Packed
 from hilsim._types import FloatArray
 
 #: easing names accepted by :class:`Keyframes`
@@ -351,8 +352,10 @@ class TargetSet:
         if len(self.names) != n:
             raise ValueError(f"{len(self.names)} names for {n} tracks")
         self._samplers = tuple(enumerate(tr.sample for tr in self.tracks))
+        self._sample = tuple(tr.sample for tr in self.tracks)
         self._pos = np.zeros(n)
         self._vel = np.zeros(n)
+        self._pos_view = self._vel_view = Packed()  # the tick's arrays (drivers.fill)
 
     @property
     def n_joints(self) -> int:
@@ -376,6 +379,24 @@ class TargetSet:
         else:
             for i, sample in self._samplers:
                 out_pos[i], out_vel[i] = sample(t)
+
+    def sample_into(
+        self, t: float, out_pos: FloatArray, out_vel: FloatArray | None = None
+    ) -> tuple[tuple[float, ...], tuple[float, ...]]:
+        """:meth:`sample`, also returning u(t) and u'(t) as tuples of floats (the tick hands
+        them to the integrator as they are); the arrays are written in one packed step each
+        (:mod:`drivers.fill`)."""
+        pos, vel = zip(*[sample(t) for sample in self._sample])  # noqa: B905 (pairs)
+        view = self._pos_view
+        if view.arr is not out_pos:
+            view = self._pos_view = Packed(out_pos, len(pos))
+        view.put(*pos)
+        if out_vel is not None:
+            view = self._vel_view
+            if view.arr is not out_vel:
+                view = self._vel_view = Packed(out_vel, len(vel))
+            view.put(*vel)
+        return pos, vel
 
     def __call__(self, t: float) -> tuple[FloatArray, FloatArray]:
         """(u(t), u'(t)) in buffers owned by the set, overwritten by the next call.

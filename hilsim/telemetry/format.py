@@ -107,10 +107,34 @@ class TickRecord:
     overrun: bool = False
     comm_errors: int = 0  # cumulative
     host_stall_us: float = 0.0
+    #: optional: one float64 array of which ``target`` … ``present`` are consecutive views,
+    #: in that order (the loop's buffers are): the ring then copies it in one step
+    joint_block: npt.NDArray[np.float64] | None = None
 
     @property
     def lateness_us(self) -> float:
         return (self.t_actual - self.t_sched) * 1e6
+
+    def stacked(self) -> bool:
+        """``joint_block`` is set and holds ``target`` … ``present`` as consecutive views,
+        in that order (not cheap: the ring checks it once per set of arrays)."""
+        b = self.joint_block
+        if b is None or b.ndim != 1 or b.dtype != np.float64 or b.strides != (8,) or b.size % 5:
+            return False
+        n, start = b.size // 5, _address(b)
+        fields = (self.target, self.sim_x, self.sim_v, self.cmd, self.present)
+        return all(
+            isinstance(a, np.ndarray)
+            and a.base is b
+            and a.shape == (n,)
+            and a.strides == (8,)
+            and _address(a) == start + 8 * k * n
+            for k, a in enumerate(fields)
+        )
+
+
+def _address(a: np.ndarray) -> int:
+    return a.__array_interface__["data"][0]
 
 
 class TelemetryError(Exception):

@@ -14,6 +14,9 @@ publishes the previous row and marks the new one pending; a row interrupted half
 
 from __future__ import annotations
 
+import struct
+from operator import attrgetter
+
 import numpy as np
 
 from hilsim.telemetry.format import HEAD_COLUMNS, JOINT_FIELDS, TAIL_FIELDS, TickRecord
@@ -28,11 +31,25 @@ class TickRing:
         self.size = int(size)
         self.rows = np.full((self.size, n_cols), np.nan)
         base = len(HEAD_COLUMNS)
-        n = n_joints
+        n = self.n_joints = n_joints
+        self._ncols = n_cols
         self._blocks = tuple(
             (name, slice(base + k * n, base + (k + 1) * n)) for k, name in enumerate(JOINT_FIELDS)
         )
+        floats = len(JOINT_FIELDS) - 1  # the blocks before status: one float64 block
+        self._floats = (base, base + floats * n)
+        self._status_at = base + floats * n
         self._tail_at = base + len(JOINT_FIELDS) * n
+        self._tail_of = attrgetter(*TAIL_FIELDS)
+        # the loop writes rows through struct packers on the ring's memory (drivers.fill)
+        self._bytes = memoryview(self.rows).cast("B")
+        self._doubles = self._bytes.cast("d")
+        self._pack_head = struct.Struct(f"{base}d").pack_into
+        self._pack_status = struct.Struct(f"{n}d").pack_into
+        self._pack_tail = struct.Struct(f"{len(TAIL_FIELDS)}d").pack_into
+        self._pack_late = struct.Struct("5d").pack_into  # stage times, overrun
+        self._stack_seen: tuple = (None,) * 6 + (None,)  # arrays last checked, their block
+        self._status_seen: tuple = (None, None)  # a status array and its memoryview
         self.cursor = 0  # the loop's
         self.tail = 0  # the writer's: rows copied out
 
@@ -57,18 +74,48 @@ class TickRing:
     def put(self, rec: TickRecord) -> None:
         """Copy ``rec`` into the next slot (the caller checked :meth:`full`); it becomes the
         pending row and the previous one is handed over."""
-        head = self.head
-        row = self.rows[head % self.size]
-        row[0] = rec.tick
-        row[1] = rec.t_sched
-        row[2] = rec.t_actual
-        row[3] = rec.lateness_us
-        for name, cols in self._blocks:
-            row[cols] = getattr(rec, name)
-        k = self._tail_at
-        for j, name in enumerate(TAIL_FIELDS):
-            row[k + j] = getattr(rec, name)
+        head = (self.cursor + 1) >> 1
+        at = (head % self.size) * self._ncols  # the row's first double
+        self._pack_head(self._bytes, 8 * at, rec.tick, rec.t_sched, rec.t_actual, rec.lateness_us)
+        block, seen = rec.joint_block, self._stack_seen
+        if (
+            seen[0] is not block
+            or seen[1] is not rec.target
+            or seen[2] is not rec.sim_x
+            or seen[3] is not rec.sim_v
+            or seen[4] is not rec.cmd
+            or seen[5] is not rec.present
+        ):
+            seen = self._stacked(rec, block)
+        view = seen[6]
+        if view is not None:
+            start, stop = self._floats
+            self._doubles[at + start : at + stop] = view
+            status = rec.status
+            if status is not self._status_seen[0]:
+                self._status_values(status)
+            self._pack_status(self._bytes, 8 * (at + self._status_at), *self._status_seen[1])
+        else:
+            row = self.rows[head % self.size]
+            for name, cols in self._blocks:
+                row[cols] = getattr(rec, name)
+        self._pack_tail(self._bytes, 8 * (at + self._tail_at), *self._tail_of(rec))
         self.cursor = (head << 1) | 1
+
+    def _stacked(self, rec: TickRecord, block: np.ndarray | None) -> tuple:
+        """Kept for these arrays: whether :meth:`TickRecord.stacked` (worked out once per
+        set of arrays; a tick pays six identity checks), and a memoryview of the block."""
+        ok = block is not None and rec.stacked() and block.size == 5 * self.n_joints
+        view = memoryview(block) if ok else None  # type: ignore[arg-type]
+        seen = (block, rec.target, rec.sim_x, rec.sim_v, rec.cmd, rec.present, view)
+        self._stack_seen = seen
+        return seen
+
+    def _status_values(self, status) -> None:
+        """Kept for this status array: its values as Python ints (a uint8 array's through
+        a memoryview)."""
+        ok = isinstance(status, np.ndarray) and status.dtype == np.uint8 and status.ndim == 1
+        self._status_seen = (status, memoryview(status) if ok else status)
 
     def amend(self, rec: TickRecord) -> bool:
         """Rewrite the late columns (stage times, overrun) of the pending row if it is
@@ -76,15 +123,18 @@ class TickRing:
         cursor = self.cursor
         if not cursor & 1:
             return False
-        row = self.rows[(cursor >> 1) % self.size]
-        if row[0] != rec.tick:
+        at = ((cursor >> 1) % self.size) * self._ncols
+        if self._doubles[at] != rec.tick:
             return False
-        k = self._tail_at
-        row[k] = rec.t_sim_us
-        row[k + 1] = rec.t_safety_us
-        row[k + 2] = rec.t_bus_us
-        row[k + 3] = rec.t_telemetry_us
-        row[k + 4] = rec.overrun
+        self._pack_late(
+            self._bytes,
+            8 * (at + self._tail_at),
+            rec.t_sim_us,
+            rec.t_safety_us,
+            rec.t_bus_us,
+            rec.t_telemetry_us,
+            rec.overrun,
+        )
         return True
 
     # ------------------------------------------------------------------ the writer's side

@@ -19,6 +19,7 @@ and ``safety_ticks`` are ``null``: unknown, not zero.
 
 from __future__ import annotations
 
+import struct
 from collections.abc import Mapping, Sequence
 from typing import Any
 
@@ -131,6 +132,11 @@ def comm_errors(summary: Mapping[str, Any], servo: int | None = None) -> int:
     )
 
 
+_PACK_ROW = struct.Struct("7d").pack_into  # one row of RunStats._COLS
+_PACK_LATE = struct.Struct("5d").pack_into  # its overrun and stage times (from column 2)
+_ROW_BYTES = 7 * 8
+
+
 class RunStats:
     """Accumulates what the summary needs, cheaply, on the loop thread; percentiles at the end.
 
@@ -161,6 +167,7 @@ class RunStats:
         self._chunk_ticks = int(chunk_ticks)
         self._done: list[tuple[np.ndarray, np.ndarray]] = []
         self._new_chunk()
+        self._status_seen: tuple = (None, None)  # a status array and a memoryview of it
         self._last_tick: int | None = None
         self.safety_limits: dict[str, dict[str, int]] | None = None
         self.safety_ticks: dict[str, int] | None = None
@@ -170,6 +177,9 @@ class RunStats:
         self._f = np.full((self._chunk_ticks, len(self._COLS)), np.nan)
         self._s = np.zeros((self._chunk_ticks, self._n), dtype=np.int8)
         self._i = 0
+        # add() packs each tick into the chunks' memory (drivers.fill: no numpy call per tick)
+        self._f_bytes = memoryview(self._f).cast("B")
+        self._s_bytes = memoryview(self._s).cast("B")
 
     def add(self, rec: TickRecord) -> None:
         """Store one tick: its start time, lateness, overrun, stage times and read status."""
@@ -178,15 +188,26 @@ class RunStats:
             self._done.append((self._f, self._s))
             self._new_chunk()
             i = 0
-        row = self._f[i]
-        row[0] = rec.t_actual
-        row[1] = rec.lateness_us
-        row[2] = rec.overrun
-        row[3] = rec.t_sim_us
-        row[4] = rec.t_safety_us
-        row[5] = rec.t_bus_us
-        row[6] = rec.t_telemetry_us
-        self._s[i] = rec.status
+        _PACK_ROW(
+            self._f_bytes,
+            i * _ROW_BYTES,
+            rec.t_actual,
+            rec.lateness_us,
+            rec.overrun,
+            rec.t_sim_us,
+            rec.t_safety_us,
+            rec.t_bus_us,
+            rec.t_telemetry_us,
+        )
+        status, n = rec.status, self._n
+        seen = self._status_seen
+        if seen[0] is not status:  # a status array's bytes, viewed once
+            ok = type(status) is np.ndarray and status.dtype == np.uint8 and status.shape == (n,)
+            seen = self._status_seen = (status, memoryview(status) if ok else None)
+        if seen[1] is not None:
+            self._s_bytes[i * n : (i + 1) * n] = seen[1]  # 0..3: the same bytes as int8
+        else:
+            self._s[i] = status
         self._i = i + 1
         self._last_tick = rec.tick
 
@@ -194,12 +215,15 @@ class RunStats:
         """Take the late values (stage times, overrun) of the last tick added, ``rec.tick``."""
         if self._i == 0 or rec.tick != self._last_tick:
             raise ValueError(f"can only amend the last tick ({self._last_tick}), not {rec.tick}")
-        row = self._f[self._i - 1]
-        row[2] = rec.overrun
-        row[3] = rec.t_sim_us
-        row[4] = rec.t_safety_us
-        row[5] = rec.t_bus_us
-        row[6] = rec.t_telemetry_us
+        _PACK_LATE(
+            self._f_bytes,
+            (self._i - 1) * _ROW_BYTES + 16,
+            rec.overrun,
+            rec.t_sim_us,
+            rec.t_safety_us,
+            rec.t_bus_us,
+            rec.t_telemetry_us,
+        )
 
     def set_safety_counts(
         self,

@@ -271,7 +271,8 @@ class TelemetryWriter:
             self._raise_not_open()
         self.stats.add(rec)
         ring = self._ring
-        if ring.full() and not self._wait_for_space(rec.tick):
+        full = ((ring.cursor + 1) >> 1) - ring.tail >= ring.size  # ring.full(), on every tick
+        if full and not self._wait_for_space(rec.tick):
             ring.publish_pending()  # hand the previous row over; this one is gone
             return False
         ring.put(rec)
