@@ -135,6 +135,10 @@ def _say(message: str) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    if args.virtual_time and not args.no_plots:  # matplotlib loads on another CPU meanwhile
+        from hilsim.telemetry.plots import prestart
+
+        prestart()
     from hilsim.rig import RigError, load_rig
     from hilsim.session import build_parts, port_for
 

@@ -175,10 +175,12 @@ def plot_joints(
 ) -> Path:
     """One row per joint: target, spring, commanded, present (deg) vs time (s); bad reads marked,
     limits drawn, spans where the safety filter acted shaded (module docstring)."""
-    return common.save(joints_figure(run, start=start, end=end), Path(path), dpi)
+    return common.save(joints_figure(run, start=start, end=end, dpi=dpi), Path(path), dpi)
 
 
-def joints_figure(run: Run, *, start: float | None = None, end: float | None = None) -> Figure:
+def joints_figure(
+    run: Run, *, start: float | None = None, end: float | None = None, dpi: float = 110
+) -> Figure:
     """The figure :func:`plot_joints` saves (axes in joint order)."""
     from matplotlib.lines import Line2D
     from matplotlib.patches import Patch
@@ -194,8 +196,13 @@ def joints_figure(run: Run, *, start: float | None = None, end: float | None = N
     in_soft = t < (soft if soft is not None else -math.inf)
     dt = float(np.median(np.diff(run.t_sched))) if run.n_ticks > 1 else 0.0
     n = len(names)
-    fig = common.new_figure(12.0, 1.2 + 2.1 * n)
+    fig = common.new_figure(12.0, 1.2 + 2.1 * n, dpi)
     axes = fig.subplots(n, 1, sharex=True, squeeze=False)[:, 0]
+    # a first guess of the layout, so the tick locators see about the axes' final lengths
+    common.place_column(
+        fig, list(axes), left=0.8, right=1.6, top=0.25, bottom=0.85, gaps=[0.13] * (n - 1)
+    )
+    side: list[tuple[Any, float, float]] = []  # beside a row: (artist, axes fraction, inches)
     trace_lines = []
     any_acted = any_soft = False
     for j, (ax, name) in enumerate(zip(axes, names, strict=True)):
@@ -215,7 +222,7 @@ def joints_figure(run: Run, *, start: float | None = None, end: float | None = N
         trace_lines = [ax.plot(t, traces[q][:, j], **style)[0] for q, style in TRACE_STYLE.items()]
         stacked = np.concatenate([traces[q][:, j] for q in TRACE_STYLE])
         ax.set_ylim(*_y_range(stacked, lim, MIN_SPAN_DEG))
-        ax.text(
+        note = ax.text(
             1.01,
             0.97,
             _safety_note(
@@ -229,6 +236,7 @@ def joints_figure(run: Run, *, start: float | None = None, end: float | None = N
             fontsize="small",
             color="tab:red" if spans else "0.4",
         )
+        side.append((note, 0.01, 0.0))
         marks = []
         for code, (color, label) in STATUS_STYLE.items():
             bad = status[:, j] == code
@@ -252,7 +260,7 @@ def joints_figure(run: Run, *, start: float | None = None, end: float | None = N
         ax.set_ylabel(f"{name}\nangle (deg)")
         ax.grid(True, alpha=0.3)
         if marks:
-            ax.legend(
+            reads = ax.legend(
                 handles=marks,
                 loc="lower left",  # the safety note is at the top
                 bbox_to_anchor=(1.005, 0.0),
@@ -260,8 +268,9 @@ def joints_figure(run: Run, *, start: float | None = None, end: float | None = N
                 title="reads not OK",
                 title_fontsize="small",
             )
+            side.append((reads, 0.005, common.legend_pad(reads)))
         else:
-            ax.text(
+            reads = ax.text(
                 1.01,
                 0.03,
                 "all reads OK",
@@ -270,6 +279,7 @@ def joints_figure(run: Run, *, start: float | None = None, end: float | None = N
                 fontsize="small",
                 color="0.4",
             )
+            side.append((reads, 0.01, 0.0))
     axes[-1].set_xlabel("time since run start (s)")
     handles = list(trace_lines)
     if limits:
@@ -279,12 +289,22 @@ def joints_figure(run: Run, *, start: float | None = None, end: float | None = N
     if any_soft:
         handles.append(Patch(**SOFT_START_STYLE, label="soft start (command blended)"))
     # below the plots: at the top, two rows of handles would run into the title
-    fig.legend(handles=handles, loc="outside lower center", ncols=min(len(handles), 4))
+    legend = fig.legend(handles=handles, loc="lower center", ncols=min(len(handles), 4))
     span = f"{t[-1] - t[0]:.3g} s" if t.size else "no ticks"
     where = common.window_note(start, end)
-    fig.suptitle(
-        f"Joint positions: {run.path.name}{where} ({t.size} ticks, {span})",
-        x=0.01,
-        ha="left",
+    title = common.title(fig, f"Joint positions: {run.path.name}{where} ({t.size} ticks, {span})")
+    ruler = common.Ruler(fig)
+    axes_w = axes[0].get_position().width * fig.get_figwidth()
+    common.place_column(
+        fig,
+        list(axes),
+        left=max(ruler.left(ax) for ax in axes),
+        right=max(frac * axes_w + pad + ruler.size(a)[0] for a, frac, pad in side),
+        top=ruler.size(title)[1] + common.PAD,
+        bottom=ruler.below(axes[-1])
+        + common.PAD
+        + ruler.size(legend)[1]
+        + common.legend_pad(legend),
+        gaps=[common.TICK / 2 + 2 * common.PAD] * (n - 1),
     )
     return fig

@@ -20,13 +20,26 @@ canvas: no pyplot, no global backend switch), so ``import hilsim.telemetry.plots
   per-stage p50/p99/max. In a virtual-time run these are the host's compute times (the bus stage
   includes the in-process emulator) and no deadline applies: labelled so, without the period line.
 
-:func:`plot_run` writes all three into ``RUN_DIR/plots/`` (or another directory).
+:func:`plot_run` writes all three into ``RUN_DIR/plots/`` (or another directory). Where it can, it
+draws the joints figure in a forked child process while this one draws the other two (2 CPUs:
+about half the time; see :func:`plot_run`). :func:`prestart`, called before a show, has a process
+import matplotlib (half a second) while the show runs, and the next :func:`plot_run` of a run
+directory hands the drawing to it.
 """
 
 from __future__ import annotations
 
+import atexit
+import contextlib
 import os
+import pickle
+import signal
+import subprocess
+import sys
+import threading
+from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 from hilsim.telemetry.joint_plots import (
     ACTED_TOLERANCE_RAD,
@@ -45,6 +58,7 @@ __all__ = [
     "ACTED_TOLERANCE_RAD",
     "MIN_SPAN_DEG",
     "VIRTUAL_CLOCK",
+    "PlotProcessError",
     "is_virtual_time",
     "joint_limits_deg",
     "joints_figure",
@@ -52,9 +66,19 @@ __all__ = [
     "plot_lateness",
     "plot_run",
     "plot_timing",
+    "prestart",
     "safety_acted",
     "soft_start_s",
 ]
+
+
+#: the files :func:`plot_run` writes, in the order it returns them
+PNG_NAMES = ("joints.png", "lateness.png", "timing.png")
+
+
+class PlotProcessError(RuntimeError):
+    """The child process drawing a figure died or said something unreadable (its own exceptions
+    are raised again as themselves)."""
 
 
 def plot_run(
@@ -64,18 +88,262 @@ def plot_run(
     start: float | None = None,
     end: float | None = None,
     dpi: int = 110,
+    parallel: bool | None = None,
 ) -> list[Path]:
     """Write ``joints.png``, ``lateness.png`` and ``timing.png``; return their paths.
 
     ``out_dir`` defaults to ``RUN_DIR/plots``; ``start``/``end`` (s since run start) limit the
     time window.
+
+    ``parallel`` (default: when :func:`can_fork`) draws the joints figure in a child forked after
+    matplotlib is imported and the run is read, while this process draws the other two. An
+    exception in either is raised here as itself, after both are done (the other figures are
+    written); on KeyboardInterrupt or SystemExit the child is killed and reaped before it goes on.
+
+    After :func:`prestart`, the first call with a run directory (not a loaded :class:`Run`) has
+    the prestarted process draw (the same way); if that process cannot answer, this one draws.
     """
+    global _prestarted
+    worker, _prestarted = _prestarted, None
+    if worker is not None:
+        if isinstance(run, str | os.PathLike) and parallel is not False:
+            request = {"run": os.fspath(run), "out_dir": out_dir, "start": start, "end": end}
+            outcome = worker.draw({**request, "dpi": dpi})
+            if outcome is not None:
+                return _unpack(outcome)
+        worker.close()
     if not isinstance(run, Run):
         run = read_run(run)
     out = Path(out_dir) if out_dir is not None else run.path / "plots"
     kw = {"start": start, "end": end, "dpi": dpi}
-    return [
-        plot_joints(run, out / "joints.png", **kw),
-        plot_lateness(run, out / "lateness.png", **kw),
-        plot_timing(run, out / "timing.png", **kw),
-    ]
+    joints_path, lateness_path, timing_path = (out / n for n in PNG_NAMES)
+    if not (can_fork() if parallel is None else parallel):
+        return [
+            plot_joints(run, joints_path, **kw),
+            plot_lateness(run, lateness_path, **kw),
+            plot_timing(run, timing_path, **kw),
+        ]
+    # imported once, before the fork: both processes use them
+    from matplotlib.backends.backend_agg import FigureCanvasAgg  # noqa: F401
+    from matplotlib.figure import Figure  # noqa: F401
+
+    out.mkdir(parents=True, exist_ok=True)
+    child = _fork(lambda: plot_joints(run, joints_path, **kw))
+    try:
+        try:
+            mine = [plot_lateness(run, lateness_path, **kw), plot_timing(run, timing_path, **kw)]
+        except Exception:
+            child.wait()  # let it finish its figure; this process's error is the one reported
+            raise
+        return [child.result(), *mine]
+    except BaseException as exc:  # Ctrl-C, SystemExit: nothing is left running
+        if not isinstance(exc, Exception):
+            child.kill()
+        raise
+
+
+def can_fork() -> bool:
+    """True when a figure can be drawn in a forked child: fork exists, this process may run on
+    two CPUs or more, and no other thread runs (a fork copies only the calling thread, and a
+    lock another thread holds would stay held in the child)."""
+    if not hasattr(os, "fork") or threading.active_count() != 1:
+        return False
+    try:
+        return len(os.sched_getaffinity(0)) >= 2
+    except (AttributeError, OSError):
+        return (os.cpu_count() or 1) >= 2
+
+
+class _Child:
+    """A forked child drawing one figure; its outcome comes back pickled through a pipe."""
+
+    def __init__(self, pid: int, fd: int) -> None:
+        self.pid, self.pipe = pid, os.fdopen(fd, "rb")
+        self.status: int | None = None  # its wait status, once reaped
+        self.data = b""
+
+    def wait(self) -> None:
+        if self.status is None:
+            self.data = self.pipe.read()
+            self.pipe.close()
+            self.status = os.waitpid(self.pid, 0)[1]
+
+    def kill(self) -> None:
+        if self.status is None:
+            with contextlib.suppress(ProcessLookupError):
+                os.kill(self.pid, signal.SIGKILL)
+            self.pipe.close()
+            self.status = os.waitpid(self.pid, 0)[1]
+
+    def result(self) -> Path:
+        self.wait()
+        try:
+            outcome = pickle.loads(self.data)
+        except Exception:  # it died before it could say (killed, out of memory)
+            raise PlotProcessError(
+                f"the process drawing a figure ended without a result ({_how(self.status)})"
+            ) from None
+        return _unpack(outcome)
+
+
+def _unpack(outcome: tuple[str, Any]) -> Any:
+    """A child's ("ok", value) or ("error", exception), as its value or raised."""
+    kind, value = outcome
+    if kind == "ok":
+        return value
+    raise value
+
+
+def _pickled(outcome: tuple[str, object]) -> bytes:
+    """``outcome`` pickled; an exception that does not round-trip, as its type and text."""
+    try:
+        data = pickle.dumps(outcome)
+        pickle.loads(data)
+    except Exception:
+        err = outcome[1]
+        data = pickle.dumps(("error", PlotProcessError(f"{type(err).__name__}: {err}")))
+    return data
+
+
+def _how(status: int | None) -> str:
+    if status is not None and os.WIFSIGNALED(status):
+        return f"signal {os.WTERMSIG(status)}"
+    return f"exit status {os.waitstatus_to_exitcode(status)}" if status is not None else "?"
+
+
+def _fork(draw: Callable[[], Path]) -> _Child:
+    read_fd, write_fd = os.pipe()
+    pid = os.fork()
+    if pid:
+        os.close(write_fd)
+        return _Child(pid, read_fd)
+    # the child: never returns into the caller's code, never runs its exit handlers
+    code = 1
+    try:
+        os.close(read_fd)
+        outcome: tuple[str, object]
+        try:
+            outcome = ("ok", draw())
+            code = 0
+        except BaseException as exc:  # the parent raises it again
+            outcome = ("error", exc)
+        with os.fdopen(write_fd, "wb") as pipe:
+            pipe.write(_pickled(outcome))
+    finally:
+        os._exit(code)
+
+
+# ------------------------------------------------------------------ a process started before a show
+
+_prestarted: _Worker | None = None
+
+
+def prestart() -> None:
+    """Start a process that imports matplotlib now, on another CPU while the show runs, and
+    waits for the next :func:`plot_run` of a run directory in this process to draw for it.
+
+    Nothing happens with fewer than two CPUs (it would take the show's), or when one is already
+    waiting. The process leaves by itself when this one ends (its stdin closes), is closed at
+    exit, ignores SIGINT (the show's Ctrl-C stops the show, which still gets its plots) and
+    stops on SIGTERM.
+    """
+    global _prestarted
+    if _prestarted is not None and _prestarted.proc.poll() is None:
+        return
+    if _cpus() >= 2:
+        with contextlib.suppress(OSError):
+            _prestarted = _Worker()
+
+
+def _cpus() -> int:
+    try:
+        return len(os.sched_getaffinity(0))
+    except (AttributeError, OSError):
+        return os.cpu_count() or 1
+
+
+class _Worker:
+    """The prestarted process: one request in on its stdin, one outcome back on its stdout."""
+
+    def __init__(self) -> None:
+        root = str(Path(__file__).resolve().parents[2])  # where this hilsim is imported from
+        path = os.environ.get("PYTHONPATH")
+        env = {**os.environ, "PYTHONPATH": root + (os.pathsep + path if path else "")}
+        code = "from hilsim.telemetry.plots import _serve; _serve()"
+        self.proc = subprocess.Popen(
+            [sys.executable, "-c", code], stdin=subprocess.PIPE, stdout=subprocess.PIPE, env=env
+        )
+        atexit.register(self.close)
+
+    def draw(self, request: dict[str, Any]) -> tuple[str, Any] | None:
+        """The worker's outcome for ``request``; None when it could not answer (it had died)."""
+        assert self.proc.stdin is not None and self.proc.stdout is not None
+        try:
+            self.proc.stdin.write(pickle.dumps(request))
+            self.proc.stdin.close()
+            data = self.proc.stdout.read()
+        except BaseException as exc:
+            self.close(kill=True)  # on Ctrl-C too: it stops drawing, its helper with it
+            if isinstance(exc, Exception):
+                return None
+            raise
+        self.close()
+        try:
+            return pickle.loads(data)
+        except Exception:  # it died before it could say
+            return None
+
+    def close(self, kill: bool = False) -> None:
+        with contextlib.suppress(OSError):
+            if self.proc.stdin is not None:
+                self.proc.stdin.close()  # EOF: an idle worker leaves
+        if kill and self.proc.poll() is None:
+            self.proc.terminate()
+        try:
+            self.proc.wait(timeout=5.0)
+        except subprocess.TimeoutExpired:
+            self.proc.kill()
+            self.proc.wait()
+        if self.proc.stdout is not None:
+            self.proc.stdout.close()
+        atexit.unregister(self.close)
+
+
+def _serve() -> None:
+    """The prestarted process: import matplotlib, then draw what the one request asks; leave
+    without the interpreter's clean-up (a tenth of a second with matplotlib loaded) that the
+    caller would wait for."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, lambda _s, _f: sys.exit(143))  # plot_run reaps its child
+    failure: BaseException | None = None
+    try:
+        _warm_up()
+    except Exception as exc:  # said when the plots are asked for
+        failure = exc
+    data = sys.stdin.buffer.read()
+    if not data:  # the show ended without plots
+        os._exit(0)
+    outcome: tuple[str, object]
+    try:
+        if failure is not None:
+            raise failure
+        request = pickle.loads(data)
+        outcome = ("ok", plot_run(request.pop("run"), **request))
+    except Exception as exc:
+        outcome = ("error", exc)
+    sys.stdout.buffer.write(_pickled(outcome))
+    sys.stdout.buffer.flush()
+    sys.stderr.flush()
+    os._exit(0)
+
+
+def _warm_up() -> None:
+    """Import what drawing needs and measure a text once (loads the font)."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    import hilsim.rig  # noqa: F401  (soft_start_s reads its default)
+
+    fig = Figure()
+    FigureCanvasAgg(fig)
+    fig.text(0, 0, "0").get_window_extent(fig.canvas.get_renderer())

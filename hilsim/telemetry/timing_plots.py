@@ -5,12 +5,16 @@ from __future__ import annotations
 
 import os
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from hilsim.telemetry import plot_common as common
 from hilsim.telemetry.format import STAGES
 from hilsim.telemetry.reader import Run
+
+if TYPE_CHECKING:
+    from matplotlib.figure import Figure
 
 STAGE_COLORS = {"sim": "tab:blue", "safety": "tab:orange", "bus": "tab:green", "telemetry": "0.5"}
 
@@ -45,10 +49,12 @@ def plot_lateness(
     keep = common.window(run, start, end)
     t = run.t_sched[keep]
     if common.is_virtual_time(run):
-        fig = common.new_figure(11.0, 3.0)
+        fig = common.new_figure(11.0, 3.0, dpi)
         where = common.window_note(start, end)
-        fig.suptitle(f"Tick lateness: {run.path.name}{where} ({t.size} ticks)", x=0.01, ha="left")
+        title = common.title(fig, f"Tick lateness: {run.path.name}{where} ({t.size} ticks)")
         ax = fig.subplots()
+        top = common.Ruler(fig).size(title)[1] + common.PAD
+        common.place_column(fig, [ax], left=0.0, right=0.0, top=top, bottom=0.0)
         ax.set_axis_off()
         note = (
             "Virtual-time run: the clock jumps to every deadline, so each tick starts exactly on "
@@ -61,14 +67,13 @@ def plot_lateness(
     lat_all = run.lateness_us[keep]
     lat = lat_all[np.isfinite(lat_all)]
     overrun = run.overrun[keep]
-    fig = common.new_figure(11.0, 8.0)
-    ax_h, ax_t = fig.subplots(2, 1, height_ratios=[3, 2])
+    fig = common.new_figure(11.0, 8.0, dpi)
+    ax_h, ax_t = fig.subplots(2, 1)
     n_over = int(np.count_nonzero(overrun))
-    fig.suptitle(
+    title = common.title(
+        fig,
         f"Tick lateness: {run.path.name}{common.window_note(start, end)} ({lat.size} ticks, "
         f"{n_over} overrun{'s' if n_over != 1 else ''})",
-        x=0.01,
-        ha="left",
     )
     log_x = _use_log_axis(lat)
     if lat.size == 0:
@@ -85,6 +90,9 @@ def plot_lateness(
                 lo, hi = lo - 0.5, hi + 0.5
             bins = np.linspace(lo, hi, 121)
         ax_h.hist(lat, bins=bins, color="tab:blue", alpha=0.8, log=True)
+        common.log_axis(ax_h.yaxis)
+        if log_x:
+            common.log_axis(ax_h.xaxis)
         for name, value, color in _lateness_marks(lat):
             ax_h.axvline(
                 value, color=color, linestyle="--", linewidth=1.2, label=f"{name} = {value:,.1f} µs"
@@ -103,12 +111,42 @@ def plot_lateness(
                   color="tab:red", label=f"overrun ×{n_over}")  # fmt: skip
     if log_x:
         ax_t.set_yscale("log")
+        common.log_axis(ax_t.yaxis)
     ax_t.set_xlabel("time since run start (s)")
     ax_t.set_ylabel(f"lateness (µs){scale}")
     ax_t.grid(True, alpha=0.3)
-    ax_t.legend(loc="lower right", bbox_to_anchor=(1.0, 1.0), ncols=2, frameon=False,
-                fontsize="small")  # fmt: skip
+    legend = ax_t.legend(loc="lower right", bbox_to_anchor=(1.0, 1.0), ncols=2, frameon=False,
+                         fontsize="small")  # fmt: skip
+    _place_pair(fig, (ax_h, ax_t), title, 0.0, _above(fig, legend))
     return common.save(fig, Path(path), dpi)
+
+
+def _above(fig: Figure, legend: Any) -> float:
+    """Inches a legend anchored on top of its axes takes above them."""
+    return common.Ruler(fig).size(legend)[1] + common.legend_pad(legend)
+
+
+def _place_pair(
+    fig: Figure, axes: tuple[Any, Any], title: Any, above_upper: float, above_lower: float
+) -> None:
+    """Two axes in a column, 3:2, below the figure's title; ``above_*``: inches of legend or
+    title above each."""
+    ratios = [3.0, 2.0]
+    # a first guess, so the tick locators see about the axes' final lengths
+    common.place_column(fig, list(axes), left=0.8, right=0.1, top=0.3, bottom=0.5, gaps=[0.9],
+                        ratios=ratios)  # fmt: skip
+    ruler = common.Ruler(fig)
+    upper, lower = axes
+    common.place_column(
+        fig,
+        list(axes),
+        left=max(ruler.left(ax) for ax in axes),
+        right=0.02,  # a tick label at the right end may stick out by half its width
+        top=ruler.size(title)[1] + common.PAD + above_upper + ruler.offset(upper.yaxis),
+        bottom=ruler.below(lower),
+        gaps=[ruler.below(upper) + 2 * common.PAD + above_lower + ruler.offset(lower.yaxis)],
+        ratios=ratios,
+    )
 
 
 def _binned(
@@ -141,9 +179,10 @@ def plot_timing(
     t = run.t_sched[keep]
     stages = np.column_stack([run.stage_us(s)[keep] for s in STAGES]).reshape(-1, len(STAGES))
     virtual = common.is_virtual_time(run)
-    fig = common.new_figure(11.0, 7.5)
-    ax_s, ax_b = fig.subplots(2, 1, height_ratios=[3, 2])
-    fig.suptitle(
+    fig = common.new_figure(11.0, 7.5, dpi)
+    ax_s, ax_b = fig.subplots(2, 1)
+    title = common.title(
+        fig,
         f"Time per tick by stage: {run.path.name}{common.window_note(start, end)} ({t.size} ticks)"
         + (
             "\nvirtual-time run: the host's compute time per stage ('bus' includes the "
@@ -151,12 +190,12 @@ def plot_timing(
             if virtual
             else ""
         ),
-        x=0.01,
-        ha="left",
     )
     if t.size == 0 or not np.isfinite(stages).any():
         ax_b.remove()
         ax_s.set_axis_off()
+        top = common.Ruler(fig).size(title)[1] + common.PAD
+        common.place_column(fig, [ax_s], left=0.0, right=0.0, top=top, bottom=0.0)
         ax_s.text(0.5, 0.5, "no per-stage timing in this run\n(every t_<stage>_us column is nan)",
                   transform=ax_s.transAxes, ha="center", va="center", fontsize="large")  # fmt: skip
         return common.save(fig, Path(path), dpi)
@@ -175,8 +214,8 @@ def plot_timing(
     ax_s.set_ylabel("wall time per tick (µs)")
     ax_s.set_ylim(0, top * 1.08 if top > 0 else 1.0)
     ax_s.grid(True, alpha=0.3)
-    ax_s.legend(loc="lower left", bbox_to_anchor=(0.0, 1.0), ncols=3, frameon=False,
-                fontsize="small")  # fmt: skip
+    legend = ax_s.legend(loc="lower left", bbox_to_anchor=(0.0, 1.0), ncols=3, frameon=False,
+                         fontsize="small")  # fmt: skip
 
     x = np.arange(len(STAGES))
     width = 0.26
@@ -192,12 +231,16 @@ def plot_timing(
     positive = [v for v in tops if np.isfinite(v) and v > 0]
     if positive and max(positive) > 30 * min(positive):
         ax_b.set_yscale("log")  # small stages would be invisible next to the bus
+        common.log_axis(ax_b.yaxis)
         ax_b.set_ylabel("wall time per tick (µs, log)")
     else:
         ax_b.set_ylabel("wall time per tick (µs)")
     ax_b.set_xticks(x, list(STAGES))
-    ax_b.set_title("per stage over the whole window", fontsize="medium")
+    # y given: matplotlib then does not measure the (absent) top ticks to lift the title over them
+    ax_b.set_title("per stage over the whole window", fontsize="medium", y=1.0)
     ax_b.legend(loc="upper left")
     ax_b.grid(True, axis="y", alpha=0.3)
     ax_b.margins(y=0.2)
+    title_b = common.Ruler(fig).size(ax_b.title)[1] + common.TITLE_PAD
+    _place_pair(fig, (ax_s, ax_b), title, _above(fig, legend), title_b)
     return common.save(fig, Path(path), dpi)
