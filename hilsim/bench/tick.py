@@ -6,20 +6,19 @@ return at once a correct Fast Sync Read reply for the servos asked (their positi
 changing from reply to reply), so the wire's time is left out and only the host's work is
 timed:
 
-* **bare SDK**: what an SDK user writes for one cycle of ``n`` servos - ``changeParam``
-  of each goal, ``GroupSyncWrite.txPacket``, ``GroupSyncRead.fastSyncRead``, ``getData``
-  of each position - on dynamixel-sdk's own ``PortHandler``;
+* **bare SDK**: the cheapest cycle dynamixel-sdk offers (``syncWriteTxOnly``,
+  ``syncReadTx`` fast, ``rxPacket``, positions out of the reply) on its own ``PortHandler``:
+  issue 12's baseline; its group objects cost 20-50 µs more and would flatter the ratio;
 * **hilsim tick**: :meth:`hilsim.loop.HilLoop._tick` itself (springs, targets, safety
   filter, joint map, the driver's Sync Write and Fast Sync Read, the checks, the telemetry
   row) and the row's amendment, on a rig of ``n`` joints (RK4 springs, sine targets) and
   :class:`~drivers.dynamixel.bus.DynamixelBus` on hilsim's ``PortHandler``. The telemetry
   writer is the real one but for its thread (rows are taken out between rounds).
 
-Each figure is the median of ``reps`` calls, the best of ``rounds`` rounds (the least
-disturbed by the rest of the machine). The stage breakdown times each part alone, on
-copies of the tick's own parts right after a tick, so a user sees where the time goes;
-"rest" is the tick less the parts (the checks, the host-stall books, the loop's own code).
-"""
+Each figure is the median of ``reps`` calls, the best of ``rounds`` rounds. Wall-clock
+medians on a shared machine vary by up to 2x from run to run; ``tools/tick_instructions.py``
+counts instructions instead. The stage breakdown times each part alone right after a tick;
+"rest" is the tick less the parts (the checks, the host-stall books, the loop's own code)."""
 
 from __future__ import annotations
 
@@ -50,10 +49,8 @@ from hilsim.rig import load_rig
 from hilsim.session import build_parts
 from hilsim.telemetry import TelemetryWriter
 
-#: servo counts the bench compares
-SERVO_COUNTS = (4, 8, 16)
-#: the issue's targets: hilsim's tick at most this many times the bare cycle
-TARGET_RATIO = {4: 1.3, 16: 1.1}
+SERVO_COUNTS = (4, 8, 16)  # servo counts the bench compares
+TARGET_RATIO = {4: 1.3, 16: 1.1}  # issue 12: hilsim's tick at most this × the bare cycle
 #: stages of the breakdown, in the tick's order
 STAGES = ("safety", "map", "driver", "targets", "telemetry", "springs")
 _FAST_SYNC_READ = 0x8A
@@ -156,19 +153,18 @@ def hilsim_port(ser: InstantSerial) -> PortHandler:
 
 # ----------------------------------------------------------------------- the two cycles
 class BareSdkCycle:
-    """One Sync Write of Goal Position and one Fast Sync Read of Present Position for
-    servos 1..n through dynamixel-sdk's group objects, as its examples write them."""
+    """A Sync Write of Goal Position and a Fast Sync Read of Present Position for servos
+    1..n, the cheapest way dynamixel-sdk's packet handler offers."""
 
     def __init__(self, n: int, ser: InstantSerial | None = None) -> None:
         self.ser = ser or InstantSerial()
         self.port, self.ph = sdk_port(self.ser), sdk.PacketHandler(2.0)
         self.ids = list(range(1, n + 1))
-        goal, present = ct.GOAL_POSITION, ct.PRESENT_POSITION
-        self.writer = sdk.GroupSyncWrite(self.port, self.ph, goal.addr, goal.size)
-        self.reader = sdk.GroupSyncRead(self.port, self.ph, present.addr, present.size)
+        self.n = n
+        self._wparam = bytearray()
         for sid in self.ids:
-            self.writer.addParam(sid, [0, 8, 0, 0])
-            self.reader.addParam(sid)
+            self._wparam += bytes((sid, 0, 8, 0, 0))
+        self._rparam = bytes(self.ids)
         self._goals = [[2048 + (k * 7 + j) % 41 - 20 for j in range(n)] for k in range(64)]
         self._k = 0
         self.positions: list[int] = []
@@ -176,16 +172,21 @@ class BareSdkCycle:
     def __call__(self) -> None:
         goals = self._goals[self._k % 64]
         self._k += 1
-        writer, reader, addr = self.writer, self.reader, ct.PRESENT_POSITION.addr
-        for sid, goal in zip(self.ids, goals, strict=True):
-            lo, hi = sdk.DXL_LOWORD(goal), sdk.DXL_HIWORD(goal)
-            param = [sdk.DXL_LOBYTE(lo), sdk.DXL_HIBYTE(lo), sdk.DXL_LOBYTE(hi), sdk.DXL_HIBYTE(hi)]
-            writer.changeParam(sid, param)
-        if writer.txPacket() != sdk.COMM_SUCCESS:
+        ph, port, wparam, n = self.ph, self.port, self._wparam, self.n
+        for j, goal in enumerate(goals):
+            wparam[5 * j + 1 : 5 * j + 5] = goal.to_bytes(4, "little", signed=True)
+        goal, present = ct.GOAL_POSITION, ct.PRESENT_POSITION
+        if ph.syncWriteTxOnly(port, goal.addr, goal.size, wparam, 5 * n) != sdk.COMM_SUCCESS:
             raise RuntimeError("bare SDK cycle: Sync Write failed")
-        if reader.fastSyncRead() != sdk.COMM_SUCCESS:
+        if ph.syncReadTx(port, present.addr, present.size, self._rparam, n, True) != 0:
             raise RuntimeError("bare SDK cycle: Fast Sync Read failed")
-        self.positions = [reader.getData(sid, addr, 4) for sid in self.ids]
+        packet, result = ph.rxPacket(port, True)
+        if result != sdk.COMM_SUCCESS:
+            raise RuntimeError("bare SDK cycle: Fast Sync Read reply failed")
+        # blocks from byte 8: ERR ID position(4) CRC(2)
+        self.positions = [
+            int.from_bytes(packet[10 + 8 * j : 14 + 8 * j], "little", signed=True) for j in range(n)
+        ]
 
 
 #: the bench's rig: a 500 Hz show, RK4 springs following sines, the watchdog check on
