@@ -6,7 +6,8 @@ The SDK's Fast Sync Read checks one CRC for the whole packet and reports one res
 (lists, the tick's path) or :func:`parse_fast_reply` (a
 :class:`~drivers.servo_bus.PresentReading`), which keep each servo's block only on its own
 merits (see there). Pure: bytes in, readings out; no SDK, no I/O. Runs every tick, so the
-per-block CRCs go two bytes per step through :func:`word_table` and the blocks are read
+per-block CRCs go two bytes per step through the CRC's big-endian word table
+(:func:`~drivers.protocol2.crc.big_endian_word_table`) and the blocks are read
 with :mod:`struct`.
 """
 
@@ -14,13 +15,13 @@ from __future__ import annotations
 
 import math
 import struct
-from array import array
 from collections.abc import MutableSequence, Sequence
 from functools import cache
 
 from drivers.dynamixel.units import CENTER_TICK, RAD_PER_TICK
 from drivers.protocol2 import control_table as ct
-from drivers.protocol2.crc import crc16
+from drivers.protocol2.crc import CRC_TABLE
+from drivers.protocol2.crc import big_endian_word_table as word_table
 from drivers.servo_bus import PresentReading, ReadStatus
 
 #: :class:`~drivers.servo_bus.ReadStatus` as plain ints, for the per-tick loops.
@@ -35,27 +36,6 @@ _FIELDS = struct.Struct("<BBiH")
 
 
 @cache
-def word_table() -> array:
-    """``W[w ^ crc]``: the CRC register after two bytes whose big-endian word is ``w``, from
-    register ``crc`` (16 bits shift the register out entirely, so the pair and the register
-    meet only in ``w ^ crc``). Built once from :func:`~drivers.protocol2.crc.crc16` of single
-    bytes (~10 ms). An ``array`` of 16-bit values (128 KiB): in a tick, whose code and data
-    crowd the caches, it costs fewer misses than a list of 65536 int objects."""
-    t = byte_table()
-    table = array("H")
-    for a in range(256):
-        high, x = (t[a] & 0xFF) << 8, t[a] >> 8
-        table.extend([high ^ t[b ^ x] for b in range(256)])
-    return table
-
-
-@cache
-def byte_table() -> tuple[int, ...]:
-    """The CRC register after one byte ``b`` from register 0 (the classic 256-entry table)."""
-    return tuple(crc16(bytes((b,))) for b in range(256))
-
-
-@cache
 def _words(n: int) -> struct.Struct:
     return struct.Struct(f">{n}H")
 
@@ -67,7 +47,7 @@ def crc16_span(data: bytes | bytearray, start: int, stop: int, crc: int = 0) -> 
     for w in _words((stop - start) >> 1).unpack_from(data, start):
         crc = t[crc ^ w]
     if (stop - start) & 1:
-        crc = ((crc << 8) ^ byte_table()[((crc >> 8) ^ data[stop - 1]) & 0xFF]) & 0xFFFF
+        crc = ((crc << 8) ^ CRC_TABLE[((crc >> 8) ^ data[stop - 1]) & 0xFF]) & 0xFFFF
     return crc
 
 

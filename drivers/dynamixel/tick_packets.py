@@ -41,13 +41,13 @@ from drivers.dynamixel.fast_reply import (
     ALERT,
     ERROR,
     GOOD,
-    byte_table,
     crc16_span,
     parse_blocks,
-    word_table,
 )
 from drivers.dynamixel.units import CENTER_TICK, RAD_PER_TICK, TICKS_PER_RAD, decode_position
 from drivers.protocol2 import control_table as ct
+from drivers.protocol2.crc import CRC_TABLE
+from drivers.protocol2.crc import big_endian_word_table as word_table
 
 #: the SDK's packet limits (``protocol2_packet_handler.TXPACKET_MAX_LEN``/``RXPACKET_MAX_LEN``)
 TX_MAX = 1024
@@ -107,7 +107,7 @@ class GoalFrame:
         self._head_crc = crc16_span(self._buf, 0, self._data)
         # the CRC over ID and goal bytes, two a step (as crc16_span, its parts bound once)
         self._words = struct.Struct(f">{5 * n // 2}H").unpack_from
-        self._table, self._bytes = word_table(), byte_table()
+        self._table, self._bytes = word_table(), CRC_TABLE
 
     def params(self, ticks: Sequence[int]) -> list[int]:
         """The SDK's ``param`` list for ``syncWriteTxOnly``: ID and 4 goal bytes each."""
