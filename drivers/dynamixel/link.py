@@ -31,6 +31,7 @@ from drivers.clock import Clock
 from drivers.dynamixel.errors import CorruptPacket, PortGone
 from drivers.dynamixel.port import SDK_LATENCY_TIMER_MS, PortHandler
 from drivers.dynamixel.sdk_result import CORRUPT, OK, SERIAL_ERRORS, TIMEOUT, port_gone, raise_for
+from drivers.dynamixel.tick_packets import read_request, read_transaction
 from drivers.protocol2 import control_table as ct
 from drivers.protocol2.control_table import Item, check_unicast_id
 from drivers.protocol2.wire_time import PTY_LATENCY_MS
@@ -152,6 +153,9 @@ class Link:
     def __init__(self, port: PortHandler) -> None:
         self.port = port
         self.ph = sdk.PacketHandler(2.0)
+        # Read requests built once per (ID, address, size): the health reads repeat a few
+        # (b"": one the SDK would stuff, left to it)
+        self._reads: dict[tuple[int, int, int], bytes] = {}
 
     @classmethod
     def open(
@@ -272,12 +276,21 @@ class Link:
 
     def read(self, servo_id: int, addr: int, size: int) -> bytes:
         """Read ``size`` bytes from ``addr``."""
-        check_unicast_id(servo_id)
+        key = (servo_id, addr, size)
+        request = self._reads.get(key)
+        if request is None:
+            check_unicast_id(servo_id)
+            request = self._reads[key] = read_request(servo_id, addr, size) or b""
         what = f"Read {size} B at {addr}"
-        tx = [0] * 14
-        tx[4], tx[5], tx[6], tx[7] = servo_id, 7, 0, sdk.INST_READ
-        tx[8:12] = addr & 0xFF, addr >> 8, size & 0xFF, size >> 8
-        rx, result, error = self._call(what, self.ph.txRxPacket, self.port, tx)
+        if request:  # the SDK's txRxPacket, byte for byte, without its per-byte CRC loops
+            rx, result, error = self._call(
+                what, read_transaction, self.port, request, servo_id, size
+            )
+        else:
+            tx = [0] * 14
+            tx[4], tx[5], tx[6], tx[7] = servo_id, 7, 0, sdk.INST_READ
+            tx[8:12] = addr & 0xFF, addr >> 8, size & 0xFF, size >> 8
+            rx, result, error = self._call(what, self.ph.txRxPacket, self.port, tx)
         raise_for(result, error, servo_id, what, rx)
         # LEN = INST ERR data CRC(2): a reply of another length (a late one to another
         # request) is not this one's data, whatever its first bytes are

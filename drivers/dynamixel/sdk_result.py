@@ -43,7 +43,7 @@ _RESULT_TEXT = {
 
 
 def raise_for(
-    result: int, error: int, servo_id: int | None, what: str, rx: list[int] | None = None
+    result: int, error: int, servo_id: int | None, what: str, rx: list[int] | bytes | None = None
 ) -> None:
     """The one place SDK result codes and status error numbers become exceptions.
 
@@ -75,13 +75,14 @@ def raise_for(
     raise CommError(f"{who}: {text} ({what})", servo_id=servo_id, what=what)
 
 
-def _complete_reply(rx: list[int] | None, servo_id: int | None) -> bool:
-    """``rx`` is a whole status packet from ``servo_id``: header, ID, INST, every LEN byte."""
+def _complete_reply(rx: list[int] | bytes | None, servo_id: int | None) -> bool:
+    """``rx`` (the SDK's list, or bytes) is a whole status packet from ``servo_id``:
+    header, ID, INST, every LEN byte."""
     return (
         rx is not None
         and servo_id is not None
         and len(rx) >= 11
-        and rx[:4] == [0xFF, 0xFF, 0xFD, 0x00]
+        and bytes(rx[:4]) == b"\xff\xff\xfd\x00"
         and rx[4] == servo_id
         and rx[7] == 0x55
         and len(rx) == (rx[5] | rx[6] << 8) + 7

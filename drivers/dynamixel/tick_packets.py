@@ -172,11 +172,12 @@ def _header_at(buf: bytes, n: int) -> int:
     return n - 4
 
 
-def receive_frame(port) -> tuple[bytes, int, int]:
+def receive_frame(port, max_id: int = _BROADCAST) -> tuple[bytes, int, int]:
     """``PacketHandler.rxPacket(port, True)`` up to its CRC check: ``(packet, result,
     length)`` with result TIMEOUT or CORRUPT as the SDK's, or OK for a framed packet of
     ``length`` bytes whose CRC is still to be checked (:func:`crc_ok`); the port freed.
-    The same ``readPort``/``isPacketTimeout`` calls in the same order."""
+    The same ``readPort``/``isPacketTimeout`` calls in the same order. ``max_id``: the
+    highest ID a status packet may carry (``rxPacket(port, False)`` allows MAX_ID only)."""
     read, timed_out = port.readPort, port.isPacketTimeout
     rx = b""
     result = TX_FAIL
@@ -189,7 +190,7 @@ def receive_frame(port) -> tuple[bytes, int, int]:
             idx = 0 if rx[:3] == _STUFF and rx[3] != 0xFD else _header_at(rx, rx_length)
             if idx == 0:
                 length = rx[5] | rx[6] << 8
-                if rx[3] != 0x00 or rx[4] > _BROADCAST or length > RX_MAX or rx[7] != _STATUS:
+                if rx[3] != 0x00 or rx[4] > max_id or length > RX_MAX or rx[7] != _STATUS:
                     rx = rx[1:]
                     rx_length -= 1
                     continue
@@ -227,6 +228,35 @@ def receive_fast(port) -> tuple[bytes, int]:
     if result == OK and not crc_ok(rx, length):
         result = CORRUPT
     return rx, result
+
+
+def read_request(servo_id: int, addr: int, size: int) -> bytes | None:
+    """The Read instruction ``PacketHandler.readTxRx`` sends; None if the SDK would stuff
+    it (then it goes through the SDK)."""
+    packet = _instruction(sdk.INST_READ, bytes((addr & 0xFF, addr >> 8, size & 0xFF, size >> 8)))
+    packet[4] = servo_id
+    return None if _stuffed(packet, len(packet) - 2) else _finish(packet)
+
+
+def read_transaction(port, request: bytes, servo_id: int, size: int) -> tuple[bytes, int, int]:
+    """``PacketHandler.txRxPacket(port, <Read of size bytes>)`` for a finished ``request``
+    (:func:`read_request`): ``(status packet, result, error)`` as the SDK's, the same port
+    calls in the same order. Status packets from other IDs are skipped, as the SDK skips
+    them; a packet the SDK would un-stuff is un-stuffed."""
+    result = transmit(port, request)
+    if result != OK:
+        return b"", result, 0
+    port.setPacketTimeout(size + 11)
+    while True:  # rxPacket(port, False): framed, CRC checked, un-stuffed
+        rx, result, length = receive_frame(port, sdk.MAX_ID)
+        if result == OK:
+            if not crc_ok(rx, length):
+                result = CORRUPT
+            elif _STUFF + b"\xfd" in rx:
+                rx = bytes(sdk.PacketHandler(2.0).removeStuffing(list(rx)))
+        if result != OK or rx[4] == servo_id:
+            break
+    return rx, result, (rx[8] if result == OK else 0)
 
 
 # ----------------------------------------------------------------------- the transactions
