@@ -7,15 +7,85 @@ forward, so a ten-minute show runs in seconds and tests never sleep in real time
 
 from __future__ import annotations
 
+import contextlib
+import ctypes
 import math
+import sys
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from typing import Protocol, runtime_checkable
 
 #: the default spin window of :class:`MonotonicClock` (s): sleep until this close to a
-#: deadline, then spin. The rig key ``loop.spin_us`` overrides it.
-DEFAULT_SPIN_S = 200e-6
+#: deadline, then spin. The rig key ``loop.spin_us`` overrides it. With precise timers
+#: (:func:`precise_timers`, which a show's loop thread runs with) Linux wakes a sleeper
+#: 30-75 µs after its time (p50) on this project's 2-core VM, so 100 µs still reaches the
+#: deadline spinning (lateness p50 0.1 µs) at about 90 µs of CPU per wait, against ~140 µs
+#: for the former 200 µs under the OS's 50 µs timer slack (a wake-up alone costs ~60 µs of
+#: CPU there); 50 µs costs ~55 µs a wait but wakes 6-24 µs late at the median (``python -m
+#: hilsim.bench.cpu`` prints all three). A rig that can spare the microseconds asks for less
+#: with ``loop.spin_us``; one whose host wakes later, for more.
+DEFAULT_SPIN_S = 100e-6
+
+
+#: Linux ``prctl`` options for the calling thread's timer slack (ns): the kernel may fire a
+#: sleeping thread's timer up to this much late, to batch wake-ups (default 50 µs).
+PR_SET_TIMERSLACK = 29
+PR_GET_TIMERSLACK = 30
+#: The timer slack a real-time loop asks for (ns): timers fire when due.
+PRECISE_SLACK_NS = 1
+
+
+_libc_cache: list = []
+
+
+def _libc():
+    """The C library's ``prctl`` (the process's own symbols: no library search), or None."""
+    if not _libc_cache:
+        lib = None
+        if sys.platform.startswith("linux"):
+            try:
+                lib = ctypes.CDLL(None, use_errno=True).prctl
+            except (OSError, AttributeError):
+                lib = None
+        _libc_cache.append(lib)
+    return _libc_cache[0]
+
+
+def timer_slack_ns() -> int | None:
+    """The calling thread's timer slack (ns), or None where it cannot be read (not Linux)."""
+    prctl = _libc()
+    if prctl is None:
+        return None
+    value = prctl(PR_GET_TIMERSLACK, 0, 0, 0, 0)
+    return None if value < 0 else int(value)
+
+
+def set_timer_slack_ns(ns: int) -> bool:
+    """Set the calling thread's timer slack (ns; 0 restores the thread's default). False
+    where it cannot be set."""
+    prctl = _libc()
+    if prctl is None:
+        return False
+    return prctl(PR_SET_TIMERSLACK, ctypes.c_ulong(int(ns)), 0, 0, 0) == 0
+
+
+@contextlib.contextmanager
+def precise_timers(ns: int = PRECISE_SLACK_NS) -> Iterator[bool]:
+    """The calling thread's timer slack at ``ns`` for the ``with`` block, then as it was.
+
+    A sleep to a deadline (``time.sleep``, ``select``'s timeout) then wakes within the OS's
+    wake-up latency of it instead of up to 50 µs later, so a loop can sleep closer to its
+    deadline and spin less (:class:`MonotonicClock`'s spin window). Yields whether it was
+    set (False: not Linux, or refused; nothing changed). Per thread: set it in the thread
+    that sleeps."""
+    old = timer_slack_ns()
+    ok = old is not None and set_timer_slack_ns(ns)
+    try:
+        yield ok
+    finally:
+        if ok:
+            set_timer_slack_ns(old)
 
 
 @runtime_checkable
@@ -54,10 +124,12 @@ class Slack(threading.Event):
 class MonotonicClock:
     """The host's monotonic clock.
 
-    ``wait_until`` sleeps to ``spin_s`` before the deadline (the OS wakes threads late
-    by ~0.1-1 ms), then spins on the clock for the last stretch: the *spin window*. A rig sets
-    it with ``loop.spin_us``. ``now`` and ``sleep`` are the time source (default
-    ``time.perf_counter`` and ``time.sleep``); tests pass a simulated one.
+    ``wait_until`` sleeps to ``spin_s`` before the deadline (the OS wakes threads late:
+    10-50 µs with :func:`precise_timers`, up to 50 µs more without, ~0.1-1 ms on a busy
+    host), then spins on the clock for the last stretch: the *spin window*. A rig sets it with
+    ``loop.spin_us``. The sleep is one ``time.sleep``, which Linux runs as an absolute
+    ``clock_nanosleep`` on the monotonic clock. ``now`` and ``sleep`` are the time source
+    (default ``time.perf_counter`` and ``time.sleep``); tests pass a simulated one.
     """
 
     virtual = False

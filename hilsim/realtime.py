@@ -1,7 +1,11 @@
-"""Asking the OS for real-time treatment: SCHED_FIFO, a CPU of its own, a short GIL switch.
+"""Asking the OS for real-time treatment: SCHED_FIFO, a CPU of its own, a short GIL switch,
+precise timers.
 
 Each is a request: refused (no privilege, no such CPU), the show runs anyway and a warning
-says how to grant it.
+says how to grant it. Precise timers (Linux's per-thread timer slack at 1 ns instead of
+50 µs, :func:`drivers.clock.precise_timers`) need no privilege and are asked for silently:
+the loop's sleep then ends within the OS's wake-up latency of the time it asked for, so the
+clock's spin window (``loop.spin_us``) can be short.
 """
 
 from __future__ import annotations
@@ -10,6 +14,8 @@ import contextlib
 import os
 import warnings
 from collections.abc import Iterator
+
+from drivers.clock import precise_timers
 
 #: GIL switch interval while a show runs on the real clock: when the loop wakes from its
 #: sleep it may wait for the GIL up to the interpreter's switch interval (5 ms by default)
@@ -65,12 +71,14 @@ def _restore(state: tuple | None) -> None:
 
 @contextlib.contextmanager
 def realtime(priority: int | None, cpu: int | None) -> Iterator[str]:
-    """:func:`try_realtime` for the ``with`` block, then the process's scheduling class and
-    CPUs as they were: a show run inside a longer-lived process (a test suite, a program that
-    embeds hilsim) must not leave it SCHED_FIFO or pinned — a SCHED_FIFO process that busy-waits
-    (the virtual clock never sleeps) starves everything else on the host."""
+    """:func:`try_realtime` and precise timers for the ``with`` block, then the process's
+    scheduling class and CPUs and this thread's timer slack as they were: a show run inside a
+    longer-lived process (a test suite, a program that embeds hilsim) must not leave it
+    SCHED_FIFO or pinned — a SCHED_FIFO process that busy-waits (the virtual clock never
+    sleeps) starves everything else on the host."""
     state = _snapshot()
     try:
-        yield try_realtime(priority, cpu)
+        with precise_timers():  # this thread's timer slack, as it was afterwards
+            yield try_realtime(priority, cpu)
     finally:
         _restore(state)

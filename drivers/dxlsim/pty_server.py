@@ -1,10 +1,21 @@
 """Serve an emulated bus on a pseudo-terminal, for programs that only know device paths.
 
 The bus runs on the host's monotonic clock: bytes the client writes go on the emulated
-wire when they arrive; each reply byte is written to the pty when the bus says it is
-readable. Accuracy is bounded by the OS's wake-up latency (``select``), typically
-0.1-1 ms late (tens of ms when the host is busy and this process waits for a CPU): use
-``dxlsim://`` in-process for timing work, this for compatibility.
+wire when they arrive; reply bytes are written to the pty as a USB adapter delivers them,
+in pieces: a piece is a run of bytes that follow each other on the wire (no gap longer than
+half a byte time between their stop bits), at most one USB packet's worth
+(:data:`~drivers.protocol2.wire_time.USB_CHUNK`, 62 bytes, as an FTDI chip's 64-byte packet
+minus its 2 status bytes), written when its last byte is readable. A status packet, or a
+whole Fast Sync Read reply, reaches the client in one write, at the time its last byte
+would have: the reply's latency is the same as byte by byte, and the client wakes once for
+it instead of once per piece this process happened to write (the bus's own latency-timer
+model, ``--latency-ms``, still decides when each byte is readable; an FTDI adapter with its
+latency timer at 1 ms sends a USB packet when 62 bytes are in, or when the timer expires:
+https://ftdichip.com/wp-content/uploads/2020/08/AN232B-04_DataLatencyFlow.pdf). A server
+that has fallen behind writes everything readable at once. Accuracy is bounded by the OS's
+wake-up latency (``select``), typically 0.1-1 ms late (tens of ms when the host is busy and
+this process waits for a CPU): use ``dxlsim://`` in-process for timing work, this for
+compatibility.
 
 The line rate is the client's: a pty carries whatever speed the client set with
 ``tcsetattr`` (pyserial, the SDK) and reports it back through ``tcgetattr`` on either end,
@@ -30,12 +41,18 @@ import termios
 import threading
 import tty
 
+from drivers.clock import precise_timers
 from drivers.dxlsim.bus import DxlBus
+from drivers.protocol2.wire_time import USB_CHUNK
 
 #: Longest the server sleeps with nothing due, so a stop request is seen promptly.
 _IDLE_S = 0.05
 #: a wake-up later than asked by more than this means this process was not running (s)
 _LATE_WAKE_S = 0.005
+#: Reply bytes whose stop bits are at most this many byte times apart are one piece (a byte
+#: follows the previous one after exactly one byte time; a servo's Return Delay Time and
+#: turnaround, 20 µs and more, separate two status packets).
+_PIECE_GAP_BYTES = 1.5
 #: termios speed code -> bit/s (``B0``, hang-up, is not a rate).
 _SPEEDS = {
     getattr(termios, name): int(name[1:])
@@ -70,6 +87,27 @@ def line_speed(fd: int) -> int | None:
     return buf[_OSPEED_WORD] or None
 
 
+def piece_due(bus: DxlBus) -> tuple[float | None, int]:
+    """When the next piece of reply bytes is due, and its length: ``(None, 0)`` when no
+    byte is on its way. The piece starts at the first unread byte and runs while each next
+    byte's stop bit follows the previous one's within :data:`_PIECE_GAP_BYTES` byte times
+    (as far as the bus has scheduled them), up to :data:`USB_CHUNK` bytes; it is due when
+    its last byte is readable."""
+    visible_at = bus.visible_at
+    first = visible_at(1)
+    if first is None:
+        return None, 0
+    gap = _PIECE_GAP_BYTES * bus.byte_time
+    last, n = first, 1
+    end = min(bus.pending_rx, USB_CHUNK)
+    while n < end:
+        t = visible_at(n + 1)
+        if t - last > gap:
+            break
+        last, n = t, n + 1
+    return last, n
+
+
 class PtyServer:
     """Owns a pty pair; :attr:`path` is the device a client opens."""
 
@@ -96,9 +134,15 @@ class PtyServer:
                 os.close(fd)
 
     def serve_forever(self) -> None:
+        """Serve until :meth:`stop`; this thread's timer slack is 1 ns meanwhile (Linux), so
+        each piece is written when it is due, not up to 50 µs later."""
+        with precise_timers():
+            self._serve()
+
+    def _serve(self) -> None:
         bus, clock, master = self.bus, self.bus.clock, self._master
         while not self._stop.is_set():
-            due = bus.visible_at(1)
+            due = piece_due(bus)[0]
             t_wait = clock.now()
             wait = _IDLE_S if due is None else min(_IDLE_S, max(0.0, due - t_wait))
             readable, _, _ = select.select([master], [], [], wait)
@@ -119,7 +163,7 @@ class PtyServer:
                         bus.baud = speed  # the host's rate: the client's setting
                     bus.write(data, arrived)
             n = bus.in_waiting()
-            if n:
+            if n and n >= piece_due(bus)[1]:  # the piece is readable to its last byte
                 os.write(master, bus.read(n))
 
     def __enter__(self) -> PtyServer:

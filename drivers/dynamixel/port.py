@@ -15,16 +15,18 @@ packet code:
   opened with ``timeout=0``), which burns a core for the whole wire time. Here one
   :meth:`readPort` waits in the OS until the bytes it is asked for are readable or the
   packet deadline has passed, whichever is first: on a real port (a device path, a pty,
-  any pyserial URL but ``dxlsim://``) pyserial's ``read`` with the remaining time as its
-  timeout (``select`` on the device and pyserial's ``cancel_read`` pipe: it returns the
-  moment the bytes are there, so a reply is taken as early as by polling); on a virtual
-  clock the bus's read, whose wait is a jump (nothing sleeps, the SDK's timeouts still
-  fire). The SDK asks for exactly the bytes it still expects (the 11 of a minimal status
-  packet, then the rest its LENGTH names), so a read that blocks until they are all there
-  never takes a byte of what follows and hands the SDK the same bytes polling would, in
-  fewer calls; a read that reaches the deadline returns what it has. An in-process
-  ``dxlsim://`` bus on the real clock is still polled (its reads would wait in the
-  emulator's own clock, spin window included);
+  any pyserial URL but ``dxlsim://``) the device is read as pyserial reads it, through its
+  descriptor without pyserial's per-call objects: what is there first, then ``select`` on
+  the device and pyserial's ``cancel_read`` pipe with the time left (it returns the moment
+  the bytes are there, so a reply is taken as early as by polling; a packet is written
+  with one ``write`` and no ``select`` after it); on a virtual clock the bus's read, whose
+  wait is a jump (nothing sleeps, the SDK's timeouts still fire). The SDK asks for exactly
+  the bytes it still expects (the 11 of a minimal status packet, then the rest its LENGTH
+  names), so a read that blocks until they are all there never takes a byte of what
+  follows and hands the SDK the same bytes polling would, in fewer calls; a read that
+  reaches the deadline returns what it has. An in-process ``dxlsim://`` bus on the real
+  clock is still polled (its reads would wait in the emulator's own clock, spin window
+  included);
 * **a timeout is declared only by a poll that began after the deadline.** The SDK's
   ``rxPacket`` calls ``readPort()`` then ``isPacketTimeout()``; if the process is
   descheduled between the two, a wall-clock check on wake-up would call the servo silent
@@ -56,8 +58,17 @@ packet code:
 
 from __future__ import annotations
 
+import os
+import select
+import time
+
 import dynamixel_sdk
 import serial
+
+try:
+    import fcntl
+except ImportError:  # not POSIX: pyserial's own read and write
+    fcntl = None
 
 from drivers.clock import Clock, MonotonicClock
 
@@ -77,10 +88,50 @@ URL_HANDLER_PACKAGE = "drivers.dxlsim"
 #: The SDK's own port handler (``timeout=0``, ``rxPacket`` busy-polls it): the reference
 #: :mod:`hilsim.bench.cpu` measures this one against.
 SdkPortHandler = dynamixel_sdk.PortHandler
-#: pyserial's POSIX port. Its ``timeout`` setter re-applies the port settings on every
-#: assignment (``tcgetattr`` and a rebuild of the termios, ~7 us: three times a tick), while
-#: its ``read`` only looks at the value behind it, so the blocking read sets ``_timeout``.
+#: pyserial's POSIX port: read and written through its descriptor (:meth:`PortHandler._read_fd`,
+#: :func:`_write_fd`) with pyserial's semantics and without its per-call costs (its ``timeout``
+#: setter alone re-applies the termios settings, ~7 µs).
 _POSIX_SERIAL = getattr(getattr(serial, "serialposix", None), "Serial", None)
+#: packets written as they are (the tick's prebuilt frames); anything else (the SDK's lists)
+#: becomes ``bytes`` first
+_BUFFERS = (bytes, bytearray, memoryview)
+_monotonic = time.monotonic
+_select = select.select
+
+
+def _non_blocking(ser) -> bool:
+    """Whether ``ser`` is pyserial's POSIX port on a non-blocking descriptor."""
+    if fcntl is None or type(ser) is not _POSIX_SERIAL:
+        return False
+    try:
+        return bool(fcntl.fcntl(ser.fd, fcntl.F_GETFL) & os.O_NONBLOCK)
+    except (OSError, TypeError, ValueError):
+        return False
+
+
+def _write_fd(ser, data) -> int:
+    """pyserial's POSIX ``write(data)`` with no write timeout: every byte, waiting (``select``)
+    only when the OS takes part of it, without its ``select`` after every write (~3 µs).
+    Returns the bytes written: all of them, or fewer if ``cancel_write`` aborted the wait."""
+    if not ser.is_open:
+        raise serial.PortNotOpenError()
+    fd, total, done = ser.fd, len(data), 0
+    view = None
+    while done < total:
+        try:
+            done += os.write(fd, data if view is None else view[done:])
+        except (BlockingIOError, InterruptedError):
+            pass
+        except OSError as exc:
+            raise serial.SerialException(f"write failed: {exc}") from None
+        if done < total:
+            if view is None:
+                view = memoryview(data)
+            abort, _, _ = _select((ser.pipe_abort_write_r,), (fd,), (), None)
+            if abort:
+                os.read(ser.pipe_abort_write_r, 1)
+                break
+    return done
 
 
 def register_url_handlers() -> None:
@@ -158,6 +209,9 @@ class PortHandler(dynamixel_sdk.PortHandler):
         # how readPort waits for bytes (setupPort): "poll" (timeout 0, the SDK's way),
         # "virtual" (the bus's read jumps its clock), "select" (a real port: the OS waits)
         self._wait = "poll"
+        # the device's descriptor is non-blocking (pyserial's POSIX port keeps it so): only
+        # then is it read and written directly (_read_fd, _write_fd)
+        self._direct = False
 
     @property
     def clock(self) -> Clock:
@@ -203,6 +257,8 @@ class PortHandler(dynamixel_sdk.PortHandler):
             raise ValueError(f"a virtual clock cannot drive a real port ({self.port_name})")
         if port_clock is None:
             self._wait = "select"
+            self._direct = _non_blocking(self.ser)
+            self.clock  # noqa: B018 - the monotonic clock, made now: the hot paths use _clock
         else:
             self._wait = "virtual" if port_clock.virtual else "poll"
         self.is_open = True
@@ -246,7 +302,7 @@ class PortHandler(dynamixel_sdk.PortHandler):
         if mark is None:
             return
         stall = 0.0
-        if not self.clock.virtual:
+        if not self._clock.virtual:
             if entry - mark > HOST_STALL_THRESHOLD_S:
                 stall += entry - mark
             late = now - entry - may_wait
@@ -273,7 +329,7 @@ class PortHandler(dynamixel_sdk.PortHandler):
         """Up to ``length`` bytes: all of them as soon as they are readable, or what is
         there at the packet deadline (at once for a poll that begins after it, or while
         no transaction is timed). A ``dxlsim://`` bus on the real clock is polled."""
-        clock = self.clock
+        clock = self._clock
         now = clock.now()
         now_ms = now * 1000.0
         self._poll_ms = now_ms
@@ -287,26 +343,80 @@ class PortHandler(dynamixel_sdk.PortHandler):
             remaining_ms = self.packet_start_time + self.packet_timeout - now_ms
             if remaining_ms > 0.0:
                 timeout = remaining_ms * 1e-3 + 1e-6
-        posix = mode == "select" and type(ser) is _POSIX_SERIAL
-        if posix:
-            ser._timeout = timeout  # all read() looks at; the setter would reconfigure
-        elif mode != "poll":
-            ser.timeout = timeout
         try:
-            return ser.read(length)  # a real port: select() until the bytes or the deadline
+            if mode == "select":
+                if self._direct and type(ser) is _POSIX_SERIAL:
+                    return self._read_fd(ser, length, timeout)
+                ser.timeout = timeout
+            elif mode != "poll":
+                ser.timeout = timeout
+            return ser.read(length)
         except serial.SerialException:
             self.is_using = False
             raise
         finally:
-            if posix:
-                ser._timeout = 0  # the port stays non-blocking for anyone else reading it
             self._watch(now, clock.now(), timeout if mode == "select" else 0.0)
 
-    def writePort(self, packet):
-        clock = self.clock
-        entry = clock.now()
+    def _read_fd(self, ser, length: int, timeout: float) -> bytes:
+        """pyserial's POSIX ``read(length)`` with ``timeout`` (s), without its per-call
+        objects (a ``Timeout``, a ``bytearray`` and its copy: ~10 µs a call): read what is
+        there first (the rest of a packet whose first bytes woke the last read usually is),
+        then ``select`` on the device and pyserial's ``cancel_read`` pipe until ``length``
+        bytes or the timeout. The descriptor stays non-blocking, as pyserial keeps it."""
+        if not ser.is_open:
+            raise serial.PortNotOpenError()
+        fd = ser.fd
         try:
-            return self.ser.write(bytes(packet))
+            data = os.read(fd, length)
+        except BlockingIOError:
+            data = b""
+        except OSError as exc:
+            raise serial.SerialException(f"read failed: {exc}") from None
+        n = len(data)
+        if n >= length or timeout <= 0.0:
+            return data
+        abort = ser.pipe_abort_read_r
+        watched = (fd, abort)
+        deadline = _monotonic() + timeout
+        wait = timeout
+        while True:
+            try:
+                ready = _select(watched, (), (), wait)[0]
+                if not ready:
+                    return data  # the deadline: what is there
+                if abort in ready:
+                    os.read(abort, 1000)  # cancel_read(): return what is there
+                    return data
+                more = os.read(fd, length - n)
+            except BlockingIOError:
+                more = None  # readable but nothing there after all: wait again
+            except InterruptedError:
+                more = None
+            except OSError as exc:
+                raise serial.SerialException(f"read failed: {exc}") from None
+            if more is not None:
+                if not more:  # what pyserial says of a vanished device
+                    raise serial.SerialException(
+                        "device reports readiness to read but returned no data "
+                        "(device disconnected or multiple access on port?)"
+                    )
+                data = more if not n else data + more
+                n = len(data)
+                if n >= length:
+                    return data
+            wait = deadline - _monotonic()
+            if wait <= 0.0:
+                return data
+
+    def writePort(self, packet):
+        clock = self._clock
+        entry = clock.now()
+        ser = self.ser
+        data = packet if type(packet) in _BUFFERS else bytes(packet)  # the SDK gives a list
+        try:
+            if self._direct and type(ser) is _POSIX_SERIAL and ser._write_timeout is None:
+                return _write_fd(ser, data)
+            return ser.write(data)
         except serial.SerialException:
             self.is_using = False
             raise
@@ -323,15 +433,16 @@ class PortHandler(dynamixel_sdk.PortHandler):
 
     def clearPort(self) -> None:
         quiet, self._quiet_at = self._quiet_at, None
-        start = self.clock.now()
+        clock = self._clock or self.clock
+        start = clock.now()
         try:
             if quiet is not None:
-                self.clock.wait_until(quiet)  # waiting out a failed chain: device time
+                clock.wait_until(quiet)  # waiting out a failed chain: device time
             self.ser.reset_input_buffer()
         except serial.SerialException:
             self.is_using = False
             raise
         # every transmit begins here: the watch starts afresh (time before a transaction
         # is the caller's to account for)
-        self._mark_s = self.clock.now()
-        self.device_wait_s += self._mark_s - start
+        self._mark_s = mark = clock.now()
+        self.device_wait_s += mark - start

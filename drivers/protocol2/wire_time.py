@@ -26,7 +26,8 @@ from collections.abc import Sequence
 #: Bytes an FTDI adapter passes to the host per USB packet (64 minus 2 status bytes).
 USB_CHUNK = 62
 #: Adapter latency assumed for a pseudo-terminal (ms). A pty has no latency timer: the
-#: process serving it (``hilsim emulate``) writes each reply byte when it is due and is
+#: process serving it (``hilsim emulate``) writes each piece of a reply (back-to-back bytes, at
+#: most 62, as a USB adapter delivers them) when its last byte is due and is
 #: woken within ~0.1-1 ms on a quiet host. The host counts this for a pty in its bus-capacity
 #: check; the emulator tells its users to put it in their rig.
 PTY_LATENCY_MS = 1.0

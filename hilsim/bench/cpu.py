@@ -14,8 +14,11 @@ another process, as a USB adapter is):
   a show opens it), alternating, best of ``repeats``: process CPU (``time.process_time``)
   and wall time per cycle;
 * :func:`measure_demo` - ``hilsim run configs/demo.toml --port PTY`` in a child process:
-  its CPU (``/proc/PID/stat``: every thread, the telemetry writer included) per tick over
-  a window of the show that starts after the soft start.
+  its CPU (``/proc/PID/stat``: every thread) per tick over a window of the show after the
+  soft start, the loop's thread apart (``/proc/PID/task``), its wake-ups (voluntary context
+  switches) per tick and the show's lateness;
+* :func:`compare_waits` - the real clock alone: CPU per wait and lateness at 250 Hz with
+  the former spin window and timer slack (200 µs, 50 µs), the present ones, and 50 µs.
 
 ``hilsim bench`` on the built-in emulator and the real clock (no rig, no ``--port``: the
 figures are this host's and hilsim's, not the bus's) runs it after its other measurements
@@ -27,8 +30,10 @@ JSON under ``cpu``. ``python -m hilsim.bench.cpu`` runs it alone. Give the load
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import gc
 import json
+import math
 import os
 import signal
 import subprocess
@@ -70,6 +75,28 @@ class DemoCpu:
     runs_us_per_tick: list[float]
     exit_codes: list[int]
     host_stalls: list[int]
+    # of the best run: the loop's thread (the process's main thread) and all others (the
+    # telemetry writer), µs per tick; voluntary context switches per tick; lateness (µs)
+    loop_us_per_tick: float = math.nan
+    other_us_per_tick: float = math.nan
+    wakeups_per_tick: float = math.nan
+    lateness_p50_us: float = math.nan
+    lateness_p99_us: float = math.nan
+
+
+@dataclass(frozen=True)
+class WaitCpu:
+    """The real clock waiting for ``ticks`` deadlines at ``rate_hz``: CPU per wait and
+    lateness (µs), with a spin window and the timer slack in force."""
+
+    spin_us: float
+    slack_ns: int | None  # the thread's timer slack while it waited (None: unknown)
+    ticks: int
+    rate_hz: float
+    cpu_us: float
+    lateness_p50_us: float
+    lateness_p99_us: float
+    lateness_max_us: float
 
 
 @dataclass
@@ -77,6 +104,7 @@ class CpuResult:
     sdk: CycleCpu
     hilsim: CycleCpu
     demo: DemoCpu | None = None
+    waits: list[WaitCpu] = field(default_factory=list)
     load: list[float] = field(default_factory=list)  # 1, 5, 15-minute load when measured
     notes: list[str] = field(default_factory=list)
 
@@ -101,6 +129,20 @@ class CpuResult:
                 f"{d.rate_hz:.0f} Hz ({d.cpu_us_per_tick * d.rate_hz / 1e4:.1f} % of a core; best "
                 f"of {len(d.runs_us_per_tick)}, {d.window_s:g} s of show each)"
             )
+            if not math.isnan(d.loop_us_per_tick):
+                lines.append(
+                    f"  loop thread {d.loop_us_per_tick:.0f} µs, other threads (telemetry) "
+                    f"{d.other_us_per_tick:.0f} µs; {d.wakeups_per_tick:.1f} wake-ups per tick; "
+                    f"lateness p50 {d.lateness_p50_us:.1f} µs, p99 {d.lateness_p99_us:.0f} µs"
+                )
+        for w in self.waits:
+            slack = "?" if w.slack_ns is None else f"{w.slack_ns / 1000:g} µs"
+            lines.append(
+                f"The clock at {w.rate_hz:.0f} Hz, spin window {w.spin_us:g} µs, timer slack "
+                f"{slack}: {w.cpu_us:.0f} µs of CPU per wait, lateness p50 "
+                f"{w.lateness_p50_us:.1f} µs, p99 {w.lateness_p99_us:.0f} µs, max "
+                f"{w.lateness_max_us:.0f} µs ({w.ticks} ticks)"
+            )
         lines += [f"  {n}" for n in self.notes]
         return "\n".join(lines) + "\n"
 
@@ -110,6 +152,7 @@ class CpuResult:
             "hilsim": asdict(self.hilsim),
             "wall_change": self.wall_change,
             "demo": None if self.demo is None else asdict(self.demo),
+            "waits": [asdict(w) for w in self.waits],
             "load": list(self.load),
             "notes": list(self.notes),
             "servos": len(IDS),
@@ -213,51 +256,36 @@ def measure_cycles(path: str, *, cycles: int = 500, repeats: int = 7) -> tuple[C
     for name, runs in samples.items():
         cpu = sorted(r[0] / cycles * 1e6 for r in runs)
         wall = sorted(r[1] / cycles * 1e6 for r in runs)
-        out.append(
-            CycleCpu(
-                port=name,
-                cycles=cycles,
-                repeats=repeats,
-                cpu_us=cpu[0],
-                wall_us=wall[0],
-                cpu_us_median=cpu[len(cpu) // 2],
-                wall_us_median=wall[len(wall) // 2],
-                failures=sum(r[2] for r in runs),
-            )
-        )
+        cpu_m, wall_m = cpu[len(cpu) // 2], wall[len(wall) // 2]
+        fails = sum(r[2] for r in runs)
+        out.append(CycleCpu(name, cycles, repeats, cpu[0], wall[0], cpu_m, wall_m, fails))
     return out[0], out[1]
 
 
 # ----------------------------------------------------------------------- the demo
-def _cpu_s(pid: int) -> float:
-    """utime + stime of process ``pid``, every thread (``/proc/PID/stat``), seconds."""
-    stat = Path(f"/proc/{pid}/stat").read_text()
+def _cpu_s(pid: int, tid: int | None = None) -> float:
+    """utime + stime of process ``pid`` (every thread: ``/proc/PID/stat``), or of its
+    thread ``tid`` (``/proc/PID/task/TID/stat``), seconds."""
+    where = f"/proc/{pid}" if tid is None else f"/proc/{pid}/task/{tid}"
+    stat = Path(f"{where}/stat").read_text()
     fields = stat[stat.rindex(")") + 2 :].split()
     return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
 
 
-def demo_once(
-    path: str, *, window_s: float = 6.0, settle_s: float = 1.5
-) -> tuple[float, int, int, float]:
+def _wakeups(pid: int) -> int:
+    """Voluntary context switches of process ``pid``'s main thread: sleeps and waits."""
+    status = Path(f"/proc/{pid}/status").read_text()
+    return int(status.split("\nvoluntary_ctxt_switches:")[1].split()[0])
+
+
+def demo_once(path: str, *, window_s: float = 6.0, settle_s: float = 1.5) -> DemoCpu:
     """One ``hilsim run configs/demo.toml --port PATH`` of ``settle_s + window_s + 1`` s
-    of show. Returns (CPU µs per tick over the window, exit code, host stalls, rate Hz)."""
+    of show, measured over the window (a :class:`DemoCpu` of one run)."""
     with tempfile.TemporaryDirectory(prefix="hilsim-cpu-") as tmp:
         out = Path(tmp) / "run"
+        show = ["--duration", f"{settle_s + window_s + 1.0:g}", "--no-plots", "--out", str(out)]
         proc = subprocess.Popen(
-            [
-                sys.executable,
-                "-m",
-                "hilsim",
-                "run",
-                str(DEMO_RIG),
-                "--port",
-                path,
-                "--duration",
-                f"{settle_s + window_s + 1.0:g}",
-                "--no-plots",
-                "--out",
-                str(out),
-            ],
+            [sys.executable, "-m", "hilsim", "run", str(DEMO_RIG), "--port", path, *show],
             stdout=subprocess.DEVNULL,
             stderr=subprocess.PIPE,
             text=True,
@@ -270,9 +298,10 @@ def demo_once(
                 if " -> " in line:
                     break
             time.sleep(settle_s)
-            c0, t0 = _cpu_s(proc.pid), time.perf_counter()
+            pid = proc.pid
+            c0, m0, w0, t0 = _cpu_s(pid), _cpu_s(pid, pid), _wakeups(pid), time.perf_counter()
             time.sleep(window_s)
-            c1, t1 = _cpu_s(proc.pid), time.perf_counter()
+            c1, m1, w1, t1 = _cpu_s(pid), _cpu_s(pid, pid), _wakeups(pid), time.perf_counter()
             err.append(proc.stderr.read())
             code = proc.wait(timeout=60)
         finally:
@@ -286,22 +315,71 @@ def demo_once(
         summary = json.loads(summary_path.read_text())
     rate = float(summary.get("rate_hz") or 0.0)
     stalls = int(((summary.get("loop") or {}).get("host_stalls") or {}).get("count", 0))
-    ticks = (t1 - t0) * rate
-    return (c1 - c0) / ticks * 1e6 if ticks else float("nan"), code, stalls, rate
+    late = summary.get("lateness_us") or {}
+    ticks = (t1 - t0) * rate or math.nan
+    cpu, loop = (c1 - c0) / ticks * 1e6, (m1 - m0) / ticks * 1e6
+    p50, p99 = (float(late.get(q, math.nan)) for q in ("p50", "p99"))
+    wake = (w1 - w0) / ticks
+    return DemoCpu(window_s, rate, cpu, [cpu], [code], [stalls], loop, cpu - loop, wake, p50, p99)
 
 
 def measure_demo(path: str, *, runs: int = 2, window_s: float = 6.0) -> DemoCpu:
-    """The demo's CPU per tick over the pty at ``path``, best of ``runs``."""
+    """The demo's CPU per tick over the pty at ``path``: the best of ``runs`` (the loop's
+    share, wake-ups and lateness are that run's)."""
     results = [demo_once(path, window_s=window_s) for _ in range(runs)]
-    per_tick = [r[0] for r in results]
-    return DemoCpu(
-        window_s=window_s,
-        rate_hz=results[0][3],
-        cpu_us_per_tick=min(per_tick),
-        runs_us_per_tick=per_tick,
-        exit_codes=[r[1] for r in results],
-        host_stalls=[r[2] for r in results],
+    return dataclasses.replace(
+        min(results, key=lambda r: r.cpu_us_per_tick),
+        runs_us_per_tick=[r.cpu_us_per_tick for r in results],
+        exit_codes=[r.exit_codes[0] for r in results],
+        host_stalls=[r.host_stalls[0] for r in results],
     )
+
+
+# ----------------------------------------------------------------------- the clock
+#: the spin window and timer slack before issue 12 (µs, ns): the comparison's "before"
+FORMER_SPIN_US = 200.0
+FORMER_SLACK_NS = 50_000
+#: a shorter window a rig may choose (``loop.spin_us = 50``): the comparison's third line
+FRUGAL_SPIN_US = 50.0
+
+
+def measure_waits(
+    spin_us: float, slack_ns: int | None, *, rate_hz: float = 250.0, seconds: float = 3.0
+) -> WaitCpu:
+    """The real clock alone: ``wait_until`` for each deadline of ``seconds`` at ``rate_hz``
+    with a ``spin_us`` spin window and this thread's timer slack at ``slack_ns`` (None: as
+    it is). CPU per wait (``time.thread_time``) and lateness."""
+    from drivers.clock import MonotonicClock, precise_timers, timer_slack_ns
+
+    clock = MonotonicClock(spin_us * 1e-6)
+    period, n = 1.0 / rate_hz, max(1, round(seconds * rate_hz))
+    late = [0.0] * n
+    with contextlib.nullcontext() if slack_ns is None else precise_timers(slack_ns):
+        in_force = timer_slack_ns()
+        t0 = clock.now() + period
+        c0 = time.thread_time()
+        for k in range(n):
+            t = t0 + k * period
+            late[k] = clock.wait_until(t) - t
+        cpu = time.thread_time() - c0
+    late.sort()
+    q = [late[n // 2], late[min(n - 1, int(n * 0.99))], late[-1]]
+    return WaitCpu(spin_us, in_force, n, rate_hz, cpu / n * 1e6, *(x * 1e6 for x in q))
+
+
+def compare_waits(*, seconds: float = 3.0, repeats: int = 2) -> list[WaitCpu]:
+    """The former default (200 µs, 50 µs timer slack), the present one
+    (:data:`~drivers.clock.DEFAULT_SPIN_S`, precise timers) and a frugal 50 µs with precise
+    timers, alternating, the run with the least CPU of each."""
+    from drivers.clock import DEFAULT_SPIN_S, PRECISE_SLACK_NS
+
+    setups = [(FORMER_SPIN_US, FORMER_SLACK_NS), (DEFAULT_SPIN_S * 1e6, PRECISE_SLACK_NS)]
+    setups.append((FRUGAL_SPIN_US, PRECISE_SLACK_NS))  # what a rig may ask for: less CPU
+    runs: list[list[WaitCpu]] = [[] for _ in setups]
+    for _ in range(repeats):
+        for i, (spin, slack) in enumerate(setups):
+            runs[i].append(measure_waits(spin, slack, seconds=seconds))
+    return [min(r, key=lambda w: w.cpu_us) for r in runs]
 
 
 def measure(*, quick: bool = False, demo: bool = True, progress=lambda _s: None) -> CpuResult:
@@ -315,6 +393,8 @@ def measure(*, quick: bool = False, demo: bool = True, progress=lambda _s: None)
         if demo:
             progress(f"the demo over {path}: CPU per tick")
             result.demo = measure_demo(path, runs=1 if quick else 2, window_s=3.0 if quick else 6.0)
+    progress("the real clock: CPU per wait, former and present spin window")
+    result.waits = compare_waits(seconds=1.5 if quick else 3.0, repeats=1 if quick else 2)
     result.load = [round(x, 2) for x in os.getloadavg()]
     return result
 
@@ -366,10 +446,13 @@ __all__ = [
     "CpuResult",
     "CycleCpu",
     "DemoCpu",
+    "WaitCpu",
     "add_to_bench",
+    "compare_waits",
     "emulator",
     "for_bench",
     "measure",
     "measure_cycles",
     "measure_demo",
+    "measure_waits",
 ]

@@ -68,3 +68,68 @@ def test_slack_remaining():
     assert s.remaining() == float("inf")
     s.until = 0.0
     assert s.remaining() < 0
+
+
+# -- precise timers: the thread's timer slack, set for a block and restored
+linux_slack = pytest.mark.skipif(
+    clock_mod.timer_slack_ns() is None, reason="no per-thread timer slack (not Linux)"
+)
+
+
+@linux_slack
+def test_precise_timers_set_the_threads_slack_and_restore_it():
+    before = clock_mod.timer_slack_ns()
+    assert before > clock_mod.PRECISE_SLACK_NS  # the OS default (50 µs) or what was set
+    with clock_mod.precise_timers() as ok:
+        assert ok and clock_mod.timer_slack_ns() == clock_mod.PRECISE_SLACK_NS
+    assert clock_mod.timer_slack_ns() == before
+    with pytest.raises(RuntimeError), clock_mod.precise_timers():
+        raise RuntimeError("a show that crashed")
+    assert clock_mod.timer_slack_ns() == before  # restored on the way out, too
+
+
+@linux_slack
+def test_precise_timers_are_the_calling_threads_only():
+    import threading
+
+    seen = []
+    with clock_mod.precise_timers():
+        t = threading.Thread(target=lambda: seen.append(clock_mod.timer_slack_ns()))
+        t.start()
+        t.join()
+        here = clock_mod.timer_slack_ns()
+    # a thread started inside the block inherits the slack at its creation (Linux), and
+    # changing it there does not change it here
+    assert here == clock_mod.PRECISE_SLACK_NS and seen == [clock_mod.PRECISE_SLACK_NS]
+    other = []
+
+    def elsewhere() -> None:
+        with clock_mod.precise_timers(7):
+            other.append(clock_mod.timer_slack_ns())
+
+    before = clock_mod.timer_slack_ns()
+    t = threading.Thread(target=elsewhere)
+    t.start()
+    t.join()
+    assert other == [7] and clock_mod.timer_slack_ns() == before
+
+
+def test_precise_timers_where_the_os_refuses_change_nothing(monkeypatch):
+    monkeypatch.setattr(clock_mod, "set_timer_slack_ns", lambda ns: False)
+    with clock_mod.precise_timers() as ok:
+        assert ok is False
+    monkeypatch.setattr(clock_mod, "timer_slack_ns", lambda: None)  # not Linux
+    calls = []
+    monkeypatch.setattr(clock_mod, "set_timer_slack_ns", lambda ns: calls.append(ns))
+    with clock_mod.precise_timers() as ok:
+        assert ok is False
+    assert calls == []
+
+
+def test_the_default_spin_window_is_what_a_clock_gets(fake):
+    c = MonotonicClock()
+    assert c.spin_s == clock_mod.DEFAULT_SPIN_S
+    t = c.now() + 0.004
+    c.wait_until(t)
+    ((dt, _, _),) = fake.sleeps
+    assert dt == pytest.approx(0.004 - clock_mod.DEFAULT_SPIN_S, abs=5e-6)

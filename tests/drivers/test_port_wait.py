@@ -47,15 +47,15 @@ def pty_port(clock=None):
 
 
 def spy_reads(port) -> list[tuple[int, float]]:
-    """Record ``(length asked, timeout in force)`` for every read of the serial object."""
-    ser, calls = port.ser, []
-    read = ser.read
+    """Record ``(length asked, timeout it may wait)`` for every read of the device."""
+    calls = []
+    read = port._read_fd
 
-    def spy(n):
-        calls.append((n, ser._timeout))
-        return read(n)
+    def spy(ser, n, timeout):
+        calls.append((n, timeout))
+        return read(ser, n, timeout)
 
-    ser.read = spy
+    port._read_fd = spy
     return calls
 
 
@@ -171,3 +171,114 @@ def test_an_unplugged_pty_raises_at_once_and_frees_the_port():
         with pytest.raises(serial.SerialException):
             port.readPort(11)
         assert port.is_using is False
+
+
+# -- the device read and write without pyserial's per-call objects, with its semantics
+class SelectSpy:
+    """Stands in for the port module's ``select``: records each call's timeout and may
+    write bytes to the pty's master side first (bytes that arrive during the wait)."""
+
+    def __init__(self, real, master: int, arriving: bytes = b"") -> None:
+        self.real, self.master, self.arriving, self.timeouts = real, master, arriving, []
+
+    def __call__(self, r, w, x, timeout=None):
+        self.timeouts.append(timeout)
+        if self.arriving:
+            os.write(self.master, self.arriving)
+            self.arriving = b""
+        return self.real(r, w, x, timeout)
+
+
+def test_a_read_waits_in_the_os_for_the_time_left_and_never_polls(monkeypatch):
+    import drivers.dynamixel.port as port_mod
+
+    with pty_port() as (port, master):
+        os.write(master, PING_REPLY[:5])  # the first bytes are there, the rest is coming
+        spy = SelectSpy(port_mod._select, master, arriving=PING_REPLY[5:])
+        monkeypatch.setattr(port_mod, "_select", spy)
+        port.setPacketTimeoutMillis(50.0)
+        packet, result = sdk.PacketHandler(2.0).rxPacket(port, False)
+        assert result == sdk.COMM_SUCCESS and bytes(packet) == PING_REPLY
+        # one wait, handed the time to the deadline; the rest of the packet, there by then,
+        # was read without another one
+        (timeout,) = spy.timeouts
+        assert 0.040 < timeout <= 0.050 + 1e-5
+
+
+def test_a_reply_already_there_needs_no_select(monkeypatch):
+    import drivers.dynamixel.port as port_mod
+
+    with pty_port() as (port, master):
+        os.write(master, PING_REPLY)
+        spy = SelectSpy(port_mod._select, master)
+        monkeypatch.setattr(port_mod, "_select", spy)
+        port.setPacketTimeoutMillis(50.0)
+        packet, result = sdk.PacketHandler(2.0).rxPacket(port, False)
+        assert result == sdk.COMM_SUCCESS and bytes(packet) == PING_REPLY
+        assert spy.timeouts == []
+
+
+def test_cancel_read_ends_a_waiting_read_with_what_is_there():
+    with pty_port() as (port, master):
+        os.write(master, PING_REPLY[:4])
+        port.setPacketTimeoutMillis(60_000.0)
+        port.ser.cancel_read()  # pyserial's way to wake a blocked reader (another thread's)
+        assert port.readPort(11) == PING_REPLY[:4]  # at once, not in a minute
+
+
+def test_write_port_writes_every_byte_when_the_os_takes_a_part_at_a_time():
+    import threading
+
+    packet = bytes(range(256)) * 1024  # 256 KiB: more than a pty buffers
+    with pty_port() as (port, master):
+        got = bytearray()
+
+        def drain() -> None:
+            while len(got) < len(packet):
+                got.extend(os.read(master, 65536))
+
+        reader = threading.Thread(target=drain, daemon=True)
+        reader.start()
+        assert port.writePort(packet) == len(packet)
+        reader.join(timeout=30)
+        assert bytes(got) == packet
+
+
+def test_write_port_takes_the_sdks_lists_and_prebuilt_frames():
+    with pty_port() as (port, master):
+        assert port.writePort([0xFF, 0xFF, 0xFD]) == 3
+        assert port.writePort(bytearray(b"\x00\x01")) == 2
+        assert os.read(master, 16) == b"\xff\xff\xfd\x00\x01"
+
+
+def test_a_closed_port_raises_and_frees_it():
+    with pty_port() as (port, _master):
+        port.ser.close()
+        port.is_using = True
+        with pytest.raises(serial.SerialException):
+            port.readPort(11)
+        assert port.is_using is False
+        port.is_using = True
+        with pytest.raises(serial.SerialException):
+            port.writePort(b"\xff")
+        assert port.is_using is False
+
+
+def test_a_blocking_descriptor_is_left_to_pyserial():
+    """Reading the descriptor directly relies on it being non-blocking (pyserial opens it
+    so); a descriptor that blocks is found at open and read by pyserial, which selects
+    before it reads (a direct read would block past the deadline)."""
+    import fcntl
+
+    import drivers.dynamixel.port as port_mod
+
+    with pty_port() as (port, _master):
+        assert port._direct and port_mod._non_blocking(port.ser)
+        fd = port.ser.fd
+        fcntl.fcntl(fd, fcntl.F_SETFL, fcntl.fcntl(fd, fcntl.F_GETFL) & ~os.O_NONBLOCK)
+        assert not port_mod._non_blocking(port.ser)
+        port._direct = port_mod._non_blocking(port.ser)  # as setupPort decides it
+        calls = spy_reads(port)
+        port.setPacketTimeoutMillis(0.3)
+        _packet, result = sdk.PacketHandler(2.0).rxPacket(port, False)
+        assert result == sdk.COMM_RX_TIMEOUT and calls == []  # pyserial's read, not ours

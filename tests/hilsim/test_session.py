@@ -11,7 +11,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from drivers.clock import MonotonicClock, VirtualClock
+from drivers.clock import DEFAULT_SPIN_S, MonotonicClock, VirtualClock
 from drivers.dxlsim.url import DxlsimUrl
 from hilsim.joint_map import JointMap
 from hilsim.rig import load_rig
@@ -68,7 +68,7 @@ def measured_spin_window(clock: MonotonicClock, deadline: float = 0.01) -> float
 @pytest.mark.parametrize("spin_us", [None, 0, 700, 2500])
 def test_loop_spin_us_is_the_measured_spin_window_on_hardware(tmp_path, spin_us):
     r = rig(tmp_path, port="/dev/ttyUSB0", spin_us=spin_us)
-    want = 200e-6 if spin_us is None else spin_us * 1e-6
+    want = DEFAULT_SPIN_S if spin_us is None else spin_us * 1e-6
     assert measured_spin_window(real_clock(r)) == pytest.approx(want, abs=2e-6)
 
 
@@ -77,15 +77,15 @@ def test_loop_spin_us_reaches_the_emulators_real_clock(tmp_path, spin_us):
     r = rig(tmp_path, spin_us=spin_us)
     bus = DxlsimUrl.parse(port_for(r, virtual=False)).build_bus()
     assert not bus.clock.virtual
-    want = 200e-6 if spin_us is None else spin_us * 1e-6
+    want = DEFAULT_SPIN_S if spin_us is None else spin_us * 1e-6
     assert measured_spin_window(bus.clock) == pytest.approx(want, abs=2e-6)
 
 
 def test_the_spin_windows_differ_by_what_the_rig_says(tmp_path):
-    """The two measurements are of the rig key, not of a default: 700 µs vs 200 µs."""
+    """The two measurements are of the rig key, not of a default: 700 µs vs the default."""
     a = measured_spin_window(real_clock(rig(tmp_path, port="/dev/x", spin_us=700)))
     b = measured_spin_window(real_clock(rig(tmp_path, port="/dev/x")))
-    assert a - b == pytest.approx(500e-6, abs=3e-6)
+    assert a - b == pytest.approx(700e-6 - DEFAULT_SPIN_S, abs=3e-6)
 
 
 def test_port_for_picks_the_emulators_clock(tmp_path):
