@@ -2,27 +2,31 @@
 
     python tools/same_run.py RUN_A RUN_B
 
-Compares telemetry.csv cell by cell as text (every float64 is written with %.17g, so equal
-text is equal bits) except the columns that time the host (t_sim_us, t_safety_us, t_bus_us,
-t_telemetry_us: CPU time, different on every run), and events.jsonl line by line without the
-wall-clock ``wall`` field. Prints the first difference and exits 1, or prints what matched and
-exits 0. Only virtual-time runs are deterministic; a real-time run differs in lateness.
+Compares the telemetry (read with read_run, whatever its format: csv, csv.gz, parquet) cell by
+cell, bit for bit (a CSV's %.17g text is the float64's bits; Parquet's fixed-point integers read
+back the same way every time) except the columns that time the host (t_sim_us, t_safety_us,
+t_bus_us, t_telemetry_us: CPU time, different on every run), and events.jsonl line by line
+without the wall-clock ``wall`` field. Prints the first difference and exits 1, or prints what
+matched and exits 0. Only virtual-time runs are deterministic; a real-time run differs in lateness.
 """
 
 from __future__ import annotations
 
-import csv
 import json
 import sys
 from pathlib import Path
 
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from hilsim.telemetry.reader import read_run
+
 HOST_TIME_COLUMNS = {"t_sim_us", "t_safety_us", "t_bus_us", "t_telemetry_us"}
 
 
-def _rows(run: Path) -> tuple[list[str], list[list[str]]]:
-    with open(run / "telemetry.csv", newline="", encoding="utf-8") as f:
-        rows = list(csv.reader(f))
-    return rows[0], rows[1:]
+def _columns(run: Path) -> dict[str, np.ndarray]:
+    return read_run(run).columns
 
 
 def _events(run: Path) -> list[dict]:
@@ -36,17 +40,19 @@ def _events(run: Path) -> list[dict]:
 
 def compare(a: Path, b: Path) -> str | None:
     """None if the runs are the same show, else the first difference."""
-    head_a, rows_a = _rows(a)
-    head_b, rows_b = _rows(b)
-    if head_a != head_b:
-        return f"headers differ: {head_a} vs {head_b}"
-    if len(rows_a) != len(rows_b):
-        return f"{len(rows_a)} vs {len(rows_b)} ticks"
-    keep = [i for i, name in enumerate(head_a) if name not in HOST_TIME_COLUMNS]
-    for n, (ra, rb) in enumerate(zip(rows_a, rows_b, strict=True)):
-        for i in keep:
-            if ra[i] != rb[i]:
-                return f"row {n + 1}, column {head_a[i]}: {ra[i]} vs {rb[i]}"
+    cols_a, cols_b = _columns(a), _columns(b)
+    if list(cols_a) != list(cols_b):
+        return f"headers differ: {list(cols_a)} vs {list(cols_b)}"
+    if cols_a["tick"].size != cols_b["tick"].size:
+        return f"{cols_a['tick'].size} vs {cols_b['tick'].size} ticks"
+    for name, xa in cols_a.items():
+        if name in HOST_TIME_COLUMNS:
+            continue
+        xb = cols_b[name]
+        same = xa.view(np.int64) == xb.view(np.int64)  # bits: -0.0 is not 0.0, NaN is NaN
+        if not same.all():
+            n = int(np.argmin(same))
+            return f"row {n + 1}, column {name}: {xa[n]!r} vs {xb[n]!r}"
     ev_a, ev_b = _events(a), _events(b)
     if ev_a != ev_b:
         for x, y in zip(ev_a, ev_b, strict=False):
@@ -65,8 +71,8 @@ def main(argv: list[str]) -> int:
     if diff:
         print(f"different: {diff}")
         return 1
-    _, rows = _rows(a)
-    print(f"same show: {len(rows)} ticks, every column but the host's stage times, and every event")
+    ticks = _columns(a)["tick"].size
+    print(f"same show: {ticks} ticks, every column but the host's stage times, and every event")
     return 0
 
 

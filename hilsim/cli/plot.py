@@ -24,7 +24,7 @@ DPI_RANGE = (30, 300)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("run_dir", metavar="RUN_DIR", help="a run directory (has telemetry.csv)")
+    parser.add_argument("run_dir", metavar="RUN_DIR", help="a run directory (hilsim run's output)")
     parser.add_argument("--out", metavar="DIR", help="output directory (default RUN_DIR/plots)")
     parser.add_argument("--start", type=float, metavar="S", help="window start, s since run start")
     parser.add_argument("--end", type=float, metavar="S", help="window end, s since run start")

@@ -62,7 +62,8 @@ the same figure on real servos. Below, every key: *default* "required" means the
   keyframes and CSV animations). Everything inside hilsim is in radians.
 * Joint angles are in the **joint frame**: servo angle = `home_deg + direction · joint angle`,
   where servo angle 0 is the centre tick 2048.
-* `telemetry.csv` in a run directory holds, per joint `<j>`, in the joint frame:
+* The run's telemetry (`telemetry.csv`; `.csv.gz` or Parquet for a big rig, see
+  `telemetry.format`) holds, per joint `<j>`, in the joint frame:
 """
 
 

@@ -3,7 +3,9 @@
 ==========  =====================================================================================
 ``format``  the run directory: file names, CSV columns, number formats (writer and reader share it)
 ``ring``    the lock-free single-producer ring of tick rows between the loop and the writer thread
-``writer``  :class:`TelemetryWriter`: the CSV, ``events.jsonl``, fsync, ``summary.json``
+``sinks``   one writer per telemetry format: exact CSV, csv.gz, Parquet (``telemetry.format``)
+``writer``  :class:`TelemetryWriter`: the rows (through a sink), ``events.jsonl``, fsync,
+            ``summary.json``
 ``stats``   :class:`RunStats`: the one book of per-tick facts behind the summary
 ``reader``  :func:`read_run`: a run directory back as arrays
 ``plots``   the PNGs of a run (matplotlib imported inside the functions)

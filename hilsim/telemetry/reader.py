@@ -1,14 +1,19 @@
 """Reading a run back: :func:`read_run` loads a run directory into a :class:`Run`.
 
-The directory's format is in :mod:`hilsim.telemetry.format`. A run being written, or cut short by
-a crash, still loads: what was tolerated is listed in ``Run.warnings``.
+The directory's format is in :mod:`hilsim.telemetry.format`: its rows in ``telemetry.csv``,
+``telemetry.csv.gz`` or ``telemetry.parquet/`` (whichever is there), read into the same columns
+(CSV names and units) whatever the format. A run being written, or cut short by a crash, still
+loads: what was tolerated is listed in ``Run.warnings`` (a gzip stream cut off: everything up to
+the cut; a Parquet part that does not read: skipped).
 """
 
 from __future__ import annotations
 
+import contextlib
 import json
 import math
 import os
+import zlib
 from dataclasses import dataclass, field
 from functools import cached_property
 from pathlib import Path
@@ -24,17 +29,22 @@ from hilsim.telemetry.format import (
     SUMMARY_JSON,
     TAIL_COLUMNS,
     TELEMETRY_CSV,
+    TELEMETRY_CSV_GZ,
+    TELEMETRY_PARQUET,
     TelemetryError,
     csv_columns,
+    parquet_columns,
 )
+from hilsim.telemetry.sinks import INT_INF
 
 
 class NotARunError(TelemetryError, FileNotFoundError):
-    """The directory holds no ``telemetry.csv``."""
+    """The directory holds no ``telemetry.csv`` (nor ``.csv.gz``, nor ``telemetry.parquet/``)."""
 
 
 class RunFormatError(TelemetryError, ValueError):
-    """``telemetry.csv`` does not start with a telemetry header."""
+    """The rows are not telemetry (a CSV without a telemetry header, Parquet parts without its
+    columns), or cannot be read here (Parquet without pyarrow)."""
 
 
 @dataclass(eq=False)
@@ -145,9 +155,38 @@ def _parse_rows(lines: list[str], ncols: int, warnings: list[str]) -> np.ndarray
     return np.array(rows, dtype=np.float64).reshape(-1, ncols)
 
 
+def _gunzip(path: Path, warnings: list[str]) -> bytes:
+    """A gzip file's text as far as it decodes: a stream cut off by a crash gives everything up
+    to the cut (the writer sync-flushes at every flush), damage ends it where it starts."""
+    raw = path.read_bytes()
+    out: list[bytes] = []
+    d = zlib.decompressobj(wbits=31)
+    piece = 1 << 12
+    for at in range(0, len(raw), piece):
+        before = d.copy()
+        try:
+            out.append(d.decompress(raw[at : at + piece]))
+            while d.eof and d.unused_data:  # another gzip member follows
+                rest, d = d.unused_data, zlib.decompressobj(wbits=31)
+                out.append(d.decompress(rest))
+        except zlib.error as exc:  # keep what the piece held before the damage, byte by byte
+            d = before
+            with contextlib.suppress(zlib.error):
+                for b in range(at, min(at + piece, len(raw))):
+                    out.append(d.decompress(raw[b : b + 1]))
+            text = sum(map(len, out))
+            warnings.append(f"{path.name}: damaged after {text} bytes of text ({exc})")
+            return b"".join(out)
+    if not d.eof:
+        warnings.append(f"{path.name}: the gzip stream is cut off (the run ended abruptly)")
+    return b"".join(out)
+
+
 def _read_lines(path: Path, warnings: list[str]) -> tuple[list[str], bool]:
-    """Complete lines of a text file; a cut-off last line (or NUL tail) is dropped and reported."""
-    data = path.read_bytes().rstrip(b"\x00")
+    """Complete lines of a text file; a cut-off last line (or NUL tail) is dropped and reported.
+    A ``.gz`` file is decompressed first."""
+    data = _gunzip(path, warnings) if path.suffix == ".gz" else path.read_bytes()
+    data = data.rstrip(b"\x00")
     text = data.decode("utf-8", errors="replace")
     lines = text.split("\n")
     partial = lines.pop()  # "" when the file ends with a newline
@@ -159,22 +198,77 @@ def _read_lines(path: Path, warnings: list[str]) -> tuple[list[str], bool]:
     return [ln for ln in lines if ln.strip()], bool(partial)
 
 
-def read_run(run_dir: str | os.PathLike[str]) -> Run:
-    """Load a run directory written by :class:`TelemetryWriter` (possibly while it is written,
-    or after a crash). Raises :class:`NotARunError` if there is no ``telemetry.csv`` and
-    :class:`RunFormatError` if its header is not a telemetry header; everything else that is
-    wrong is tolerated and listed in ``Run.warnings``."""
-    path = Path(run_dir)
-    csv_path = path / TELEMETRY_CSV
-    if not csv_path.is_file():
-        raise NotARunError(f"{path} is not a run directory (no {TELEMETRY_CSV})")
-    warnings: list[str] = []
+def _read_csv(csv_path: Path, warnings: list[str]) -> tuple[dict, tuple[str, ...], bool]:
     lines, truncated = _read_lines(csv_path, warnings)
     if not lines:
         raise RunFormatError(f"{csv_path} has no header")
     names, joints = _parse_header(lines[0])
     data = _parse_rows(lines[1:], len(names), warnings)
-    columns = {name: data[:, k].copy() for k, name in enumerate(names)}
+    return {name: data[:, k].copy() for k, name in enumerate(names)}, joints, truncated
+
+
+def _read_parquet(pq_dir: Path, warnings: list[str]) -> tuple[dict, tuple[str, ...], bool]:
+    """Parquet parts -> CSV columns in CSV units (format.py: the Parquet columns)."""
+    try:
+        import pyarrow.parquet as pq
+    except ImportError:
+        raise RunFormatError(
+            f"{pq_dir} is Parquet: reading it needs pyarrow (pip install 'hilsim[parquet]')"
+        ) from None
+    tables = []
+    for part in sorted(pq_dir.glob("part-*.parquet")):
+        try:
+            tables.append(pq.read_table(part))
+        except Exception as exc:  # a damaged part: the others still read
+            warnings.append(f"{TELEMETRY_PARQUET}/{part.name}: unreadable, skipped ({exc})")
+    if not tables:
+        raise RunFormatError(
+            f"{pq_dir} holds no readable part-*.parquet yet (a part is written at each fsync of "
+            "the writer, every 2 s, and at the end)"
+        )
+    first = tables[0].column_names
+    prefix, suffix = JOINT_FIELDS[0] + "_", "_urad"
+    joints = tuple(
+        c[len(prefix) : -len(suffix)] for c in first if c.startswith(prefix) and c.endswith(suffix)
+    )
+    cols = parquet_columns(joints) if joints else []
+    if [c.name for c in cols] != first:
+        raise RunFormatError(f"{pq_dir}: not telemetry columns: {first[:6]!r} ...")
+    columns: dict[str, np.ndarray] = {}
+    for c in cols:
+        parts = []
+        for t in tables:
+            if t.column_names != first:
+                raise RunFormatError(f"{pq_dir}: parts with different columns")
+            # nulls come out as NaN (the column as floats); +-(2**63 - 1) is +-inf
+            q = np.asarray(t.column(c.name).to_numpy(zero_copy_only=False), dtype=np.float64)
+            x = q / c.scale
+            inf = np.abs(q) >= float(INT_INF)
+            x[inf] = np.copysign(math.inf, q[inf])
+            parts.append(x)
+        columns[c.csv] = np.concatenate(parts)
+    return columns, joints, False
+
+
+def read_run(run_dir: str | os.PathLike[str]) -> Run:
+    """Load a run directory written by :class:`TelemetryWriter` (possibly while it is written,
+    or after a crash), whatever its rows' format. Raises :class:`NotARunError` if it holds no
+    rows (``telemetry.csv``, ``.csv.gz``, ``telemetry.parquet/``) and :class:`RunFormatError` if
+    they are not telemetry (or Parquet without pyarrow); everything else that is wrong is
+    tolerated and listed in ``Run.warnings``."""
+    path = Path(run_dir)
+    warnings: list[str] = []
+    if (path / TELEMETRY_CSV).is_file():
+        columns, joints, truncated = _read_csv(path / TELEMETRY_CSV, warnings)
+    elif (path / TELEMETRY_CSV_GZ).is_file():
+        columns, joints, truncated = _read_csv(path / TELEMETRY_CSV_GZ, warnings)
+    elif (path / TELEMETRY_PARQUET).is_dir():
+        columns, joints, truncated = _read_parquet(path / TELEMETRY_PARQUET, warnings)
+    else:
+        raise NotARunError(
+            f"{path} is not a run directory (no {TELEMETRY_CSV}, {TELEMETRY_CSV_GZ} "
+            f"or {TELEMETRY_PARQUET})"
+        )
 
     tick = columns["tick"]
     missing = 0

@@ -150,3 +150,11 @@ class TickRing:
         rows = self.rows[start : start + count].tolist()
         self.tail += count
         return rows
+
+    def take_array(self, max_rows: int) -> np.ndarray:
+        """:meth:`take` as a float64 array (a copy), for sinks that work on columns."""
+        start = self.tail % self.size
+        count = min(self.pending(), max_rows, self.size - start)
+        rows = self.rows[start : start + count].copy()
+        self.tail += count
+        return rows

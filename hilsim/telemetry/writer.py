@@ -1,25 +1,28 @@
-"""Run telemetry writer: a per-tick CSV, events and a summary, written by a background thread.
+"""Run telemetry writer: a row per tick, events and a summary, written by a background thread.
 
 The run directory's files, CSV columns and number formats are described in
-:mod:`hilsim.telemetry.format`; the statistics behind the summary are in
+:mod:`hilsim.telemetry.format`; the rows go to a sink of the run's format
+(:mod:`hilsim.telemetry.sinks`: CSV, csv.gz, Parquet); the statistics behind the summary are in
 :mod:`hilsim.telemetry.stats`; :func:`hilsim.telemetry.reader.read_run` reads a run back.
 
 **Real-time contract.** :meth:`TelemetryWriter.record` copies the tick's numbers into a slot of a
 preallocated ring (a float64 array, one row per slot) and into the run statistics
 (:class:`~hilsim.telemetry.stats.RunStats`, preallocated chunks), and returns; it never touches the
 disk, takes no lock and allocates nothing but a row view. A row is handed to the writer thread when
-the *next* row is recorded (or at :meth:`~TelemetryWriter.flush`/:meth:`~TelemetryWriter.close`),
-so values known only at the end of the tick (overrun, the telemetry stage's own time) can still be
+the *next* row is recorded (or at :meth:`~TelemetryWriter.flush`/:meth:`~TelemetryWriter.close`), so
+values known only at the end of the tick (overrun, the telemetry stage's own time) can still be
 filled in with :meth:`~TelemetryWriter.amend`. The writer thread drains the ring every few tens of
-ms, formats rows in small chunks (yielding the GIL between chunks of ~50 µs, so the loop thread is
-not held off), writes them, flushes every ``flush_interval_s``, and ``os.fsync``-s every
+ms, hands rows to the sink in small chunks (yielding the GIL between chunks: one CSV row, ~100 µs at
+16 joints, or 256 Parquet rows, numpy and pyarrow calls of tens of µs; gzip and Parquet's encoder
+run without the GIL), writes them, flushes every ``flush_interval_s``, and ``os.fsync``-s every
 ``fsync_interval_s``, on start, fault, signal and exit-policy events and at close (a power cut loses
-at most the last ``fsync_interval_s``). The ring is single-producer/single-consumer: the loop only
-advances the head, the writer only the tail; CPython's GIL orders the row stores before the head
-store. When the ring is full (disk stalled) the row is dropped and counted (``overflow="drop"``, the
-real-time default) or record waits for space (``overflow="block"``, for virtual-time runs that must
-be lossless). Dropped rows are reported as an event, in the summary and by
-:func:`~hilsim.telemetry.reader.read_run`; the statistics still cover them.
+at most the last ``fsync_interval_s``; a Parquet part is written at each fsync). The ring is
+single-producer/single-consumer: the loop only advances the head, the writer only the tail;
+CPython's GIL orders the row stores before the head store. When the ring is full (disk stalled) the
+row is dropped and counted (``overflow="drop"``, the real-time default) or record waits for space
+(``overflow="block"``, for virtual-time runs that must be lossless). Dropped rows are reported as an
+event, in the summary and by :func:`~hilsim.telemetry.reader.read_run`; the statistics still cover
+them.
 
 Exceptions::
 
@@ -28,10 +31,10 @@ Exceptions::
      ├── WriterFailedError          the writer thread died (disk full, I/O error) or stalled at
      │                              close; raised by the next record()/flush()/close(); __cause__
      │                              holds the original error
-     ├── NotARunError               (reader) read_run: no telemetry.csv in the directory
-     │                              (also a FileNotFoundError)
-     └── RunFormatError             (reader) read_run: the CSV header is not a telemetry
-                                    header (also a ValueError)
+     ├── NotARunError               (reader) read_run: no rows in the directory (telemetry.csv,
+     │                              .csv.gz or .parquet/; also a FileNotFoundError)
+     └── RunFormatError             (reader) read_run: the rows are not telemetry, or Parquet
+                                    without pyarrow (also a ValueError)
 
 Loop usage::
 
@@ -68,24 +71,20 @@ from drivers.clock import Slack
 from hilsim.telemetry.format import (
     CONFIG_NAME,
     EVENTS_JSONL,
-    JOINT_FIELDS,
-    STAGES,
     SUMMARY_JSON,
-    TELEMETRY_CSV,
     TelemetryError,
     TickRecord,
     check_joint_names,
+    choose_format,
     csv_columns,
 )
 from hilsim.telemetry.ring import TickRing
+from hilsim.telemetry.sinks import open_sink
 from hilsim.telemetry.stats import RunStats
 
 #: event kinds that are fsync-ed by default (``event(..., fsync=None)``)
 FSYNC_KINDS: frozenset[str] = frozenset({"start", "fault", "signal", "stop", "exit_policy"})
 
-_EXACT = "%.17g"  # round-trips every float64; also prints integral floats as integers
-_MICROS = "%.3f"
-_CHUNK_FLOATS = 128  # floats formatted between GIL yields: ~50 µs of work
 _yield_gil = getattr(os, "sched_yield", lambda: time.sleep(0))
 #: a chunk is started only with at least this much of the loop's free time left
 _CHUNK_BUDGET_S = 150e-6
@@ -94,22 +93,6 @@ _monotonic = time.monotonic
 
 class WriterFailedError(TelemetryError):
     """The writer thread died or could not finish; rows may be lost (see ``__cause__``)."""
-
-
-def _row_format(n: int) -> str:
-    exact_block = [_EXACT] * n
-    fields = [
-        _EXACT,  # tick
-        _EXACT,  # t_sched
-        _EXACT,  # t_actual
-        _MICROS,  # lateness_us
-        *exact_block * len(JOINT_FIELDS),  # target, sim_x, sim_v, cmd, present, status
-        *[_MICROS] * len(STAGES),
-        _EXACT,  # overrun
-        _EXACT,  # comm_errors
-        _MICROS,  # host_stall_us
-    ]
-    return ",".join(fields) + "\n"
 
 
 def _json_default(obj: Any) -> Any:
@@ -149,13 +132,17 @@ _WAKE = object()
 class TelemetryWriter:
     """Writes one run directory from a background thread; the loop only calls cheap methods.
 
-    ``run_dir`` is created if needed; a ``telemetry.csv`` already in it is an error (a run directory
-    holds one run). ``joint_names`` become column suffixes (no commas, quotes or newlines);
-    ``servo_ids`` (same order) name the servos in the summary's ``comm_errors``. ``queue_size``
-    ring rows absorb a disk stall of ``queue_size / rate`` seconds (16384 rows: 16 s at 1 kHz;
-    ``8 * (11 + 6 * n_joints)`` bytes a row, 7.6 MB for 8 joints). ``overflow`` picks what a full
-    ring does: ``"drop"`` (count the row, return False: never blocks) or ``"block"`` (wait for the
-    writer: lossless, for virtual-time runs). ``config_text`` is copied to ``run_dir/config_name``.
+    ``run_dir`` is created if needed; rows already in it are an error (a run directory holds one
+    run). ``format`` is a :class:`~hilsim.telemetry.format.TelemetryFormat` value; ``auto`` is
+    resolved with ``rate_hz`` (:func:`~hilsim.telemetry.format.choose_format`; the choice and why
+    are :attr:`format` and :attr:`format_reason`, also in the summary; a ``parquet`` without
+    pyarrow is a ``ValueError``). ``joint_names`` become column suffixes (no commas, quotes or
+    newlines); ``servo_ids`` (same order) name the servos in the summary's ``comm_errors``.
+    ``queue_size`` ring rows absorb a disk stall of ``queue_size / rate`` seconds (16384 rows:
+    16 s at 1 kHz; ``8 * (11 + 6 * n_joints)`` bytes a row, 7.6 MB for 8 joints). ``overflow``
+    picks what a full ring does: ``"drop"`` (count the row, return False: never blocks) or
+    ``"block"`` (wait for the writer: lossless, for virtual-time runs). ``config_text`` is
+    copied to ``run_dir/config_name``.
 
     :attr:`stats` (a :class:`RunStats`) is fed by :meth:`record`, :meth:`amend` and :meth:`event`
     (faults); :meth:`close` turns it into the summary.
@@ -179,8 +166,11 @@ class TelemetryWriter:
         config_text: str | None = None,
         config_name: str = CONFIG_NAME,
         max_pending_events: int = 10_000,
+        format: str = "csv",
+        rate_hz: float | None = None,
     ) -> None:
         names = check_joint_names(joint_names)
+        self.format, self.format_reason = choose_format(format, rate_hz, len(names))
         if not flush_interval_s >= 0.0:
             raise ValueError(f"flush_interval_s must be >= 0, got {flush_interval_s!r}")
         if int(queue_size) < 2:
@@ -202,8 +192,6 @@ class TelemetryWriter:
         n = len(names)
         self._ncols = len(self.columns)
         self._ring = TickRing(self.queue_size, n, self._ncols)
-        self._fmt = _row_format(n)
-        self._chunk_rows = max(1, _CHUNK_FLOATS // self._ncols)
         # drain often enough that formatting is spread thin; flush to the OS on its own interval
         self._poll_s = min(0.05, self.flush_interval_s) if self.flush_interval_s > 0 else 0.01
 
@@ -236,13 +224,12 @@ class TelemetryWriter:
         self.slack.set()
 
         self.run_dir.mkdir(parents=True, exist_ok=True)
-        self._csv: TextIO | None = None
+        self._sink: Any = None
         self._events: TextIO | None = None
         try:
-            self._csv = self._open(self.run_dir / TELEMETRY_CSV, "x")
+            self._sink = open_sink(self.format, self.run_dir, names, self._open)
+            self._chunk_rows = self._sink.chunk_rows
             self._events = self._open(self.run_dir / EVENTS_JSONL, "a")
-            self._csv.write(",".join(self.columns) + "\n")
-            self._csv.flush()
             if config_text is not None:
                 (self.run_dir / config_name).write_text(config_text, encoding="utf-8")
         except BaseException:
@@ -432,8 +419,10 @@ class TelemetryWriter:
 
     # ----------------------------------------------------------------- the writer thread
 
-    def _open(self, path: Path, mode: str) -> TextIO:
+    def _open(self, path: Path, mode: str) -> Any:
         """Open one output file (a hook: tests wrap it to simulate a stalled or full disk)."""
+        if "b" in mode:
+            return open(path, mode, buffering=1 << 16)
         return open(path, mode, encoding="utf-8", newline="", buffering=1 << 16)
 
     def _run(self) -> None:
@@ -488,9 +477,8 @@ class TelemetryWriter:
                         item.set()
 
     def _drain_rows(self) -> None:
-        assert self._csv is not None
-        ring = self._ring
-        fmt = self._fmt
+        assert self._sink is not None
+        ring, sink = self._ring, self._sink
         slack = self.slack
         while ring.pending() > 0:
             # Format only in the loop's free time (see ``slack``), and never start a chunk that
@@ -500,11 +488,10 @@ class TelemetryWriter:
             elif (left := slack.remaining()) < _CHUNK_BUDGET_S:
                 time.sleep(max(left, 0.0) + _CHUNK_BUDGET_S)
                 continue
-            rows = ring.take(self._chunk_rows)  # slots are free once copied out
+            rows = sink.take(ring, self._chunk_rows)  # slots are free once copied out
             if self.overflow == "block":
                 self._space.set()
-            self._csv.write("".join([fmt % tuple(r) for r in rows]))
-            self.rows_written += len(rows)
+            self.rows_written += sink.put(rows)
             _yield_gil()  # let the loop thread have the GIL between chunks
 
     def _write_event(self, ev: dict[str, Any]) -> None:
@@ -530,7 +517,9 @@ class TelemetryWriter:
             self._events.write(_dumps(ev) + "\n")
 
     def _flush_files(self, *, fsync: bool) -> None:
-        for f in (self._csv, self._events):
+        if self._sink is not None:
+            self.rows_written += self._sink.flush(fsync)
+        for f in (self._events,):
             if f is not None:
                 f.flush()
                 if fsync:
@@ -561,6 +550,8 @@ class TelemetryWriter:
             "events_dropped": self.events_dropped,
             "queue_size": self.queue_size,
             "overflow": self.overflow,
+            "format": str(self.format),
+            "format_reason": self.format_reason,
             "error": None if self._error is None else repr(self._error),
             "error_traceback": self.error_traceback,
         }
@@ -585,7 +576,7 @@ class TelemetryWriter:
         self._written_summary = summary
 
     def _close_files(self) -> None:
-        for name in ("_csv", "_events"):
+        for name in ("_sink", "_events"):
             f = getattr(self, name, None)
             setattr(self, name, None)
             if f is not None:

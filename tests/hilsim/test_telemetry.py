@@ -430,7 +430,7 @@ def test_fault_event_fsyncs_both_files(tmp_path: Path, monkeypatch: pytest.Monke
     assert synced == []  # warnings and periodic flushes do not fsync (nothing waits here)
     w.event("fault", "joint 2 out of range", 4, 0.004, joint="jaw")
     assert both.wait(WAIT_S)
-    assert sorted(synced[:2]) == sorted([w._csv.fileno(), w._events.fileno()])
+    assert sorted(synced[:2]) == sorted([w._sink._file.fileno(), w._events.fileno()])
     # what was fsync-ed is on disk before close: the rows and the fault
     assert (tmp_path / TELEMETRY_CSV).read_text().count("\n") == 1 + 5
     events = [json.loads(x) for x in (tmp_path / EVENTS_JSONL).read_text().splitlines()]
