@@ -73,6 +73,10 @@ if TYPE_CHECKING:
 #: every tick for INTEGRATION_BEHIND_S of wall time: it can never catch up
 INTEGRATION_SHARE = 0.9
 INTEGRATION_BEHIND_S = 0.5
+#: with a shared start (several buses, hilsim.show_group): a bus begins its start-up (first
+#: read, torque on, Bus Watchdog armed) this long before the shared tick 0, and at most 0.4 of
+#: its watchdog period, so its servos never wait out their watchdog before the first tick
+SHARED_START_LEAD_S = 0.1
 
 EXIT_OK = ExitCode.OK
 EXIT_FAULT = ExitCode.FAULT
@@ -124,6 +128,9 @@ class HilLoop:
     duration_s: stop after this much show time; None = the animation's length (or forever).
     stop: a :class:`StopFlag` a signal handler sets.
     on_status: called about twice a second of wall time with a dict for a live status line.
+    start_at: tick 0 at this instant of the real clock (the buses of one figure share it; the
+        start-up runs just before it, see SHARED_START_LEAD_S); None: at once. A virtual clock
+        ignores it.
     """
 
     def __init__(
@@ -135,6 +142,7 @@ class HilLoop:
         duration_s: float | None = None,
         stop: StopFlag | None = None,
         on_status: Callable[[dict], None] | None = None,
+        start_at: float | None = None,
     ) -> None:
         rig = parts.rig
         if tuple(bus.ids) != rig.servo_ids:
@@ -149,6 +157,7 @@ class HilLoop:
         self.clock = bus.clock
         self.stop = stop or StopFlag()
         self.on_status = on_status
+        self.start_at = None if self.clock.virtual else start_at
         self.duration_s = parts.targets.duration if duration_s is None else duration_s
         self.period = rig.loop.period_s
         n = len(rig.joints)
@@ -277,6 +286,10 @@ class HilLoop:
         interrupted: BaseException | None = None
         k = 0
         try:
+            if self.start_at is not None:  # start up just before the figure's shared tick 0
+                wd = self.watch.watchdog_s
+                lead = min(SHARED_START_LEAD_S, 0.4 * wd) if wd else SHARED_START_LEAD_S
+                self.clock.wait_until(self.start_at - lead)
             k = self._ticks() if self._start() else 0
             if self._stopping():
                 exit_code = for_signal(self.stop.signum)
@@ -350,6 +363,8 @@ class HilLoop:
         time :meth:`_tick` as the show runs it). Returns the clock time of tick 0."""
         clock, period = self.clock, self.period
         self._recent = np.zeros(512)  # lateness ring for the live status line
+        if self.start_at is not None and not self._stopping():
+            clock.wait_until(self.start_at)  # at once if the start-up took longer: late, said
         t0 = self._t0 = clock.now()
         self.loop_stats["clock_t0"] = t0  # the clock time of tick 0 (fault plans use it)
         self.watch.silence.start(t0)

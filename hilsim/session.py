@@ -10,7 +10,10 @@ The one place where a show is put together (``hilsim run`` only prints what happ
     notes = check_bus(rig, bus)                          cleared watchdog trips, model, limits,
                                                          Return Delay Time, bus capacity
     telemetry = open_telemetry(rig, run_dir, virtual)
-    result = run_show(parts, bus, telemetry, ...)        HilLoop.run + summary.json
+    result = run_show(parts, bus, telemetry, ...)        HilLoop.run + summary.json; with
+                                                         start_at, tick 0 at that instant
+                                                         (several buses, one show:
+                                                         hilsim.show_group)
 
 Every refusal before torque goes on is a :class:`ShowRefusedError` (exit 2, nothing moved) with a
 one-line reason. The wire-time model behind the capacity check is
@@ -256,6 +259,8 @@ def open_telemetry(rig: Rig, run_dir: Path, virtual: bool) -> TelemetryWriter:
             rig.joint_names,
             servo_ids=rig.servo_ids,
             flush_interval_s=rig.telemetry.flush_interval_s,
+            format=rig.telemetry.format,  # auto: csv, or for big runs parquet (else csv.gz)
+            rate_hz=rig.loop.rate_hz,
             config_text=rig.text,
             # virtual time outruns any disk: wait for the writer rather than drop rows
             overflow="block" if virtual else "drop",
@@ -287,14 +292,26 @@ def run_show(
     duration_s: float | None,
     stop: StopFlag,
     on_status: Callable[[dict], None] | None = None,
+    start_at: float | None = None,
 ) -> ShowResult:
-    """Run the show and close its telemetry with the summary (``docs/summary.md``)."""
+    """Run the show and close its telemetry with the summary (``docs/summary.md``).
+
+    ``start_at``: the real clock's time of tick 0 (``time.monotonic``; the buses of a figure
+    share it); None: at once. A virtual clock ignores it (its show time is k·period)."""
     from hilsim.telemetry import WriterFailedError
 
     rig = parts.rig
     virtual = bus.clock.virtual
     try:
-        loop = HilLoop(parts, bus, telemetry, duration_s=duration_s, stop=stop, on_status=on_status)
+        loop = HilLoop(
+            parts,
+            bus,
+            telemetry,
+            duration_s=duration_s,
+            stop=stop,
+            on_status=on_status,
+            start_at=start_at,
+        )
         wall0 = time.perf_counter()
         result = loop.run()
         wall = time.perf_counter() - wall0

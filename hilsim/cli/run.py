@@ -5,6 +5,10 @@ Exit codes (:mod:`hilsim.exit_codes`): 0 the show completed, exit policy confirm
 3 a fault stopped the show (the servo, bus, host or telemetry cause printed); 4 the exit
 policy could not be confirmed on some servo; 130/143 stopped by SIGINT/SIGTERM (exit policy
 applied); 1 an unexpected error outside the show.
+
+A rig with several ``[buses.<name>]`` runs one child process per bus (``hilsim.show_group``:
+one start instant, one stop, each bus's record in ``RUN/<bus>/``); the exit code is the worst
+bus's. ``--bus NAME`` runs one of them alone.
 """
 
 from __future__ import annotations
@@ -13,8 +17,10 @@ import argparse
 import contextlib
 import math
 import os
+import select
 import signal
 import sys
+import threading
 import time
 from pathlib import Path
 
@@ -50,10 +56,21 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="run directory, new or empty (default <out_dir>/<name>-<time>)",
     )
     p.add_argument("--no-plots", action="store_true", help="do not draw plots after the run")
+    p.add_argument(
+        "--bus",
+        metavar="NAME",
+        help="a rig with several [buses.<name>]: run this bus's joints alone (default: every "
+        "bus, one process each, started together)",
+    )
+    # a child of hilsim.show_group: "ready" on stdout once the servos are checked, then the
+    # shared instant of tick 0 from stdin; stdin closing stops it
+    p.add_argument("--shared-start", action="store_true", help=argparse.SUPPRESS)
 
 
 #: run directories this process created (and may remove again if the run never starts)
 _CREATED: set[Path] = set()
+#: run directories whose show began (a Ctrl-C after it is not "before the show")
+_SHOWN: set[Path] = set()
 
 
 class UsageError(Exception):
@@ -139,18 +156,24 @@ def run(args: argparse.Namespace) -> int:
         from hilsim.telemetry.plots import prestart
 
         prestart()
-    from hilsim.rig import RigError, load_rig
+    from hilsim.rig import RigError, load_rigs, select_bus
     from hilsim.session import build_parts, port_for
 
+    if args.duration is not None and not (math.isfinite(args.duration) and args.duration > 0):
+        _say(f"--duration must be a finite number of seconds > 0, got {args.duration!r}")
+        return EXIT_USAGE
     try:
-        rig = load_rig(args.config, port=args.port)
+        rigs = load_rigs(args.config, port=args.port)
+        if len(rigs) > 1 and args.bus is None:
+            for each in rigs:  # every bus's targets and port, before any child starts
+                port_for(each, args.virtual_time)
+                build_parts(each)
+            return _run_group(args, rigs)
+        rig = select_bus(rigs, args.bus)
         port = port_for(rig, args.virtual_time)
         parts = build_parts(rig)
     except (RigError, ValueError) as exc:
         _say(str(exc))
-        return EXIT_USAGE
-    if args.duration is not None and not (math.isfinite(args.duration) and args.duration > 0):
-        _say(f"--duration must be a finite number of seconds > 0, got {args.duration!r}")
         return EXIT_USAGE
     if args.duration is None and parts.targets.duration is None:
         _say(
@@ -166,10 +189,77 @@ def run(args: argparse.Namespace) -> int:
         return EXIT_USAGE
     try:
         return _open_and_run(args, parts, port, run_dir)
-    except KeyboardInterrupt:  # before the signal handlers: nothing was written to a servo
-        _say("interrupted before the show started: nothing moved")
-        _remove_if_empty(run_dir)
+    except KeyboardInterrupt:  # outside the signal handlers: before the show, or after it
+        if run_dir in _SHOWN:
+            _say("interrupted after the show (its record is written)")
+        else:
+            _say("interrupted before the show started: nothing moved")
+            _remove_if_empty(run_dir)
         return int(ExitCode.SIGINT)
+
+
+def _run_group(args: argparse.Namespace, rigs) -> int:
+    """Several buses: one child process each (:mod:`hilsim.show_group`), a table at the end."""
+    from hilsim.show_group import format_rows, run_group
+
+    rig = rigs[0]
+    if args.shared_start:  # a child runs one bus, never a group
+        _say("--shared-start needs --bus")
+        return EXIT_USAGE
+    try:
+        run_dir = make_run_dir(args.out, rig.telemetry.out_dir, rig.name)
+    except UsageError as exc:
+        _say(str(exc))
+        return EXIT_USAGE
+    names = [r.bus_name for r in rigs]
+    _say(
+        f"{rig.name}: {len(rigs)} buses ({', '.join(names)}), one process each, "
+        f"{'virtual' if args.virtual_time else 'real'} time -> {run_dir}"
+    )
+    extra = [] if args.duration is None else ["--duration", repr(args.duration)]
+    extra += ["--virtual-time"] * args.virtual_time + ["--no-plots"] * args.no_plots
+    lock = threading.Lock()
+
+    def echo(line: str) -> None:
+        with lock:
+            print(line, file=sys.stderr, flush=True)
+
+    result = run_group(args.config, names, run_dir, extra, echo=echo)
+    if result.stopped_by is not None:
+        _say(f"bus {result.stopped_by} ended first, so every bus was stopped (one figure)")
+    for line in format_rows(result.rows):
+        print(f"  {line}", file=sys.stderr)
+    for row in result.rows:
+        print(f"  {row['bus']}: {row['reason']}", file=sys.stderr)
+    print(f"  telemetry: {run_dir}/<bus>/", file=sys.stderr)
+    if not any(run_dir.iterdir()):
+        _remove_if_empty(run_dir)
+    _say(f"exit code {result.exit_code} (the worst bus's)")
+    return result.exit_code
+
+
+def _await_start(stop) -> float | None:
+    """A child of a group: say ready, wait for the shared instant of tick 0. None: the start
+    was called off (a signal, or the parent closed the pipe: another bus cannot start)."""
+    print("ready", flush=True)
+    while stop.signum is None:
+        if select.select([sys.stdin], [], [], 0.05)[0]:
+            line = sys.stdin.readline().strip()
+            return float(line) if line else None
+    return None
+
+
+def _watch_parent() -> None:
+    """A child of a group: its stdin closing (the parent stopped it, or died) stops the show
+    through the same path as SIGTERM: the exit policy."""
+
+    def watch() -> None:
+        with contextlib.suppress(OSError, ValueError):
+            while sys.stdin.readline():
+                pass
+        os.kill(os.getpid(), signal.SIGTERM)
+
+    threading.Thread(target=watch, daemon=True).start()
 
 
 def _open_and_run(args, parts, port: str, run_dir: Path) -> int:
@@ -201,6 +291,13 @@ def _run_on_bus(args, parts, bus, run_dir: Path) -> int:
     try:
         try:
             notes = check_bus(rig, bus, _say)
+            start_at = None
+            if args.shared_start and stop.signum is None:
+                start_at = _await_start(stop)
+                if start_at is None and stop.signum is None:
+                    _say("another bus of the figure could not start: nothing moved")
+                    _remove_if_empty(run_dir)
+                    return EXIT_USAGE
             if stop.signum is not None:
                 _say(f"stopped by signal {stop.signum} during the start-up check: nothing moved")
                 _remove_if_empty(run_dir)
@@ -216,6 +313,9 @@ def _run_on_bus(args, parts, bus, run_dir: Path) -> int:
             f"{rig.name}: {len(rig.joints)} joints on {rig.bus.port} at "
             f"{rig.loop.rate_hz:g} Hz ({'virtual' if virtual else 'real'} time) -> {run_dir}"
         )
+        if args.shared_start:
+            _watch_parent()
+        _SHOWN.add(run_dir)
         show = run_show(
             parts,
             bus,
@@ -223,10 +323,12 @@ def _run_on_bus(args, parts, bus, run_dir: Path) -> int:
             duration_s=args.duration,
             stop=stop,
             on_status=None if virtual else _status_printer(rig.loop.rate_hz),
+            start_at=start_at,
         )
     finally:
-        for s, handler in previous.items():
-            signal.signal(s, handler)
+        if not args.shared_start:  # a group's child keeps them: the parent's stop is late
+            for s, handler in previous.items():
+                signal.signal(s, handler)
     if show.telemetry_error is not None:
         _say(f"telemetry could not be written to {run_dir}: {show.telemetry_error}")
         if show.telemetry_traceback:
@@ -240,7 +342,13 @@ def _run_on_bus(args, parts, bus, run_dir: Path) -> int:
         f"{show.exit_policy}"
     )
     _print_stats(summary)
-    print(f"  telemetry: {run_dir}", file=sys.stderr)
+    tel = summary.get("telemetry") or {}
+    how = (
+        ""
+        if tel.get("format") in (None, "csv")
+        else f" ({tel['format']}: {tel.get('format_reason')})"
+    )
+    print(f"  telemetry: {run_dir}{how}", file=sys.stderr)
     if show.exit_code == ExitCode.OK and (verdict := _verdict(summary, show.ticks)):
         _say(f"verdict: {verdict}")
     if not args.no_plots and "ticks" in summary:  # a summary was written: the run reads back

@@ -26,15 +26,16 @@ Every key, with its unit, default, what is allowed and an example: ``docs/rig.md
 from the definitions here by ``python -m hilsim.rig.doc``.
 
 Modules: :mod:`~hilsim.rig.model` (the dataclasses, each file key's facts in its field's
-metadata), :mod:`~hilsim.rig.keys` (that metadata), :mod:`~hilsim.rig.forms` (spring forms,
-target keys), :mod:`~hilsim.rig.reader` and :mod:`~hilsim.rig.load` (the loader),
-:mod:`~hilsim.rig.doc` (the reference's generator).
+metadata; the bus's in :mod:`~hilsim.rig.bus`), :mod:`~hilsim.rig.keys` (that metadata),
+:mod:`~hilsim.rig.forms` (spring forms, target keys), :mod:`~hilsim.rig.reader` and
+:mod:`~hilsim.rig.load` (the loader), :mod:`~hilsim.rig.doc` (the reference's generator).
 """
 
 from __future__ import annotations
 
+from hilsim.rig.bus import SUPPORTED_BAUDS, BusConfig, ReadMode
 from hilsim.rig.forms import MAX_DAMPING_RATIO, MAX_FEEDFORWARD, MAX_RESPONSE, SPRING_HZ_RANGE
-from hilsim.rig.load import load_rig
+from hilsim.rig.load import load_rig, load_rigs, select_bus
 from hilsim.rig.model import (
     KNOWN_MODELS,
     MAX_COMM_FAILURE_BUDGET_MS,
@@ -45,17 +46,14 @@ from hilsim.rig.model import (
     MAX_TRACKING_TOLERANCE_DEG,
     MIN_ACCEL_DEG_S2,
     MIN_SPEED_DEG_S,
-    SUPPORTED_BAUDS,
     TRACKING_TIME_MS,
     TRACKING_TOLERANCE_DEG,
     WATCHDOG_MAX_MS,
     WATCHDOG_UNIT_MS,
-    BusConfig,
     ExitPolicy,
     JointConfig,
     LoopConfig,
     OverrunPolicy,
-    ReadMode,
     Rig,
     RigError,
     SafetyConfig,
@@ -94,4 +92,6 @@ __all__ = [
     "TelemetryConfig",
     "TelemetryFailurePolicy",
     "load_rig",
+    "load_rigs",
+    "select_bus",
 ]

@@ -7,7 +7,9 @@ checks that span keys or sections.
 
 from __future__ import annotations
 
+import dataclasses
 import math
+import os
 import tomllib
 from pathlib import Path
 from typing import Any
@@ -15,6 +17,7 @@ from typing import Any
 from drivers.protocol2.control_table import model_number, series
 from hilsim.integrators import INTEGRATORS
 from hilsim.joint_map import JointMap
+from hilsim.rig.bus import BUS_NAME_RE, SERIES_MAX_BAUD, SUPPORTED_BAUDS, BusConfig
 from hilsim.rig.forms import (
     MAX_DAMPING_RATIO,
     MAX_FEEDFORWARD,
@@ -29,12 +32,9 @@ from hilsim.rig.model import (
     KNOWN_MODELS,
     MAX_STEPS_PER_S,
     NAME_RE,
-    SERIES_MAX_BAUD,
     SERVO_ID_RANGE,
-    SUPPORTED_BAUDS,
     WATCHDOG_MAX_MS,
     WATCHDOG_UNIT_MS,
-    BusConfig,
     JointConfig,
     LoopConfig,
     Rig,
@@ -120,6 +120,7 @@ def _joint(path: Path, table: dict[str, Any], index: int) -> JointConfig:
     id_lo, id_hi = SERVO_ID_RANGE
     if not id_lo <= servo_id <= id_hi:
         raise r.fail("servo_id", f"must be {id_lo}..{id_hi}, got {servo_id}")
+    key("bus")  # which of the rig's buses: checked against them in _on_buses
     model = key("model")
     try:
         model_number(model)
@@ -160,8 +161,8 @@ def _joint(path: Path, table: dict[str, Any], index: int) -> JointConfig:
 
 
 # ----------------------------------------------------------------------------------- the sections
-def _bus(top: Reader, port: str | None) -> BusConfig:
-    b = top.sub("bus", required=True)
+def _bus(b: Reader, port: str | None) -> BusConfig:
+    """``[bus]``, or one ``[buses.<name>]`` table: the same keys."""
     if port is None:
         port = read_key(b, BusConfig, "port")
     else:  # the CLI's --port: the file's port is not read
@@ -173,6 +174,84 @@ def _bus(top: Reader, port: str | None) -> BusConfig:
         raise b.fail("baud", f"{baud} bit/s is not a servo baud rate; allowed: {bauds}")
     finish(b, BusConfig)
     return build(BusConfig, {"port": port, "baud": baud, **values})
+
+
+def _buses(top: Reader, port: str | None) -> tuple[tuple[str, BusConfig], ...]:
+    """``((name, BusConfig), ...)`` of the ``[buses.<name>]`` tables in file order; ``()`` for a
+    rig with one ``[bus]`` (read by the caller)."""
+    if "buses" not in top.table:
+        return ()
+    if "bus" in top.table:
+        raise top.fail("buses", "give one [bus] table or [buses.<name>] tables, not both")
+    if port is not None:
+        raise top.fail(
+            "buses", "--port replaces the port of a rig's one [bus]; this rig names a port in "
+            "each [buses.<name>] table"
+        )  # fmt: skip
+    tables = top.sub("buses")
+    if not tables.table:
+        raise top.fail("buses", "at least one [buses.<name>] table is needed")
+    buses: list[tuple[str, BusConfig]] = []
+    ports: dict[str, str] = {}
+    for name, table in tables.table.items():
+        tables.used.add(name)
+        if not BUS_NAME_RE.fullmatch(name):
+            raise tables.fail(
+                name, "a bus name names its run directory: letters, digits, _ and - (at most "
+                f"32, a letter, digit or _ first), got {name!r}"
+            )  # fmt: skip
+        if not isinstance(table, dict):
+            raise tables.fail(name, "must be a table ([buses.<name>] with the keys of [bus])")
+        bus = _bus(Reader(top.path, table, f"buses.{name}"), None)
+        # one device under two names is one port (its real path); a URL as written
+        port_id = os.path.realpath(bus.port) if bus.port.startswith("/") else bus.port.strip()
+        same = ports.setdefault(port_id, name)
+        if same != name:
+            raise tables.fail(
+                f"{name}.port", f"{bus.port!r} is already the port of buses.{same}: one port is "
+                "one bus (give each bus its own port, or its joints one [buses.<name>] table)"
+            )  # fmt: skip
+        buses.append((name, bus))
+    return tuple(buses)
+
+
+def _on_buses(path: Path, joints: tuple[JointConfig, ...], buses: tuple) -> tuple:
+    """Each joint's ``bus`` checked against the rig's buses (the only one filled in); a servo
+    ID once per bus; every bus with a joint."""
+    names = [name for name, _ in buses]
+    out = []
+    for i, j in enumerate(joints):
+        where = f"{path}: joints[{i}].bus"
+        if not buses and j.bus is not None:
+            raise RigError(
+                f"{where}: this rig has one [bus]; name buses with [buses.<name>] tables to "
+                f"put joints on them, got {j.bus!r}"
+            )
+        if buses and j.bus is None:
+            if len(buses) > 1:
+                raise RigError(
+                    f"{where}: missing: this rig has {len(buses)} buses ({', '.join(names)}); "
+                    f"name the one servo {j.servo_id} ({j.name}) is on"
+                )
+            j = dataclasses.replace(j, bus=names[0])
+        if buses and j.bus not in names:
+            raise RigError(f"{where}: no bus named {j.bus!r}; this rig's: {', '.join(names)}")
+        out.append(j)
+    seen: dict[tuple[str | None, int], int] = {}
+    for i, j in enumerate(out):
+        first = seen.setdefault((j.bus, j.servo_id), i)
+        if first != i:
+            on = f" on bus {j.bus!r}" if j.bus is not None else ""
+            raise RigError(
+                f"{path}: joints[{i}].servo_id: servo_id {j.servo_id!r} is already used by "
+                f"joints[{first}]{on}"
+            )
+    for name in names:
+        if not any(j.bus == name for j in out):
+            raise RigError(
+                f'{path}: buses.{name}: no joint is on this bus (a joint says bus = "{name}")'
+            )
+    return tuple(out)
 
 
 def _loop(top: Reader) -> tuple[LoopConfig, int]:
@@ -248,16 +327,14 @@ def _joints(top: Reader) -> tuple[JointConfig, ...]:
         if not isinstance(table, dict):
             raise top.fail(f"joints[{i}]", "must be a table ([[joints]])")
         joints.append(_joint(top.path, table, i))
-    for attr, what in (("name", "joint name"), ("servo_id", "servo_id")):
-        seen: dict[Any, int] = {}
-        for i, j in enumerate(joints):
-            value = getattr(j, attr)
-            if value in seen:
-                raise RigError(
-                    f"{top.path}: joints[{i}].{attr}: {what} {value!r} is already used by "
-                    f"joints[{seen[value]}]"
-                )
-            seen[value] = i
+    seen: dict[str, int] = {}
+    for i, j in enumerate(joints):  # servo IDs: once per bus (_on_buses)
+        if j.name in seen:
+            raise RigError(
+                f"{top.path}: joints[{i}].name: joint name {j.name!r} is already used by "
+                f"joints[{seen[j.name]}]"
+            )
+        seen[j.name] = i
     return tuple(joints)
 
 
@@ -308,12 +385,37 @@ def _check_stable(path: Path, loop: LoopConfig, max_substeps: int, joints: tuple
             )
 
 
-def load_rig(path: str | Path, *, port: str | None = None) -> Rig:
-    """Read and validate a rig file. ``port`` overrides ``bus.port`` (the CLI's ``--port``).
+def load_rig(path: str | Path, *, port: str | None = None, bus: str | None = None) -> Rig:
+    """Read and validate a rig file. ``port`` overrides ``bus.port`` (the CLI's ``--port``);
+    ``bus`` picks one of a rig's ``[buses.<name>]`` (a rig with several needs it).
 
     Raises :class:`RigError` (a ValueError) naming the file and key on any problem, including
     a spring that the configured integrator and rate cannot integrate stably.
     """
+    return select_bus(load_rigs(path, port=port), bus)
+
+
+def select_bus(rigs: tuple[Rig, ...], bus: str | None) -> Rig:
+    """The rig of bus ``bus`` among :func:`load_rigs`' (None: the only one). Raises RigError."""
+    path, names = rigs[0].path, ", ".join(str(r.bus_name) for r in rigs)
+    if bus is None:
+        if len(rigs) == 1:
+            return rigs[0]
+        raise RigError(
+            f"{path}: this figure is on {len(rigs)} buses ({names}); this needs one of them "
+            "(hilsim run starts one process per bus)"
+        )
+    for rig in rigs:
+        if rig.bus_name == bus:
+            return rig
+    if rigs[0].bus_name is None:
+        raise RigError(f"{path}: has one [bus] and no [buses.<name>] tables; got --bus {bus!r}")
+    raise RigError(f"{path}: no bus named {bus!r}; this rig's: {names}")
+
+
+def load_rigs(path: str | Path, *, port: str | None = None) -> tuple[Rig, ...]:
+    """Every bus of a rig file as a rig of its own (its joints, its bus; loop, safety and
+    telemetry shared), in file order; a rig with one ``[bus]`` is one. Raises RigError."""
     path = Path(path)
     text, data = _read_toml(path)
     top = Reader(path, data, "")
@@ -326,28 +428,31 @@ def load_rig(path: str | Path, *, port: str | None = None) -> Rig:
             f"it names the run directory, so use letters, digits, _ - + . and inner spaces "
             f"(at most 100; no / or .., no leading dot or dash), got {name!r}{given}",
         )
-    bus = _bus(top, port)
+    buses = _buses(top, port)
+    bus = None if buses else _bus(top.sub("bus", required=True), port)
     loop, max_substeps = _loop(top)
     safety = _safety(top, loop)
     telemetry = _telemetry(top)
-    joints = _joints(top)
+    joints = _on_buses(path, _joints(top), buses)
     finish(top, Rig)
 
+    by_name = dict(buses) if buses else {None: bus}
     for i, j in enumerate(joints):
         top_baud = SERIES_MAX_BAUD.get(series(j.model.strip().upper()))
-        if top_baud is not None and bus.baud > top_baud:
+        baud = by_name[j.bus].baud
+        if top_baud is not None and baud > top_baud:
+            where = f"buses.{j.bus}" if j.bus is not None else "bus"
             raise RigError(
                 f"{path}: joints[{i}].model: {j.model} ({series(j.model.upper())} series) runs "
-                f"at most {top_baud} bit/s, but bus.baud = {bus.baud}"
+                f"at most {top_baud} bit/s, but {where}.baud = {baud}"
             )
     _check_stable(path, loop, max_substeps, joints)
-    return Rig(
-        path=path,
-        name=name,
-        bus=bus,
-        loop=loop,
-        safety=safety,
-        telemetry=telemetry,
-        joints=joints,
-        text=text,
+    if len(buses) > 1 and loop.cpu is not None:
+        raise top.fail("loop.cpu", "would pin every bus's process to one CPU; leave it out")
+    shared = dict(path=path, name=name, loop=loop, safety=safety, telemetry=telemetry, text=text)
+    if not buses:
+        return (Rig(bus=bus, joints=joints, **shared),)
+    return tuple(
+        Rig(bus=cfg, buses=((b, cfg),), joints=tuple(j for j in joints if j.bus == b), **shared)
+        for b, cfg in buses
     )

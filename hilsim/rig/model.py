@@ -15,12 +15,13 @@ from pathlib import Path
 from typing import Any
 
 from drivers.clock import DEFAULT_SPIN_S
-from drivers.dynamixel.startup import ReadMode  # the driver's: the rig names it, the bus obeys it
-from drivers.protocol2.control_table import BAUD_RATES, MODEL_NAMES
+from drivers.protocol2.control_table import MODEL_NAMES
 from drivers.servo_bus import ExitPolicy  # hold | relax: the bus carries it out
 from hilsim.integrators import INTEGRATORS
+from hilsim.rig.bus import BusConfig  # the [bus] table, and each of [buses]
 from hilsim.rig.keys import rig_key
 from hilsim.springs import Spring
+from hilsim.telemetry.format import TelemetryFormat  # the [telemetry] format key's choices
 
 
 class RigError(ValueError):
@@ -40,10 +41,6 @@ class TelemetryFailurePolicy(StrEnum):
 
 
 # ----------------------------------------------------------------------------------------- bounds
-#: The baud rates the servos and the driver support (the driver's control table), ascending.
-SUPPORTED_BAUDS: tuple[int, ...] = tuple(sorted(BAUD_RATES.values()))
-#: X330 servos stop at Baud Rate index 6 (4 Mbps); X430/X540 go to index 7 (4.5 Mbps).
-SERIES_MAX_BAUD = {"X330": BAUD_RATES[6]}
 #: The servo models the driver knows (Model Number table), in table order.
 KNOWN_MODELS: tuple[str, ...] = tuple(MODEL_NAMES.values())
 #: loop.substeps <= MAX_STEPS_PER_S / rate_hz. One integrator step (target sample + step) costs
@@ -86,44 +83,6 @@ def _ms_to_s(ms: float) -> float:
 
 
 # ----------------------------------------------------------------------------------------- model
-@dataclass(frozen=True)
-class BusConfig:
-    port: str = rig_key(
-        "text",
-        "The serial port: a device (`/dev/ttyUSB0`, `COM3`), a pty path, or the built-in "
-        "emulated bus `dxlsim://?ids=1-4&...`. The command line's `--port` overrides it.",
-        example="/dev/ttyUSB0",
-    )
-    baud: int = rig_key(
-        "integer",
-        "The bus's baud rate; every servo must be set to it.",
-        unit="bit/s",
-        default=1_000_000,
-        allowed="one of " + ", ".join(f"{b}" for b in SUPPORTED_BAUDS) + "; X330 servos: at most "
-        f"{SERIES_MAX_BAUD['X330']}",
-    )
-    read: ReadMode = rig_key(  # noqa: RUF009
-        "choice",
-        "How present positions are read: `fast` = Fast Sync Read, `plain` = Sync Read, `auto` = "
-        "Fast Sync Read when every servo's firmware has it.",
-        default=ReadMode.AUTO,
-    )
-    latency_timer_ms: float | None = rig_key(
-        "number",
-        "The USB adapter's latency timer, when it cannot be read (the loop budgets its bus time "
-        "with it).",
-        unit="ms",
-        default=None,
-        default_doc="none: read from the adapter (hardware) or the emulator's own",
-        bounds={
-            "nonnegative": True,
-            "at_most": 255.0,
-            "why": "a USB adapter's latency timer is 0..255 ms",
-        },
-        example=1,
-    )
-
-
 @dataclass(frozen=True)
 class LoopConfig:
     rate_hz: float = rig_key(
@@ -267,6 +226,18 @@ class TelemetryConfig:
         "show goes on without a record.",
         default=TelemetryFailurePolicy.STOP,
     )
+    format: TelemetryFormat = rig_key(  # noqa: RUF009
+        "choice",
+        "How the per-tick rows are stored. `csv`: `telemetry.csv`, exact (every float64 "
+        "round-trips); `csv.gz`: the same text gzip-compressed (about 1/3 the size; `zcat`, "
+        "pandas, polars, duckdb read it); `parquet`: `telemetry.parquet/` part files of "
+        "fixed-point integers (angles to 1 µrad, 1/1500 of a servo tick; times to 1 ns), about "
+        "1/18 of the CSV; needs `pip install 'hilsim[parquet]'` (pyarrow). `auto`: `csv` while a "
+        "10-minute show's CSV stays under 100 MB (rate_hz × (122 + 102 × joints) bytes/s ≤ "
+        "166,667: the demo), else `parquet`, or `csv.gz` without pyarrow. A crash keeps every "
+        "row up to the last flush (csv, csv.gz) or fsync, every 2 s (parquet).",
+        default=TelemetryFormat.AUTO,
+    )
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -287,7 +258,7 @@ class JointConfig:
     servo_id: int = rig_key(
         "integer",
         "The servo's ID on the bus.",
-        allowed=f"{SERVO_ID_RANGE[0]} .. {SERVO_ID_RANGE[1]}; unique",
+        allowed=f"{SERVO_ID_RANGE[0]} .. {SERVO_ID_RANGE[1]}; unique on its bus",
         example=1,
     )
     model: str = rig_key(
@@ -361,6 +332,13 @@ class JointConfig:
         convert=dict,
         compare=False,  # a dict: not hashable
     )
+    bus: str | None = rig_key(
+        "text",
+        "The bus the servo is on: the name of a `[buses.<name>]` table ([buses](buses.md)).",
+        default=None,
+        default_doc="the rig's only bus",
+        allowed="a rig with one `[bus]` leaves it out; with several buses it is required",
+    )
     initial_rad: float | None = rig_key(
         "number",
         "The spring's starting angle (joint frame); e.g. a free spring released there.",
@@ -403,7 +381,17 @@ class Rig:
         "leading dot or dash)",
         example="demo",
     )
-    bus: BusConfig = rig_key("table", "The servo bus; see [[bus]](#bus).")  # noqa: RUF009
+    bus: BusConfig = rig_key(  # noqa: RUF009
+        "table", "The servo bus; see [[bus]](#bus).", default_doc="required, or `[buses]`"
+    )
+    #: ``((name, BusConfig), ...)`` of ``[buses.<name>]``: a rig made for one of them has it alone
+    buses: tuple[tuple[str, BusConfig], ...] = rig_key(
+        "table",
+        "Several buses instead of `[bus]`: `[buses.<name>]` tables with the keys of `[bus]`, one "
+        "process each, started together ([buses](buses.md)).",
+        default=(),
+        default_doc="none: one `[bus]`",
+    )
     loop: LoopConfig = rig_key(  # noqa: RUF009
         "table",
         "The control loop; see [[loop]](#loop).",
@@ -436,6 +424,11 @@ class Rig:
     @property
     def servo_ids(self) -> tuple[int, ...]:
         return tuple(j.servo_id for j in self.joints)
+
+    @property
+    def bus_name(self) -> str | None:
+        """The name of this rig's bus among its file's ``[buses]``; None for a ``[bus]`` rig."""
+        return self.buses[0][0] if self.buses else None
 
     @property
     def base_dir(self) -> Path:

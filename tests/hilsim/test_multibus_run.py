@@ -1,0 +1,224 @@
+"""Several buses, one show, as processes: a run directory per bus, one start, a signal to the
+parent reaching every bus, a fault or a refusal on one bus stopping the others. Behaviour only:
+nothing here asserts a speed (the children's own start-up is waited for, not timed)."""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import os
+import signal
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from hilsim.cli import main
+from hilsim.telemetry.reader import read_run
+
+JOINT = """
+[[joints]]
+name = "{name}"
+bus = "{bus}"
+servo_id = {sid}
+min_deg = -60
+max_deg = 60
+spring = {{ frequency_hz = 3.0, damping_ratio = 0.7 }}
+target = {{ type = "sine", amplitude_deg = 20, frequency_hz = {f} }}
+"""
+
+RIG = (
+    """
+name = "pair"
+[buses.a]
+port = "dxlsim://?ids=1-2&rdt_us=0"
+[buses.b]
+port = "dxlsim://?ids=3-4&rdt_us=0{b_url}"
+[loop]
+rate_hz = 100
+[safety]
+soft_start_s = 0.1
+"""
+    + JOINT.format(name="a1", bus="a", sid=1, f=0.5)
+    + JOINT.format(name="b3", bus="b", sid=3, f=0.3)
+    + JOINT.format(name="a2", bus="a", sid=2, f=0.4)
+    + JOINT.format(name="b4", bus="b", sid=4, f=0.2)
+)
+
+
+def rig(tmp_path: Path, b_url: str = "", **replace: str) -> Path:
+    text = RIG.replace("{b_url}", b_url)
+    for old, new in replace.items():
+        text = text.replace(old, new)
+    path = tmp_path / "pair.toml"
+    path.write_text(text)
+    return path
+
+
+class Parent:
+    """``hilsim run`` as a process, its stderr collected line by line."""
+
+    def __init__(self, *argv: str) -> None:
+        self.lines: list[str] = []
+        self._cond = threading.Condition()
+        self.proc = subprocess.Popen(
+            [sys.executable, "-m", "hilsim", "run", *argv],
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.PIPE,
+            text=True,
+        )
+        threading.Thread(target=self._read, daemon=True).start()
+
+    def _read(self) -> None:
+        for line in self.proc.stderr:
+            with self._cond:
+                self.lines.append(line.rstrip("\n"))
+                self._cond.notify_all()
+
+    def wait_for(self, *needles: str, timeout: float = 60.0) -> None:
+        """Until a line holding each needle has appeared (or the process ended)."""
+
+        def seen() -> bool:
+            return all(any(n in ln for ln in self.lines) for n in needles)
+
+        with self._cond:
+            self._cond.wait_for(lambda: seen() or self.proc.poll() is not None, timeout)
+        assert seen(), "\n".join(self.lines)
+
+    def finish(self, timeout: float = 120.0) -> int:
+        try:
+            return self.proc.wait(timeout=timeout)
+        finally:
+            if self.proc.poll() is None:
+                self.proc.kill()
+
+    @property
+    def text(self) -> str:
+        return "\n".join(self.lines)
+
+
+def group_record(out: Path) -> dict:
+    return json.loads((out / "buses.json").read_text())
+
+
+def test_each_bus_gets_a_normal_run_directory_with_its_own_joints(tmp_path, capsys):
+    out = tmp_path / "run"
+    code = main(
+        ["run", str(rig(tmp_path)), "--virtual-time", "--no-plots", "--duration", "1",
+         "--out", str(out)]
+    )  # fmt: skip
+    err = capsys.readouterr().err
+    assert code == 0, err
+    a, b = read_run(out / "a"), read_run(out / "b")
+    assert (a.joint_names, b.joint_names) == (("a1", "a2"), ("b3", "b4"))
+    assert a.summary["servo_ids"] == {"a1": 1, "a2": 2}
+    assert b.summary["servo_ids"] == {"b3": 3, "b4": 4}
+    for run in (a, b):
+        assert run.summary["exit_code"] == 0 and run.summary["exit_policy_confirmed"] is True
+        assert run.n_ticks == 101
+    record = group_record(out)
+    assert record["exit_code"] == 0 and [r["bus"] for r in record["buses"]] == ["a", "b"]
+    table = [ln for ln in err.splitlines() if ln.startswith("  a ") or ln.startswith("  b ")]
+    assert len(table) == 2 and all("0/101" in ln for ln in table)  # overruns/ticks, side by side
+    assert "exit code 0 (the worst bus's)" in err
+
+    # virtual time: a bus run alone commands the same numbers as in the group
+    alone = tmp_path / "alone"
+    code = main(
+        ["run", str(rig(tmp_path)), "--bus", "b", "--virtual-time", "--no-plots",
+         "--duration", "1", "--out", str(alone)]
+    )  # fmt: skip
+    assert code == 0, capsys.readouterr().err
+    np.testing.assert_array_equal(read_run(alone).joint("cmd"), b.joint("cmd"))
+
+
+@pytest.mark.parametrize(("signum", "code"), [(signal.SIGINT, 130), (signal.SIGTERM, 143)])
+def test_a_signal_to_the_parent_reaches_every_bus_on_the_real_clock(tmp_path, signum, code):
+    out = tmp_path / "run"
+    parent = Parent(str(rig(tmp_path)), "--duration", "600", "--no-plots", "--out", str(out))
+    parent.wait_for("[a] hilsim run: pair: 2 joints", "[b] hilsim run: pair: 2 joints")
+    parent.proc.send_signal(signum)
+    assert parent.finish() == code, parent.text
+    record = group_record(out)
+    assert record["start_at_monotonic_s"] is not None  # one instant for both buses' tick 0
+    for bus in ("a", "b"):
+        run = read_run(out / bus)
+        assert run.summary["exit_code"] == code, parent.text
+        assert run.summary["clock"] == "real time"
+        signals = [e for e in run.events if e["kind"] == "signal"]
+        assert len(signals) == 1, parent.text
+        if run.summary["exit_policy_confirmed"] is None:  # it landed before torque went on
+            assert "nothing was energised" in signals[0]["message"]
+        else:  # each bus applied its own exit policy and confirmed it on both servos
+            assert run.summary["exit_policy_confirmed"] is True
+            policy = [e for e in run.events if e["kind"] == "exit_policy"]
+            assert "2 servo(s) confirmed" in policy[0]["message"]
+    assert f"exit code {code} (the worst bus's)" in parent.text
+    assert "ended first" not in parent.text and record["stopped_by"] is None  # the user did
+
+
+def _children_of(out: Path) -> list[int]:
+    """PIDs of the bus processes writing under ``out`` (found by their command line)."""
+    pids = []
+    for proc in Path("/proc").iterdir():
+        if proc.name.isdigit():
+            try:
+                argv = (proc / "cmdline").read_bytes().split(b"\0")
+            except OSError:
+                continue
+            if b"--shared-start" in argv and any(str(out).encode() in a for a in argv):
+                pids.append(int(proc.name))
+    return pids
+
+
+@pytest.mark.skipif(not Path("/proc/self/cmdline").exists(), reason="needs /proc")
+def test_the_buses_stop_by_themselves_when_the_parent_dies(tmp_path):
+    out = tmp_path / "run"
+    parent = Parent(str(rig(tmp_path)), "--duration", "600", "--no-plots", "--out", str(out))
+    try:
+        parent.wait_for("[a] hilsim run: pair: 2 joints", "[b] hilsim run: pair: 2 joints")
+        children = _children_of(out)
+        assert len(children) == 2
+        parent.proc.kill()  # no forwarding, no table: only the closed pipe tells them
+        parent.finish()
+        deadline = time.monotonic() + 60.0  # waiting for the children, not timing them
+        while any(Path(f"/proc/{pid}").exists() for pid in children):
+            assert time.monotonic() < deadline, "a bus kept running without its parent"
+            time.sleep(0.05)
+    finally:
+        for pid in _children_of(out):
+            with contextlib.suppress(ProcessLookupError):
+                os.kill(pid, signal.SIGKILL)
+    for bus in ("a", "b"):
+        summary = read_run(out / bus).summary
+        assert summary["exit_code"] == 143  # the SIGTERM path: the exit policy was applied
+        assert summary["exit_policy_confirmed"] in (True, None)  # None: before torque-on
+
+
+def test_a_fault_on_one_bus_stops_the_others(tmp_path):
+    out = tmp_path / "run"
+    path = rig(tmp_path, b_url="&faults=unplug:at=0.5")
+    parent = Parent(
+        str(path), "--virtual-time", "--duration", "3600", "--no-plots", "--out", str(out)
+    )
+    assert parent.finish() == 3, parent.text
+    a, b = read_run(out / "a").summary, read_run(out / "b").summary
+    assert b["exit_code"] == 3 and "bus" in b["exit_reason"]
+    assert a["exit_code"] == 143 and a["exit_policy_confirmed"] is True  # stopped, held
+    assert group_record(out)["stopped_by"] == "b"
+    assert "bus b ended first, so every bus was stopped" in parent.text
+
+
+def test_a_bus_that_cannot_start_keeps_every_bus_still(tmp_path):
+    out = tmp_path / "run"
+    # bus b's servos are XM430s; the rig says XL330: b refuses, so a never starts either
+    path = rig(tmp_path, **{"servo_id = 4\n": 'servo_id = 4\nmodel = "XL330-M288"\n'})
+    parent = Parent(str(path), "--virtual-time", "--duration", "5", "--no-plots", "--out", str(out))
+    assert parent.finish() == 2, parent.text
+    assert "another bus of the figure could not start: nothing moved" in parent.text
+    assert not (out / "a").exists() and not (out / "b").exists()  # no run began
+    assert [r["exit_code"] for r in group_record(out)["buses"]] == [2, 2]

@@ -1,0 +1,281 @@
+"""The scale rig on the real clock (issue 12, item 4; a benchmark, not a test).
+
+Runs ``hilsim run RIG --duration N`` (default ``configs/scale16.toml``: 16 joints at 1 kHz on
+one 4 Mbit/s bus, Fast Sync Read) as a child process on the emulator's real clock and prints,
+with the load average before and after:
+
+* overruns / ticks, lateness p50 / p99 / max (µs), host stalls (count, max ms);
+* the child's CPU (user + sys from ``os.wait4``'s rusage): µs per tick and % of one core;
+* the stage p50s of ``summary.json`` (sim, safety, bus, telemetry; µs);
+* in ``pty`` mode the emulator is ``hilsim emulate`` on a pseudo-terminal, another process
+  (as a real adapter would be): its CPU is read from ``/proc/PID/stat`` and printed apart.
+
+Diagnosis knobs (each run is one child; nothing in the shipped code changes):
+
+* ``--gc freeze|disable|gen0=N``: the child runs ``gc.freeze()`` / ``gc.disable()`` /
+  ``gc.set_threshold(N)`` before ``hilsim.cli.main`` (a garbage collection of a big heap in a
+  tick is one suspect for a late tick);
+* ``--set loop.spin_us=500`` (repeatable): the rig with that key changed, in a copy.
+
+    python tools/bench_scale.py [--seconds 60] [--mode inproc|pty|both] [--repeat 2]
+        [--gc freeze] [--set loop.spin_us=300] [--rig configs/scale16.toml] [--json FILE]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import re
+import select
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[1]
+PRELUDE = {
+    "none": "",
+    "freeze": "import gc; gc.collect(); gc.freeze()",
+    "disable": "import gc; gc.disable()",
+}
+#: diagnosis only: take a suspect out of the child (the shipped code is unchanged)
+DIAG = {
+    # the telemetry writer takes its rows from the ring and discards them (no %.17g formatting)
+    "no-format": """
+import hilsim.telemetry.writer as _w
+def _drain(self):
+    while self._ring.pending() > 0:
+        self.rows_written += len(self._ring.take(self._chunk_rows))
+_w.TelemetryWriter._drain_rows = _drain
+""",
+    # no health reads in the ticks' spare time
+    "no-health": """
+import hilsim.servo_watch as _sw
+_sw.ServoWatch.maybe_read_health = lambda self, *a: None
+""",
+}
+#: the child: the prelude, a timer on every garbage collection (printed at exit), hilsim run
+CHILD = """import sys; {prelude}
+import atexit, gc, json, time
+_gc, _t = {{}}, [0.0]
+def _cb(phase, info):
+    if phase == "start":
+        _t[0] = time.perf_counter()
+    else:
+        n, worst, total = _gc.get(info["generation"], (0, 0.0, 0.0))
+        dt = time.perf_counter() - _t[0]
+        _gc[info["generation"]] = (n + 1, max(worst, dt), total + dt)
+gc.callbacks.append(_cb)
+atexit.register(lambda: print("GC " + json.dumps(_gc), file=sys.stderr))
+from hilsim.cli import main
+sys.exit(main(sys.argv[1:]))
+"""
+
+
+def loadavg() -> str:
+    with open("/proc/loadavg") as f:
+        return " ".join(f.read().split()[:3])
+
+
+def proc_cpu_s(pid: int) -> float:
+    """user + sys CPU seconds of a running process (``/proc/PID/stat`` fields 14, 15)."""
+    with open(f"/proc/{pid}/stat") as f:
+        fields = f.read().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
+def tuned_rig(rig: Path, sets: list[str], out: Path) -> Path:
+    """A copy of the rig with ``section.key=value`` lines set (added under ``[section]``)."""
+    if not sets:
+        return rig
+    text = rig.read_text()
+    for item in sets:
+        dotted, value = item.split("=", 1)
+        section, key = dotted.split(".", 1)
+        pattern = re.compile(rf"^{re.escape(key)}\s*=.*$", re.M)
+        head = text.index(f"[{section}]")
+        end = text.find("\n[", head + 1)
+        end = len(text) if end < 0 else end
+        block = text[head:end]
+        if pattern.search(block):
+            block = pattern.sub(f"{key} = {value}", block, count=1)
+        else:
+            block = block.replace(f"[{section}]", f"[{section}]\n{key} = {value}", 1)
+        text = text[:head] + block + text[end:]
+    copy = out / rig.name
+    copy.write_text(text.replace('"demo_animation.csv"', f'"{rig.parent}/demo_animation.csv"'))
+    return copy
+
+
+def start_emulator(rig_text: str) -> tuple[subprocess.Popen, str]:
+    """``hilsim emulate`` with the rig's ids, model and baud; returns (process, pty path)."""
+    port = re.search(r'port\s*=\s*"dxlsim://\?([^"]*)"', rig_text)
+    if port is None:
+        raise SystemExit("--mode pty needs a rig whose bus.port is a dxlsim:// URL")
+    keys = dict(kv.split("=", 1) for kv in port.group(1).split("&"))
+    cmd = [sys.executable, "-m", "hilsim", "emulate", "--ids", keys.get("ids", "1-4")]
+    for key, flag in (("model", "--model"), ("baud", "--baud"), ("rdt_us", "--rdt-us")):
+        if key in keys:
+            cmd += [flag, keys[key]]
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    ready, _, _ = select.select([proc.stdout], [], [], 20.0)
+    line = proc.stdout.readline().strip() if ready else ""
+    if not line.startswith("/dev/"):
+        proc.terminate()
+        raise SystemExit(f"hilsim emulate did not print a pty path: {line!r}")
+    return proc, line
+
+
+def run_once(
+    rig: Path, seconds: float, mode: str, gc_mode: str, diag: list[str], tmp: Path, n: int
+) -> dict:
+    run_dir = tmp / f"run-{mode}-{n}"
+    if gc_mode.startswith("gen0="):
+        prelude = f"import gc; gc.set_threshold({int(gc_mode[5:])})"
+    else:
+        prelude = PRELUDE[gc_mode]
+    prelude += "".join(DIAG[d] for d in diag)
+    argv = ["run", str(rig), "--duration", str(seconds), "--out", str(run_dir), "--no-plots"]
+    emu, emu_cpu0 = None, 0.0
+    if mode == "pty":
+        emu, pty = start_emulator(rig.read_text())
+        emu_cpu0 = proc_cpu_s(emu.pid)
+        argv += ["--port", pty]
+    load_before = loadavg()
+    code_text = CHILD.format(prelude=prelude)
+    t0 = time.perf_counter()
+    try:
+        child = subprocess.Popen(
+            [sys.executable, "-c", code_text, *argv],
+            cwd=REPO,
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.PIPE,
+        )
+        err = child.stderr.read().decode()
+        _, status, usage = os.wait4(child.pid, 0)
+        wall = time.perf_counter() - t0
+        emu_cpu = proc_cpu_s(emu.pid) - emu_cpu0 if emu is not None else None
+    finally:
+        if emu is not None:
+            emu.terminate()
+            emu.wait(10)
+    code = os.waitstatus_to_exitcode(status)
+    gc_line = [ln for ln in err.splitlines() if ln.startswith("GC ")]
+    gc_stats = json.loads(gc_line[-1][3:]) if gc_line else {}
+    group = run_dir / "buses.json"  # several buses: one child process each, RUN/<bus>/
+    buses = [b["bus"] for b in json.loads(group.read_text())["buses"]] if group.exists() else [""]
+    if group.exists():  # the timer ran in the parent only: its numbers are not the loops'
+        gc_stats = {}
+    summaries = {}
+    for bus in buses:
+        path = run_dir / bus / "summary.json"
+        if not path.exists():
+            raise SystemExit(f"hilsim run exited {code} without {path}:\n{err}")
+        summaries[bus] = json.loads(path.read_text())
+    cpu = usage.ru_utime + usage.ru_stime  # the child and every process it waited for
+    most_ticks = max(int(s.get("ticks") or 0) for s in summaries.values())
+    rows = []
+    for bus, s in summaries.items():
+        stalls = (s.get("loop") or {}).get("host_stalls") or {}
+        rows.append(
+            {
+                "mode": mode,
+                "bus": bus,
+                "gc": gc_mode,
+                "diag": diag,
+                "exit_code": code,
+                "ticks": int(s.get("ticks") or 0),
+                "overruns": s.get("overruns"),
+                "skipped_ticks": (s.get("loop") or {}).get("skipped_ticks"),
+                "lateness_us": {
+                    k: (s.get("lateness_us") or {}).get(k) for k in ("p50", "p99", "max")
+                },
+                "host_stalls": stalls.get("count", 0),
+                "host_stall_max_ms": stalls.get("max_ms", 0.0),
+                "comm_errors": comm_errors(s),
+                # every process of the run (start-up, check, exit policy included) over the
+                # show's ticks: with several buses, all of them together
+                "cpu_us_per_tick": 1e6 * cpu / max(most_ticks, 1),
+                "cpu_percent": 100.0 * cpu / wall,
+                "show_wall_s": float(s.get("wall_s") or wall),
+                "emulator_cpu_percent": None if emu_cpu is None else 100.0 * emu_cpu / wall,
+                "stage_p50_us": {
+                    st: ((s.get("stage_us") or {}).get(st) or {}).get("p50")
+                    for st in ("sim", "safety", "bus", "telemetry")
+                },
+                # per generation: collections, the longest and their total (ms), the process's
+                # (one-bus rigs only: a group's children run without the timer)
+                "gc_collections": {
+                    g: [n, round(w * 1e3, 2), round(t * 1e3, 1)]
+                    for g, (n, w, t) in gc_stats.items()
+                },
+                "load_before": load_before,
+                "load_after": loadavg(),
+            }
+        )
+    return rows
+
+
+def comm_errors(s: dict) -> int:
+    """stale + error + alert reads (``docs/summary.md``)."""
+    return sum(
+        sum((s.get(key) or {}).values()) for key in ("stale_reads", "error_reads", "alert_reads")
+    )
+
+
+def line(r: dict) -> str:
+    lat, st = r["lateness_us"], r["stage_p50_us"]
+    emu = (
+        f"; emulator process {r['emulator_cpu_percent']:.0f} % of a core"
+        if r["emulator_cpu_percent"] is not None
+        else ""
+    )
+    return (
+        f"{r['mode']:6s}{' bus ' + r['bus'] if r['bus'] else ''} gc={r['gc']:7s} "
+        f"{'+'.join(r['diag']) or 'as shipped'}: exit "
+        f"{r['exit_code']}: overruns {r['overruns']}/"
+        f"{r['ticks']} (skipped {r['skipped_ticks']}); lateness p50 {lat['p50']:.1f} p99 "
+        f"{lat['p99']:.1f} max {lat['max']:.0f} us; host stalls {r['host_stalls']} (max "
+        f"{r['host_stall_max_ms']:.1f} ms); comm errors {r['comm_errors']}; CPU "
+        f"{r['cpu_us_per_tick']:.0f} us/tick = "
+        f"{r['cpu_percent']:.0f} % of a core{emu}; stage p50 us "
+        + ", ".join(f"{k} {v:.0f}" for k, v in st.items() if v is not None)
+        + "; GC (n, max ms, total ms) "
+        + " ".join(f"gen{g} {v}" for g, v in sorted(r["gc_collections"].items()))
+        + f"; load {r['load_before']} -> {r['load_after']}"
+    )
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--rig", type=Path, default=REPO / "configs" / "scale16.toml")
+    ap.add_argument("--seconds", type=float, default=60.0, help="show length per run (s)")
+    ap.add_argument("--mode", choices=("inproc", "pty", "both"), default="inproc")
+    ap.add_argument("--repeat", type=int, default=1)
+    ap.add_argument("--gc", default="none", help="none | freeze | disable | gen0=N")
+    ap.add_argument("--set", action="append", default=[], metavar="SECTION.KEY=VALUE")
+    ap.add_argument("--diag", action="append", default=[], choices=sorted(DIAG))
+    ap.add_argument("--json", type=Path, help="append the results here (JSON lines)")
+    args = ap.parse_args(argv)
+    if args.gc not in PRELUDE and not re.fullmatch(r"gen0=\d+", args.gc):
+        ap.error(f"--gc: none, freeze, disable or gen0=N, got {args.gc!r}")
+    modes = ("inproc", "pty") if args.mode == "both" else (args.mode,)
+    changed = " ".join(args.set) or "rig as shipped"
+    print(f"{args.rig} for {args.seconds:g} s, {changed}", flush=True)
+    with tempfile.TemporaryDirectory() as tmp:
+        rig = tuned_rig(args.rig.resolve(), args.set, Path(tmp))
+        for n in range(args.repeat):
+            for mode in modes:
+                for r in run_once(rig, args.seconds, mode, args.gc, args.diag, Path(tmp), n):
+                    r["set"] = args.set
+                    print(line(r), flush=True)
+                    if args.json:
+                        with args.json.open("a") as f:
+                            f.write(json.dumps(r) + "\n")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
