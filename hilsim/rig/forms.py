@@ -108,6 +108,12 @@ TARGET_TYPES: dict[str, tuple[str, str]] = {
         '{ type = "step", at_s = 1.0, before_deg = 0, after_deg = 20 }',
     ),
     "hold": ("One angle, all show long.", '{ type = "hold", value_deg = 0 }'),
+    "layers": (
+        "Several targets on one joint, added (e.g. a jaw from audio plus a keyframed offset); "
+        "ends when its last finite layer ends.",
+        '{ type = "layers", layers = [{ type = "sine", amplitude_deg = 5, frequency_hz = 1 }, '
+        '{ type = "keyframes", keys = [[0, 0], [2, 20]] }] }',
+    ),
 }
 
 #: what each target key means (the same key means the same in every type that has it)
@@ -137,4 +143,10 @@ TARGET_KEYS: dict[str, Key] = {
     "before_deg": Key("number", "The angle before the step.", unit="deg"),
     "after_deg": Key("number", "The angle from the step on.", unit="deg"),
     "value_deg": Key("number", "The angle held.", unit="deg"),
+    "layers": Key(
+        "list",
+        "The target tables whose angles are added, each as a joint's `target` (layers may nest "
+        "4 deep).",
+        allowed="at least one table",
+    ),
 }

@@ -12,7 +12,7 @@ from pathlib import Path
 from typing import Any
 
 from hilsim.targets.csv_file import CsvAnimation, CsvCurve
-from hilsim.targets.tracks import Hold, Keyframes, Sine, Step, Track, easing_names
+from hilsim.targets.tracks import Hold, Keyframes, Layered, Sine, Step, Track, easing_names
 
 
 class SpecError(ValueError):
@@ -32,7 +32,10 @@ SPEC_KEYS: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = {
     "sine": (("amplitude_deg", "frequency_hz"), ("phase_deg", "offset_deg")),
     "step": (("at_s", "before_deg", "after_deg"), ()),
     "hold": (("value_deg",), ()),
+    "layers": (("layers",), ()),
 }
+#: how deep layers may nest (a layer that is itself layers): beyond it, a mistake
+MAX_LAYER_DEPTH = 4
 
 
 def _spec_number(key: str, value: Any) -> float:
@@ -49,6 +52,7 @@ def track_from_spec(
     base_dir: str | Path = ".",
     joint_name: str,
     csv_cache: dict[Path, CsvAnimation] | None = None,
+    _depth: int = 0,
 ) -> Track:
     """Build a track from a rig file's target table (angles in degrees, times in seconds).
 
@@ -59,6 +63,7 @@ def track_from_spec(
         {type = "sine", amplitude_deg, frequency_hz, phase_deg? = 0, offset_deg? = 0}
         {type = "step", at_s, before_deg, after_deg}
         {type = "hold", value_deg}
+        {type = "layers", layers = [<spec>, <spec>, ...]}              the specs' targets added
 
     Args:
         spec: the table, e.g. parsed TOML.
@@ -104,7 +109,34 @@ def track_from_spec(
         )
     if kind == "keyframes":
         return _keyframes_from_spec(spec)
+    if kind == "layers":
+        return _layers_from_spec(spec, base_dir, joint_name, csv_cache, _depth)
     return _csv_from_spec(spec, Path(base_dir), joint_name, csv_cache)
+
+
+def _layers_from_spec(spec, base_dir, joint_name, csv_cache, depth: int) -> Layered:
+    layers = spec["layers"]
+    if not isinstance(layers, list | tuple) or not layers:
+        raise SpecError("layers", f"must be a non-empty list of target tables, got {layers!r}")
+    if depth >= MAX_LAYER_DEPTH:
+        raise SpecError("layers", f"nested more than {MAX_LAYER_DEPTH} deep")
+    tracks = []
+    for i, layer in enumerate(layers):
+        if not isinstance(layer, Mapping):
+            raise SpecError(f"layers[{i}]", f"must be a target table, got {layer!r}")
+        try:
+            tracks.append(
+                track_from_spec(
+                    layer,
+                    base_dir=base_dir,
+                    joint_name=joint_name,
+                    csv_cache=csv_cache,
+                    _depth=depth + 1,
+                )
+            )
+        except SpecError as exc:
+            raise SpecError(f"layers[{i}].{exc.key}", exc.detail) from None
+    return Layered(tuple(tracks))
 
 
 def _keyframes_from_spec(spec: Mapping[str, Any]) -> Keyframes:
