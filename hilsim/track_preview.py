@@ -34,7 +34,9 @@ MAX_PREVIEW_TICKS = 600_001
 @dataclass(frozen=True)
 class Preview:
     """One dry pass over ``len(t)`` ticks. Arrays ``(ticks, joints)`` in degrees; ``clamped``
-    is True where the safety filter's command differs from the spring's position."""
+    is True where the safety filter's command differs from the spring's position after the
+    soft start (its first ``soft_start_s``, when the command is blended from wherever the
+    figure stands: not a limit)."""
 
     joints: tuple[str, ...]
     t: FloatArray
@@ -44,6 +46,7 @@ class Preview:
     clamped: np.ndarray
     min_deg: tuple[float, ...]
     max_deg: tuple[float, ...]
+    soft_start_s: float = 0.0
 
 
 def targets_at(parts: Parts, times: Sequence[float]) -> dict[str, list[float]]:
@@ -98,6 +101,8 @@ def preview(parts: Parts, duration_s: float) -> Preview:
                 parts.targets.sample(t + j * h, u, du)
             integ.step(x, v, h, t + j * h, (u, du))
     clamped = np.abs(out - spring) > CLAMP_TOLERANCE_RAD
+    soft = math.ceil(rig.safety.soft_start_s / period - 1e-9)
+    clamped[:soft] = False  # the soft start's blend, not a limit
     return Preview(
         joints=tuple(rig.joint_names),
         t=np.arange(ticks) * period,
@@ -107,12 +112,14 @@ def preview(parts: Parts, duration_s: float) -> Preview:
         clamped=clamped,
         min_deg=tuple(math.degrees(j.min_rad) for j in rig.joints),
         max_deg=tuple(math.degrees(j.max_rad) for j in rig.joints),
+        soft_start_s=rig.safety.soft_start_s,
     )
 
 
 def plot_preview(p: Preview, path: Path, title: str, dpi: int = 110) -> Path:
-    """One panel per joint: target, spring, command, the limits, and the ticks where the
-    safety filter changed the command (red). Returns the PNG's path."""
+    """One panel per joint: target, spring, command, the limits, the soft start (shaded) and
+    the ticks where the safety filter changed the command after it (red). Returns the PNG's
+    path."""
     from hilsim.telemetry.plot_common import new_figure, save
     from hilsim.telemetry.plot_common import title as set_title
 
@@ -126,6 +133,8 @@ def plot_preview(p: Preview, path: Path, title: str, dpi: int = 110) -> Path:
         ax.plot(p.t, p.cmd_deg[:, i], color="C1", lw=1.0, ls="--", label="command")
         for limit in (p.min_deg[i], p.max_deg[i]):
             ax.axhline(limit, color="k", lw=0.8, ls=":")
+        if p.soft_start_s > 0:
+            ax.axvspan(0, min(p.soft_start_s, p.t[-1]), color="0.9", zorder=0, label="soft start")
         hit = p.clamped[:, i]
         if hit.any():
             ax.plot(p.t[hit], p.cmd_deg[hit, i], "|", color="red", ms=6, label="safety filter")

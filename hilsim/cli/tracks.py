@@ -106,15 +106,12 @@ def _preview(args: argparse.Namespace, rig, parts) -> int:
         return int(ExitCode.USAGE)
     for w in check_tracks(parts.targets, rig.joints, rig.loop.period_s, duration_s=duration):
         _say(f"warning: {w}")
-    soft = min(len(p.t), math.ceil(rig.safety.soft_start_s / rig.loop.period_s - 1e-9))
     for i, name in enumerate(p.joints):
         count = int(p.clamped[:, i].sum())
         if count:
-            early = int(p.clamped[:soft, i].sum())
-            during = f" ({early} of them in the {rig.safety.soft_start_s:g} s soft start)"
             _say(
-                f"{name}: the safety filter would change the command on {count} tick(s)"
-                + (during if early else "")
+                f"{name}: the safety filter would change the command on {count} tick(s) "
+                f"after the {rig.safety.soft_start_s:g} s soft start"
             )
     out = Path(args.out) if args.out else Path(rig.telemetry.out_dir) / f"{rig.name}-tracks.png"
     try:

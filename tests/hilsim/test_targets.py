@@ -400,8 +400,8 @@ def test_demo_csv_spec():
 @pytest.mark.parametrize(
     "spec, key, match",
     [
-        ({}, "type", r"missing; allowed: csv, hold, keyframes, layers, sine, step"),
-        ({"type": "spline"}, "type", r"unknown target type 'spline'; allowed: csv, hold"),
+        ({}, "type", r"missing; allowed: audio, blender_servo, bottango, csv, fseq, hold, keyframes, layers, lipsync, sine, step"),
+        ({"type": "spline"}, "type", r"unknown target type 'spline'; allowed: audio, blender_servo, bottango, csv"),
         ({"type": "sine", "amplitude": 20, "frequency_hz": 1}, "amplitude",
          r"unknown key for a 'sine' target; allowed: type, amplitude_deg, frequency_hz, phase_deg"),
         ({"type": "sine", "amplitude_deg": 20}, "frequency_hz",
