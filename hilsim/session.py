@@ -39,7 +39,7 @@ from hilsim.joint_map import JointMap
 from hilsim.loop import HilLoop, StopFlag
 from hilsim.rig import Rig, RigError, TelemetryFailurePolicy
 from hilsim.safety import SafetyFilter
-from hilsim.targets import CsvAnimation, TargetSet, track_from_spec
+from hilsim.targets import TargetSet, track_from_spec
 
 if TYPE_CHECKING:
     from drivers.dynamixel.bus import DynamixelBus
@@ -70,13 +70,17 @@ class Parts:
 
 def build_targets(rig: Rig) -> TargetSet:
     """One track per joint from the rig's ``target`` tables; errors name file and key."""
-    cache: dict[Path, CsvAnimation] = {}
+    cache: dict = {}  # each file read once, whichever joints use it
     tracks = []
     for i, joint in enumerate(rig.joints):
         try:
             tracks.append(
                 track_from_spec(
-                    joint.target, base_dir=rig.base_dir, joint_name=joint.name, csv_cache=cache
+                    joint.target,
+                    base_dir=rig.base_dir,
+                    joint_name=joint.name,
+                    csv_cache=cache,
+                    spring=joint.spring,
                 )
             )
         except (ValueError, OSError) as exc:

@@ -30,6 +30,7 @@ SUBCOMMANDS: dict[str, str] = {
     "bench": "hilsim.cli.bench",
     "emulate": "hilsim.cli.emulate",
     "compare": "hilsim.cli.compare",
+    "tracks": "hilsim.cli.tracks",
 }
 
 

@@ -108,6 +108,43 @@ TARGET_TYPES: dict[str, tuple[str, str]] = {
         '{ type = "step", at_s = 1.0, before_deg = 0, after_deg = 20 }',
     ),
     "hold": ("One angle, all show long.", '{ type = "hold", value_deg = 0 }'),
+    "layers": (
+        "Several targets on one joint, added (e.g. a jaw from audio plus a keyframed offset); "
+        "ends when its last finite layer ends.",
+        '{ type = "layers", layers = [{ type = "sine", amplitude_deg = 5, frequency_hz = 1 }, '
+        '{ type = "keyframes", keys = [[0, 0], [2, 20]] }] }',
+    ),
+    "bottango": (
+        "One effector's curves in one animation of a Bottango export (generated code "
+        "`GeneratedCodeAnimations.cpp`, an SD card's folder holding `anims/`, or JSON); "
+        "the exact Bézier curves, held before the first and after the last.",
+        '{ type = "bottango", file = "GeneratedCodeAnimations.cpp", effector = "0", '
+        "degrees = [0, 40] }",
+    ),
+    "blender_servo": (
+        "One servo of a blender-servo-animation export (`.json`, `.bin`, `.h`): a position "
+        "per frame, held (as the add-on's Arduino library plays it) or joined; a servo "
+        "missing from a frame holds its last position.",
+        '{ type = "blender_servo", file = "wave.json", servo = 0, position = [544, 2400], '
+        "degrees = [-90, 90] }",
+    ),
+    "fseq": (
+        "A channel (8-bit) or coarse/fine pair (16-bit) of an xLights/FPP `.fseq` v2 "
+        "sequence (plain, zstd or zlib; sparse ranges), frames held.",
+        '{ type = "fseq", file = "show.fseq", channel = 1, fine = 2, degrees = [-90, 90] }',
+    ),
+    "audio": (
+        "A jaw from a sound file: RMS envelope, attack and release, threshold and full-open "
+        'level; `lead_ms = "auto"` leads it by the joint\'s spring lag so the commanded jaw '
+        "is in time with the sound.",
+        '{ type = "audio", file = "line.wav", degrees = [0, 20], lead_ms = "auto" }',
+    ),
+    "lipsync": (
+        "Mouth-shape cues (Rhubarb TSV/JSON/XML, Moho `.dat`, Papagayo `.pgo`) through a "
+        "table of openings 0..1 per shape, held from cue to cue.",
+        '{ type = "lipsync", file = "line.tsv", degrees = [0, 20], shapes = { X = 0, A = 0, '
+        "B = 0.2, C = 0.5, D = 1, E = 0.6, F = 0.3, G = 0.1, H = 0.4 } }",
+    ),
 }
 
 #: what each target key means (the same key means the same in every type that has it)
@@ -125,7 +162,11 @@ TARGET_KEYS: dict[str, Key] = {
         default="linear",
         allowed=" | ".join(f'`"{e}"`' for e in EASINGS),
     ),
-    "file": Key("text", "The CSV file, relative to the rig file.", allowed="an existing file"),
+    "file": Key(
+        "text",
+        "The animation file (CSV, or another tool's), relative to the rig file.",
+        allowed="an existing file (a Bottango SD card: its folder)",
+    ),
     "column": Key(
         "text", "The CSV column to follow.", default_doc="the joint's name", allowed="a column"
     ),
@@ -137,4 +178,127 @@ TARGET_KEYS: dict[str, Key] = {
     "before_deg": Key("number", "The angle before the step.", unit="deg"),
     "after_deg": Key("number", "The angle from the step on.", unit="deg"),
     "value_deg": Key("number", "The angle held.", unit="deg"),
+    "degrees": Key(
+        "list",
+        "The joint angles the file's two reference values map to, linearly: the signal range's "
+        "ends (bottango), the two `position`s (blender_servo), the two DMX `values` (fseq), a "
+        "shut and a wide-open jaw (audio, lipsync: opening 0 and 1).",
+        unit="deg",
+        allowed="two finite numbers",
+    ),
+    "effector": Key(
+        "text",
+        "The Bottango effector: its pin, I²C address and pin written together (`643`), or "
+        "motor identifier, as the export's registrations name it.",
+    ),
+    "animation": Key("text", "The Bottango animation: its index or name.", default=0),
+    "signal": Key(
+        "list",
+        "Two signal values (e.g. µs) that `degrees` maps to.",
+        default_doc="the effector's registered range",
+        allowed="two finite, different numbers",
+    ),
+    "movement": Key(
+        "list",
+        "Two Bottango movements (0..1) that `degrees` maps to, instead of `signal` (an "
+        "effector with no registered range needs it).",
+        default_doc="none: the signal is mapped",
+        allowed="two finite, different numbers",
+    ),
+    "servo": Key("integer", "The servo ID in the blender-servo-animation export."),
+    "position": Key(
+        "list",
+        "Two positions in the export's unit that `degrees` maps to. The add-on's bone settings "
+        "give them: position_min and position_max are servo angles 0 and rotation_range (the "
+        "bone's rotation is neutral_angle minus the servo angle).",
+        unit="µs, PCA9685 ticks or degrees, as the bone's output range was set",
+        allowed="two finite, different numbers",
+    ),
+    "interpolation": Key(
+        "text",
+        "Frames held until the next, or joined linearly.",
+        default="hold",
+        allowed='`"hold"` | `"linear"`',
+    ),
+    "fps": Key(
+        "number",
+        "Frames per second where the file does not say (blender_servo `.bin`, Moho `.dat`).",
+        unit="1/s",
+        default_doc="the file's (required where it has none)",
+    ),
+    "channel": Key(
+        "integer", "fseq: the channel, 1-based as xLights shows it (16-bit: the coarse one)."
+    ),
+    "fine": Key(
+        "integer",
+        "fseq: the fine channel of a 16-bit pair (1-based).",
+        default_doc="none: an 8-bit channel",
+    ),
+    "audio_channel": Key(
+        "text",
+        'audio: which channel of the file drives the jaw: `"mix"`, `"left"`, `"right"` or its '
+        "index (e.g. the right channel of a tone track).",
+        default="mix",
+    ),
+    "values": Key(
+        "list",
+        "fseq: two channel values that `degrees` maps to.",
+        default_doc="the full range, 0-255 (8-bit) or 0-65535 (16-bit)",
+    ),
+    "zero": Key(
+        "text",
+        'fseq: `"hold"` makes a 0 hold the last position (xLights\' servo option).',
+        default="value",
+        allowed='`"value"` | `"hold"`',
+    ),
+    "window_ms": Key("number", "audio: the RMS window.", unit="ms", default=10.0),
+    "attack_ms": Key(
+        "number", "audio: the envelope's rise time constant.", unit="ms", default=10.0
+    ),
+    "release_ms": Key(
+        "number", "audio: the envelope's fall time constant.", unit="ms", default=100.0
+    ),
+    "threshold": Key(
+        "number", "audio: the RMS (1 = full scale) below which the jaw is shut.", default=0.02
+    ),
+    "full": Key("number", "audio: the RMS at which the jaw is wide open.", default=0.35),
+    "band_hz": Key(
+        "list",
+        "audio: a band-pass [low, high] before the envelope.",
+        unit="Hz",
+        default_doc="none: the whole band",
+    ),
+    "lead_ms": Key(
+        "number",
+        'audio: how much earlier the jaw moves than the sound; `"auto"` = the joint\'s '
+        "spring lag (c − b)/k, so the commanded jaw is in time.",
+        unit="ms",
+        default=0.0,
+    ),
+    "shapes": Key(
+        "table",
+        "lipsync: the opening (0 shut .. 1 wide) per Rhubarb mouth shape A-H, X.",
+    ),
+    "preston_blair": Key(
+        "table",
+        "lipsync: openings (or Rhubarb letters) per Preston Blair phoneme, for Papagayo and "
+        "Blair-named Moho files.",
+        default_doc="Rhubarb's own correspondence (MBP->A, etc->B, E->C, AI->D, O->E, U->F, "
+        "FV->G, L->H, rest->X)",
+    ),
+    "voice": Key(
+        "text", "lipsync: the Papagayo voice (name or index).", default_doc="the only voice"
+    ),
+    "names": Key(
+        "text",
+        "lipsync: a Moho file's vocabulary when it cannot be told.",
+        default="auto",
+        allowed='`"auto"` | `"rhubarb"` | `"preston_blair"`',
+    ),
+    "layers": Key(
+        "list",
+        "The target tables whose angles are added, each as a joint's `target` (layers may nest "
+        "4 deep).",
+        allowed="at least one table",
+    ),
 }

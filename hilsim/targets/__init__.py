@@ -1,9 +1,11 @@
 """Animation targets: where each joint should be at show time t.
 
 ==============  ===================================================================
-``tracks``      :class:`Track`, the generators, :class:`Keyframes`, :class:`TargetSet`
+``tracks``      :class:`Track`, the generators, :class:`Keyframes`, :class:`Layered`,
+                :class:`TargetSet`
 ``csv_file``    :class:`CsvAnimation`, :class:`CsvCurve` (a CSV file of degrees per joint)
 ``spec``        :func:`track_from_spec`: a rig file's target table → a track
+``formats``     other tools' animation files (Bottango, Blender, FSEQ, audio, lip-sync)
 ==============  ===================================================================
 
 ``spec`` imports the other two and neither imports it, so the package has no import circle.
@@ -16,6 +18,7 @@ from hilsim.targets.tracks import (
     FloatArray,
     Hold,
     Keyframes,
+    Layered,
     Sine,
     Step,
     TargetSet,
@@ -31,6 +34,7 @@ __all__ = [
     "FloatArray",
     "Hold",
     "Keyframes",
+    "Layered",
     "Sine",
     "SpecError",
     "Step",

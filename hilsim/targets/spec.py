@@ -1,7 +1,7 @@
 """Rig-file target specs (angles in degrees) turned into tracks: :func:`track_from_spec`.
 
-This module sits above :mod:`hilsim.targets.tracks` and :mod:`hilsim.targets.csv_file` and imports
-both; neither imports it.
+This module sits above :mod:`hilsim.targets.tracks`, :mod:`hilsim.targets.csv_file` and
+:mod:`hilsim.targets.sources` (other tools' files) and imports them; none imports it.
 """
 
 from __future__ import annotations
@@ -11,8 +11,10 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
+from hilsim.springs import Spring
 from hilsim.targets.csv_file import CsvAnimation, CsvCurve
-from hilsim.targets.tracks import Hold, Keyframes, Sine, Step, Track, easing_names
+from hilsim.targets.sources import SOURCE_KEYS, SourceError, track_from_source
+from hilsim.targets.tracks import Hold, Keyframes, Layered, Sine, Step, Track, easing_names
 
 
 class SpecError(ValueError):
@@ -32,7 +34,11 @@ SPEC_KEYS: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = {
     "sine": (("amplitude_deg", "frequency_hz"), ("phase_deg", "offset_deg")),
     "step": (("at_s", "before_deg", "after_deg"), ()),
     "hold": (("value_deg",), ()),
+    "layers": (("layers",), ()),
+    **SOURCE_KEYS,
 }
+#: how deep layers may nest (a layer that is itself layers): beyond it, a mistake
+MAX_LAYER_DEPTH = 4
 
 
 def _spec_number(key: str, value: Any) -> float:
@@ -48,7 +54,9 @@ def track_from_spec(
     *,
     base_dir: str | Path = ".",
     joint_name: str,
-    csv_cache: dict[Path, CsvAnimation] | None = None,
+    csv_cache: dict | None = None,
+    spring: Spring | None = None,
+    _depth: int = 0,
 ) -> Track:
     """Build a track from a rig file's target table (angles in degrees, times in seconds).
 
@@ -59,18 +67,23 @@ def track_from_spec(
         {type = "sine", amplitude_deg, frequency_hz, phase_deg? = 0, offset_deg? = 0}
         {type = "step", at_s, before_deg, after_deg}
         {type = "hold", value_deg}
+        {type = "layers", layers = [<spec>, <spec>, ...]}              the specs' targets added
+        {type = "bottango" | "blender_servo" | "fseq" | "audio" | "lipsync", file, ...}
+                                                    another tool's file (hilsim.targets.sources)
 
     Args:
         spec: the table, e.g. parsed TOML.
         base_dir: directory that CSV file names are relative to (the rig file's directory).
         joint_name: the joint this track drives; the default CSV column.
-        csv_cache: a dict shared across calls so each CSV file is read once (keyed by the
-            resolved path).
+        csv_cache: a dict shared across calls so each file (CSV or another tool's) is read
+            once (keyed by the resolved path, with the reader's options).
+        spring: the joint's spring (an audio target's ``lead_ms = "auto"`` is its lag).
 
     Raises:
         SpecError: unknown type or key, a missing key, a wrong value; names the key, lists what is
             allowed.
         CsvFormatError: a CSV file that cannot be used (``file:line: ...``).
+        FormatError: another tool's file that cannot be used (``file:where: ...``).
     """
     kind = spec.get("type")
     if kind not in SPEC_KEYS:
@@ -104,7 +117,42 @@ def track_from_spec(
         )
     if kind == "keyframes":
         return _keyframes_from_spec(spec)
+    if kind == "layers":
+        return _layers_from_spec(spec, base_dir, joint_name, csv_cache, spring, _depth)
+    if kind in SOURCE_KEYS:
+        try:
+            return track_from_source(
+                kind, spec, base_dir=Path(base_dir), spring=spring, cache=csv_cache
+            )
+        except SourceError as exc:
+            raise SpecError(exc.key, exc.detail) from None
     return _csv_from_spec(spec, Path(base_dir), joint_name, csv_cache)
+
+
+def _layers_from_spec(spec, base_dir, joint_name, csv_cache, spring, depth: int) -> Layered:
+    layers = spec["layers"]
+    if not isinstance(layers, list | tuple) or not layers:
+        raise SpecError("layers", f"must be a non-empty list of target tables, got {layers!r}")
+    if depth >= MAX_LAYER_DEPTH:
+        raise SpecError("layers", f"nested more than {MAX_LAYER_DEPTH} deep")
+    tracks = []
+    for i, layer in enumerate(layers):
+        if not isinstance(layer, Mapping):
+            raise SpecError(f"layers[{i}]", f"must be a target table, got {layer!r}")
+        try:
+            tracks.append(
+                track_from_spec(
+                    layer,
+                    base_dir=base_dir,
+                    joint_name=joint_name,
+                    csv_cache=csv_cache,
+                    spring=spring,
+                    _depth=depth + 1,
+                )
+            )
+        except SpecError as exc:
+            raise SpecError(f"layers[{i}].{exc.key}", exc.detail) from None
+    return Layered(tuple(tracks))
 
 
 def _keyframes_from_spec(spec: Mapping[str, Any]) -> Keyframes:
@@ -136,7 +184,7 @@ def _csv_from_spec(
     spec: Mapping[str, Any],
     base_dir: Path,
     joint_name: str,
-    cache: dict[Path, CsvAnimation] | None,
+    cache: dict | None,
 ) -> CsvCurve:
     file, column = spec["file"], spec.get("column", joint_name)
     if not isinstance(file, str) or not file:

@@ -329,6 +329,46 @@ class Keyframes(Track):
         return float(self.times_s[-1])
 
 
+# -------------------------------------------------------------------------------- layers
+
+
+@dataclass(frozen=True, eq=False)
+class Layered(Track):
+    """Several tracks on one joint, added: u = Σ uᵢ, u' = Σ u'ᵢ (e.g. a jaw from audio plus a
+    keyframed offset). It ends when its last finite layer ends, or never if every layer is
+    endless."""
+
+    layers: tuple[Track, ...]
+
+    def __post_init__(self) -> None:
+        layers = tuple(self.layers)
+        if not layers or not all(isinstance(tr, Track) for tr in layers):
+            raise ValueError("layers must be one or more tracks")
+        object.__setattr__(self, "layers", layers)
+
+    def sample(self, t: float) -> tuple[float, float]:
+        pos = vel = 0.0
+        for tr in self.layers:
+            p, v = tr.sample(t)
+            pos += p
+            vel += v
+        return pos, vel
+
+    def sample_array(self, t: npt.ArrayLike) -> tuple[FloatArray, FloatArray]:
+        times = np.asarray(t, dtype=np.float64)
+        pos, vel = np.zeros(times.shape), np.zeros(times.shape)
+        for tr in self.layers:
+            p, v = tr.sample_array(times)
+            pos += p
+            vel += v
+        return pos, vel
+
+    @property
+    def duration(self) -> float | None:
+        ends = [d for d in (tr.duration for tr in self.layers) if d is not None]
+        return max(ends) if ends else None
+
+
 # -------------------------------------------------------------------------------- target set
 
 

@@ -400,8 +400,8 @@ def test_demo_csv_spec():
 @pytest.mark.parametrize(
     "spec, key, match",
     [
-        ({}, "type", r"missing; allowed: csv, hold, keyframes, sine, step"),
-        ({"type": "spline"}, "type", r"unknown target type 'spline'; allowed: csv, hold"),
+        ({}, "type", r"missing; allowed: audio, blender_servo, bottango, csv, fseq, hold, keyframes, layers, lipsync, sine, step"),
+        ({"type": "spline"}, "type", r"unknown target type 'spline'; allowed: audio, blender_servo, bottango, csv"),
         ({"type": "sine", "amplitude": 20, "frequency_hz": 1}, "amplitude",
          r"unknown key for a 'sine' target; allowed: type, amplitude_deg, frequency_hz, phase_deg"),
         ({"type": "sine", "amplitude_deg": 20}, "frequency_hz",
@@ -472,3 +472,48 @@ def test_sample_array_agrees_with_sample(values, easings):
         np.testing.assert_allclose(vel, expected[:, 1], rtol=1e-12, atol=1e-9)
     grid = np.linspace(0.0, 2.0, 6).reshape(2, 3)  # any shape
     assert tracks[0].sample_array(grid)[0].shape == (2, 3)
+
+
+# ------------------------------------------------------------------ layers
+def test_layers_add_their_targets_and_velocities():
+    from hilsim.targets import Layered
+
+    spec = {
+        "type": "layers",
+        "layers": [
+            {"type": "sine", "amplitude_deg": 10, "frequency_hz": 1.0},
+            {"type": "keyframes", "keys": [[0, 0], [2, 20]]},
+        ],
+    }
+    track = track_from_spec(spec, joint_name="jaw")
+    assert isinstance(track, Layered) and track.duration == 2.0
+    pos, vel = track.sample(0.25)
+    assert math.degrees(pos) == pytest.approx(10.0 + 2.5)
+    assert math.degrees(vel) == pytest.approx(10.0 * 2 * math.pi * math.cos(math.pi / 2) + 10.0)
+    arr_pos, arr_vel = track.sample_array([0.25, 1.0])
+    assert arr_pos[0] == pytest.approx(pos) and arr_vel[0] == pytest.approx(vel)
+    endless = track_from_spec({"type": "layers", "layers": [spec["layers"][0]]}, joint_name="j")
+    assert endless.duration is None
+
+
+@pytest.mark.parametrize(
+    ("layers", "match"),
+    [
+        ([], "layers: must be a non-empty list"),
+        ("sine", "layers: must be a non-empty list"),
+        ([3], r"layers\[0\]: must be a target table"),
+        ([{"type": "hold"}], r"layers\[0\]\.value_deg: missing"),
+        ([{"type": "hold", "value_deg": 1}, {"type": "hold", "value": 1}], r"layers\[1\]\.value:"),
+    ],
+)
+def test_bad_layers_name_the_layer_and_key(layers, match):
+    with pytest.raises(SpecError, match=match):
+        track_from_spec({"type": "layers", "layers": layers}, joint_name="jaw")
+
+
+def test_layers_cannot_nest_without_end():
+    spec: dict = {"type": "hold", "value_deg": 1}
+    for _ in range(6):
+        spec = {"type": "layers", "layers": [spec]}
+    with pytest.raises(SpecError, match="nested more than 4 deep"):
+        track_from_spec(spec, joint_name="jaw")

@@ -1,0 +1,295 @@
+"""blender-servo-animation exports (``.json``, ``.bin``, ``.h``) as tracks in joint radians.
+
+The Blender add-on `blender-servo-animation` (v2.x) bakes one position per servo per frame at
+the scene's integer fps, from the scene's first frame to its last; its Arduino library plays
+them one frame at a time, holding each (zero-order). Three forms carry the same frames:
+
+* ``.json`` - ``{"fps": 30, "frames": 100, "positions": [{"0": 1472}, {"0": 1477}, ...], ...}``,
+  one dict per frame, servo ID (a string) -> position. ``frames`` must equal the number of
+  dicts; ``seconds`` and ``bones`` are not read (the add-on rounds the one and counts only the
+  first frame for the other).
+* ``.bin`` - the bare command stream: per position the 5-byte record ``3C id hi lo 3E``
+  (``<``, servo ID, big-endian u16 position, ``>``), and ``0A`` after each frame. It is read
+  as fixed records, so a ``0A`` *inside* a record (an ID of 10, a position byte of 10) is data,
+  not a frame end. It says nothing of its fps: the caller gives it (``fps=``), as the Arduino
+  library's ``addScene(stream, fps, frames)`` is given it.
+* ``.h`` - the same bytes as a C array ``const byte PROGMEM ANIMATION_DATA[LENGTH] = {...}``,
+  with ``const byte FPS``, ``const int FRAMES`` and ``const int LENGTH`` (checked against the
+  array), optionally inside a ``namespace``.
+
+All three give identical tracks. Frame ``k`` (counted from 0 at the file's first frame) is at
+show time ``k / fps``; the last frame is held for its frame time, so a track's duration is
+``frames / fps`` (100 frames at 30 fps: 3.333 s, where the file's ``seconds`` says 3).
+
+**A missing servo in a frame holds its previous value.** The add-on leaves a servo out of a
+frame for two reasons - its position did not change ("skip unchanged positions", on by
+default), *or* the position fell outside the bone's position_min..position_max and was dropped
+(not clamped) - and the file cannot tell which. A track holds the last position through such
+frames (frames before a servo's first position take that first position);
+:meth:`BlenderServoAnimation.notes` says how many frames of a servo were held, for the rig to
+print.
+
+**Units.** The positions are whatever the bone's output range was set to: µs for the Arduino
+``Servo`` library (544-2400), PCA9685 ticks (the add-on's default 150-600) or degrees (0-180);
+the file does not say which. The caller gives a :class:`~hilsim.targets.formats.common.UnitMap`,
+or the bone's own add-on settings as :class:`BoneSettings`, which builds the map the add-on used
+(position -> servo angle, or -> the bone's rotation, 0 at its rest pose) and refuses positions
+outside the bone's range (the add-on never writes one, so one means the settings are not the
+export's).
+
+Phase 2 (the rig) is one call::
+
+    anim = read_blender_servo(path, fps=None)          # fps only for .bin
+    track = anim.track_for(BoneSettings(servo_id=0, position_min=544, position_max=2400,
+                                        rotation_range=180, neutral_angle=90),
+                           angle="bone", interpolation="hold")
+    # or anim.track(servo_id, UnitMap((1000, 2000), (0, 40), "us"), interpolation="linear")
+    for line in anim.notes(0): print(line)
+
+Every bad input is one :class:`~hilsim.targets.formats.common.FormatError` naming the file and
+the position (``line``, ``byte``, ``frame``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from hilsim.targets.formats.blender_servo_forms import (
+    MAX_SERVO_ID,
+    is_int,
+    is_number,
+    parse_h,
+    parse_json,
+    records,
+)
+from hilsim.targets.formats.common import FormatError, SampledTrack, UnitMap
+
+#: the suffixes read, each a form of the same frames
+FORMS = (".json", ".bin", ".h")
+#: ``angle=`` of :meth:`BoneSettings.unit_map`: the servo's angle (0..rotation_range) or the
+#: bone's rotation (0 at its rest pose, as animated in Blender)
+ANGLES = ("servo", "bone")
+
+
+@dataclass(frozen=True)
+class BoneSettings:
+    """One bone's "Servo Settings" in the add-on, as the rig repeats them.
+
+    ``position_min``/``position_max``: the output range (µs, PCA9685 ticks or degrees);
+    ``rotation_range``: the servo's travel (degrees) over that range; ``neutral_angle``: the servo
+    angle (degrees) of the bone's rest pose; ``multiplier`` and ``reverse_direction`` as set on
+    the bone. The add-on computes ``angle = neutral_angle - s·multiplier·rotation`` (s = -1 when
+    reversed) and ``position = position_min + angle·(position_max - position_min)/rotation_range``.
+
+    Raises ValueError naming the field for a range that cannot be inverted.
+    """
+
+    servo_id: int
+    position_min: float
+    position_max: float
+    rotation_range: float
+    neutral_angle: float
+    multiplier: float = 1.0
+    reverse_direction: bool = False
+
+    def __post_init__(self) -> None:
+        if not is_int(self.servo_id) or not 0 <= self.servo_id <= MAX_SERVO_ID:
+            raise ValueError(f"servo_id must be an integer 0-255, got {self.servo_id!r}")
+        for name in ("position_min", "position_max", "rotation_range", "neutral_angle"):
+            value = getattr(self, name)
+            if not is_number(value):
+                raise ValueError(f"{name} must be a finite number, got {value!r}")
+        if not self.position_min < self.position_max:
+            raise ValueError(
+                f"position_min ({self.position_min:g}) must be below position_max "
+                f"({self.position_max:g}), as the add-on requires"
+            )
+        if not self.rotation_range > 0:
+            raise ValueError(f"rotation_range must be > 0 degrees, got {self.rotation_range!r}")
+        if not is_number(self.multiplier) or self.multiplier <= 0:
+            raise ValueError(f"multiplier must be a number > 0, got {self.multiplier!r}")
+        if not isinstance(self.reverse_direction, bool):
+            raise ValueError(
+                f"reverse_direction must be true or false, got {self.reverse_direction!r}"
+            )
+
+    def unit_map(self, angle: str) -> UnitMap:
+        """Position -> degrees: ``angle="servo"`` the servo angle (position_min -> 0°,
+        position_max -> rotation_range), ``angle="bone"`` the bone's rotation about its axis
+        (0 at the rest pose: neutral_angle - servo angle, divided by the multiplier, negated
+        when reversed)."""
+        lo, hi = float(self.position_min), float(self.position_max)
+        if angle == "servo":
+            return UnitMap((lo, hi), (0.0, float(self.rotation_range)), "position")
+        if angle == "bone":
+            sign = -1.0 if self.reverse_direction else 1.0
+            k = sign / self.multiplier
+            return UnitMap(
+                (lo, hi),
+                (k * self.neutral_angle, k * (self.neutral_angle - self.rotation_range)),
+                "position",
+            )
+        raise ValueError(f"angle must be one of {', '.join(ANGLES)}, got {angle!r}")
+
+
+@dataclass(frozen=True, eq=False)
+class BlenderServoAnimation:
+    """The positions of one export, one record per position the file lists: record ``r`` sets
+    servo ``servo[r]`` to ``position[r]`` in frame ``frame_of[r]`` (ascending); a servo the file
+    leaves out of a frame holds. ``form`` is ``"json"``, ``"bin"`` or ``"h"``."""
+
+    path: str
+    form: str
+    fps: int
+    n_frames: int
+    frame_of: np.ndarray
+    servo: np.ndarray
+    position: np.ndarray
+    scene: str = ""
+
+    @property
+    def frames(self) -> tuple[dict[int, int], ...]:
+        """Frame by frame: servo ID -> position, for the servos the file lists in it."""
+        out: list[dict[int, int]] = [{} for _ in range(self.n_frames)]
+        cols = (self.frame_of.tolist(), self.servo.tolist(), self.position.tolist())
+        for k, sid, pos in zip(*cols, strict=True):
+            out[k][sid] = pos
+        return tuple(out)
+
+    @property
+    def servo_ids(self) -> tuple[int, ...]:
+        return tuple(np.unique(self.servo).tolist())
+
+    @property
+    def duration(self) -> float:
+        """The file's length (s): frames / fps."""
+        return self.n_frames / self.fps
+
+    def _listed(self, servo_id: int) -> tuple[np.ndarray, np.ndarray]:
+        mask = self.servo == servo_id
+        if not mask.any():
+            ids = ", ".join(map(str, self.servo_ids))
+            raise FormatError(self.path, f"servo {servo_id}", f"not in the file (servos: {ids})")
+        return self.frame_of[mask], self.position[mask].astype(np.float64)
+
+    def positions(self, servo_id: int) -> np.ndarray:
+        """One position per frame (float64), a missing frame holding the one before; frames
+        before the servo's first position take that first position."""
+        ks, vs = self._listed(servo_id)
+        last = np.searchsorted(ks, np.arange(self.n_frames), side="right") - 1
+        return vs[np.maximum(last, 0)]
+
+    def held_frames(self, servo_id: int) -> tuple[int, ...]:
+        """Frames that carry no position for ``servo_id`` (held from the frame before)."""
+        return tuple(np.setdiff1d(np.arange(self.n_frames), self._listed(servo_id)[0]).tolist())
+
+    def notes(self, servo_id: int) -> tuple[str, ...]:
+        """What the rig should print about this servo's frames: frames held for lack of a
+        position, which the format cannot tell apart from positions dropped as out of range."""
+        held = self.held_frames(servo_id)
+        if not held:
+            return ()
+        first = int(self._listed(servo_id)[0][0])
+        notes = [
+            f"{self.path}: servo {servo_id}: {len(held)} of {self.n_frames} frames carry no "
+            f"position and hold the one before (first such frame: {held[0]}); the format cannot "
+            f"tell an unchanged position from one Blender dropped as outside the bone's range"
+        ]
+        if first:
+            notes.append(
+                f"{self.path}: servo {servo_id}: no position before frame {first}; frames "
+                f"0-{first - 1} take frame {first}'s"
+            )
+        return tuple(notes)
+
+    def track(
+        self,
+        servo_id: int,
+        unit_map: UnitMap,
+        *,
+        interpolation: str = "hold",
+        valid: tuple[float, float] | None = None,
+    ) -> SampledTrack:
+        """Servo ``servo_id``'s positions through ``unit_map`` as a track (joint radians).
+
+        ``interpolation``: ``"hold"`` (the Arduino library's playback) or ``"linear"``.
+        ``valid``: the range the positions must lie in (a position outside it is a FormatError
+        naming its frame); None checks nothing.
+        """
+        pos = self.positions(servo_id)  # (SampledTrack refuses an unknown interpolation)
+        if valid is not None:
+            lo, hi = valid
+            bad = np.flatnonzero((pos < lo) | (pos > hi))
+            if bad.size:
+                k = int(bad[0])
+                raise FormatError(self.path, f"frame {k}", f"servo {servo_id} at {pos[k]:g}, "
+                                  f"outside the bone's range {lo:g}-{hi:g} (the add-on never "
+                                  "exports such a position: are these the export's "
+                                  "settings?)")  # fmt: skip
+        times = np.arange(self.n_frames + 1, dtype=np.float64) / self.fps
+        values = unit_map.to_rad(np.append(pos, pos[-1]))
+        return SampledTrack(
+            times, values, interpolation, source=f"{self.path} servo {servo_id} ({self.form})"
+        )
+
+    def track_for(
+        self, bone: BoneSettings, *, angle: str, interpolation: str = "hold"
+    ) -> SampledTrack:
+        """The track of ``bone.servo_id`` through the bone's own map (``angle`` "servo" or
+        "bone", see :meth:`BoneSettings.unit_map`), positions checked against its range."""
+        return self.track(
+            bone.servo_id,
+            bone.unit_map(angle),
+            interpolation=interpolation,
+            valid=(bone.position_min, bone.position_max),
+        )
+
+
+def read_blender_servo(path: str | Path, *, fps: int | None = None) -> BlenderServoAnimation:
+    """Read an export; its form is told by the suffix (``.json``, ``.bin``, ``.h``).
+
+    ``fps`` is required for ``.bin`` (the file does not carry it); for ``.json`` and ``.h`` it
+    may be given and must then equal the file's.
+    """
+    p = Path(path)
+    suffix = p.suffix.lower()
+    if suffix not in FORMS:
+        raise FormatError(p, "", f"unknown form {suffix or '(no suffix)'!r}: a blender-servo-"
+                          f"animation export is one of {', '.join(FORMS)}")  # fmt: skip
+    try:
+        data = p.read_bytes()
+    except OSError as exc:
+        raise FormatError(p, "", f"cannot read: {exc.strerror or exc}") from None
+    return parse_blender_servo(data, suffix[1:], p, fps=fps)
+
+
+def parse_blender_servo(
+    data: bytes, form: str, path: str | Path = "<bytes>", *, fps: int | None = None
+) -> BlenderServoAnimation:
+    """The same as :func:`read_blender_servo` on bytes already read; ``form`` is ``"json"``,
+    ``"bin"`` or ``"h"``."""
+    if fps is not None and (not is_int(fps) or fps < 1):
+        raise ValueError(f"fps must be a whole number of frames per second ≥ 1, got {fps!r}")
+    if not data:
+        raise FormatError(path, "", "empty file")
+    if form == "json":
+        file_fps, recs, scene = parse_json(data, path)
+    elif form == "h":
+        file_fps, recs, scene = parse_h(data, path)
+    elif form == "bin":
+        if fps is None:
+            raise FormatError(path, "", "a .bin export does not say its fps: give it (the "
+                              "scene's frame rate)")  # fmt: skip
+        file_fps, recs, scene = fps, records(data, path), ""
+    else:
+        raise ValueError(f"form must be json, bin or h, got {form!r}")
+    if fps is not None and fps != file_fps:
+        raise FormatError(path, "", f"the file says {file_fps} fps, not the {fps} given")
+    if not recs[0]:
+        raise FormatError(path, "", "no frames")
+    if not recs[1].size:
+        raise FormatError(path, "", f"{recs[0]} frames, none with a position")
+    return BlenderServoAnimation(str(path), form, file_fps, *recs, scene)

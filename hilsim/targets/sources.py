@@ -1,0 +1,264 @@
+"""Rig target specs that name another tool's animation file, turned into tracks (issue 13).
+
+:func:`hilsim.targets.spec.track_from_spec` hands a spec of one of these types here::
+
+    {type = "bottango", file, effector, degrees, signal? | movement?, animation? = 0}
+    {type = "blender_servo", file, servo, position, degrees, interpolation? = "hold",
+     fps? (.bin only)}
+    {type = "fseq", file, channel, degrees, fine?, values? (default the full 8/16-bit range),
+     zero? = "value", interpolation? = "hold"}
+    {type = "audio", file, degrees, audio_channel? = "mix", window_ms?, attack_ms?, release_ms?,
+     threshold?, full?, band_hz?, lead_ms? = 0 | "auto"}
+    {type = "lipsync", file, degrees, shapes, preston_blair?, fps? (Moho .dat), voice?,
+     names? = "auto"}
+
+``degrees`` is the pair of joint angles the file's two reference values map to: the signal
+range's ends (``signal``, default the effector's registered range), the positions
+(``position``), the DMX values (``values``), a shut and a wide-open jaw (audio: opening 0 and
+1; lip-sync: shape values 0 and 1). The files never say their units, so the rig always does.
+Files are relative to the rig file and read once per build (``cache``).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Mapping
+from pathlib import Path
+from typing import Any
+
+from hilsim.springs import Spring
+from hilsim.targets.formats.common import UnitMap
+from hilsim.targets.tracks import Track
+
+#: per source type: (required keys, optional keys), besides "type"
+SOURCE_KEYS: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = {
+    "bottango": (("file", "effector", "degrees"), ("animation", "signal", "movement")),
+    "blender_servo": (("file", "servo", "position", "degrees"), ("interpolation", "fps")),
+    "fseq": (
+        ("file", "channel", "degrees"),
+        ("fine", "values", "zero", "interpolation"),
+    ),
+    "audio": (
+        ("file", "degrees"),
+        (
+            "audio_channel",
+            "window_ms",
+            "attack_ms",
+            "release_ms",
+            "threshold",
+            "full",
+            "band_hz",
+            "lead_ms",
+        ),
+    ),
+    "lipsync": (("file", "degrees", "shapes"), ("preston_blair", "fps", "voice", "names")),
+}
+
+
+class SourceError(ValueError):
+    """A source spec key that cannot be used: ``key`` and the message, as SpecError has."""
+
+    def __init__(self, key: str, message: str) -> None:
+        super().__init__(f"{key}: {message}")
+        self.key, self.detail = key, message
+
+
+def _pair(spec: Mapping[str, Any], key: str) -> tuple[float, float]:
+    value = spec[key]
+    if (
+        not isinstance(value, list | tuple)
+        or len(value) != 2
+        or not all(
+            isinstance(x, int | float) and not isinstance(x, bool) and math.isfinite(x)
+            for x in value
+        )
+    ):
+        raise SourceError(key, f"must be two finite numbers [a, b], got {value!r}")
+    return float(value[0]), float(value[1])
+
+
+def _number(spec: Mapping[str, Any], key: str) -> float:
+    value = spec[key]
+    if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
+        raise SourceError(key, f"must be a finite number, got {value!r}")
+    return float(value)
+
+
+def _unit(spec: Mapping[str, Any], source_key: str | None, source, unit: str) -> UnitMap:
+    """The rig's map from ``source`` (a pair, or the spec's ``source_key`` pair) to its
+    ``degrees``."""
+    degrees = _pair(spec, "degrees")
+    if source_key is not None:
+        source = _pair(spec, source_key)
+    try:
+        return UnitMap(source, degrees, unit)
+    except ValueError as exc:
+        raise SourceError(source_key or "degrees", str(exc)) from None
+
+
+def _cached(cache: dict | None, key: tuple, load: Callable[[], Any]) -> Any:
+    if cache is None:
+        return load()
+    if key not in cache:
+        cache[key] = load()
+    return cache[key]
+
+
+def _file(spec: Mapping[str, Any], base_dir: Path) -> Path:
+    file = spec["file"]
+    if not isinstance(file, str) or not file:
+        raise SourceError("file", f"must be a file name, got {file!r}")
+    path = (base_dir / file).resolve()
+    if not path.exists():
+        raise SourceError("file", f"no such file: {path}")
+    return path
+
+
+def track_from_source(
+    kind: str,
+    spec: Mapping[str, Any],
+    *,
+    base_dir: Path,
+    spring: Spring | None = None,
+    cache: dict | None = None,
+) -> Track:
+    """The track of a source spec (keys already checked against :data:`SOURCE_KEYS`).
+    Raises SourceError for a bad key, FormatError (``file:where: ...``) for a bad file."""
+    path = _file(spec, base_dir)
+    return _BUILDERS[kind](spec, path, spring, cache)
+
+
+def _bottango(spec, path, _spring, cache) -> Track:
+    from hilsim.targets.formats.bottango import read_export
+
+    export = _cached(cache, ("bottango", path), lambda: read_export(path))
+    effector = spec["effector"]
+    if isinstance(effector, bool) or not isinstance(effector, str | int):
+        raise SourceError("effector", f"must be the effector's identifier, got {effector!r}")
+    animation = spec.get("animation", 0)
+    if isinstance(animation, bool) or not isinstance(animation, str | int):
+        raise SourceError("animation", f"must be an index or a name, got {animation!r}")
+    if "signal" in spec and "movement" in spec:
+        raise SourceError("movement", "give signal or movement, not both")
+    if "movement" in spec:
+        return export.track(animation, str(effector), movement=_unit(spec, "movement", 0, ""))
+    eff = export.effectors.get(str(effector))
+    if "signal" in spec:
+        return export.track(animation, str(effector), signal=_unit(spec, "signal", 0, "signal"))
+    if eff is None or eff.signal_min is None or eff.signal_max is None:
+        raise SourceError(
+            "signal",
+            f"effector {effector!r} has no registered signal range in {path.name}: give "
+            "movement = [0, 1] (Bottango's movement) with degrees",
+        )
+    # degrees at the ends of the effector's registered range (e.g. 1000-2000 µs)
+    umap = _unit(spec, None, (eff.signal_min, eff.signal_max), eff.unit)
+    return export.track(animation, str(effector), signal=umap)
+
+
+def _blender(spec, path, _spring, cache) -> Track:
+    from hilsim.targets.formats.blender_servo import read_blender_servo
+
+    fps = spec.get("fps")
+    if fps is not None and (isinstance(fps, bool) or not isinstance(fps, int) or fps < 1):
+        raise SourceError("fps", f"must be a whole number of frames per second, got {fps!r}")
+    anim = _cached(cache, ("blender_servo", path, fps), lambda: read_blender_servo(path, fps=fps))
+    servo = spec["servo"]
+    if isinstance(servo, bool) or not isinstance(servo, int):
+        raise SourceError("servo", f"must be the servo ID in the export, got {servo!r}")
+    umap = _unit(spec, "position", 0, "position")
+    return anim.track(servo, umap, interpolation=spec.get("interpolation", "hold"))
+
+
+def _fseq(spec, path, _spring, cache) -> Track:
+    from hilsim.targets.formats.fseq import FseqChannel, dmx_unit_map, read_fseq
+
+    seq = _cached(cache, ("fseq", path), lambda: read_fseq(path))
+    fine = spec.get("fine")
+    if "values" in spec:
+        umap = _unit(spec, "values", 0, "DMX")
+    else:
+        umap = dmx_unit_map(_pair(spec, "degrees"), 8 if fine is None else 16)
+    try:
+        channel = FseqChannel(
+            spec["channel"],
+            umap,
+            fine=fine,
+            zero=spec.get("zero", "value"),
+            interpolation=spec.get("interpolation", "hold"),
+        )
+    except ValueError as exc:
+        raise SourceError("channel", str(exc)) from None
+    return seq.tracks({"joint": channel})["joint"]
+
+
+def _audio(spec, path, spring, _cache) -> Track:
+    from hilsim.targets.formats.audio_jaw import EnvelopeSettings, jaw_track, spring_lag_s
+
+    settings: dict[str, Any] = {}
+    for key in ("window_ms", "attack_ms", "release_ms", "threshold", "full"):
+        if key in spec:
+            settings[key] = _number(spec, key)
+    if "band_hz" in spec:
+        settings["band_hz"] = _pair(spec, "band_hz")
+    try:
+        env = EnvelopeSettings(**settings)
+    except ValueError as exc:
+        raise SourceError(str(exc).split(" ")[0], str(exc)) from None
+    lead = spec.get("lead_ms", 0.0)
+    if lead == "auto":
+        if spring is None:
+            raise SourceError("lead_ms", '"auto" needs the joint\'s spring')
+        lead_s = spring_lag_s(spring)
+    elif isinstance(lead, bool) or not isinstance(lead, int | float) or not math.isfinite(lead):
+        raise SourceError("lead_ms", f'must be a number of ms or "auto", got {lead!r}')
+    else:
+        lead_s = lead / 1000.0
+    channel = spec.get("audio_channel", "mix")
+    jaw = _unit(spec, None, (0.0, 1.0), "opening")
+    try:
+        return jaw_track(path, jaw, env, channel=channel, lead_s=lead_s)
+    except ValueError as exc:
+        if type(exc) is ValueError:  # a setting the reader refused (a FormatError names the file)
+            key = "audio_channel" if "channel" in str(exc) else "lead_ms"
+            raise SourceError(key, str(exc)) from None
+        raise
+
+
+def _lipsync(spec, path, _spring, cache) -> Track:
+    from hilsim.targets.formats.lipsync import ShapeTable, cue_track, read_cues
+
+    fps = spec.get("fps")
+    if fps is not None:
+        fps = _number(spec, "fps")
+    voice = spec.get("voice")
+    names = spec.get("names", "auto")
+    try:
+        cues = _cached(
+            cache,
+            ("lipsync", path, fps, names, voice),
+            lambda: read_cues(path, fps=fps, names=names, voice=voice),
+        )
+    except ValueError as exc:
+        if type(exc) is ValueError:
+            raise SourceError("fps" if "fps" in str(exc) else "names", str(exc)) from None
+        raise
+    for key in ("shapes", "preston_blair"):
+        if key in spec and not isinstance(spec[key], Mapping):
+            raise SourceError(key, f"must be a table of shape = value, got {spec[key]!r}")
+    try:
+        table = ShapeTable(
+            rhubarb=dict(spec["shapes"]), preston_blair=dict(spec.get("preston_blair", {}))
+        )
+    except ValueError as exc:
+        raise SourceError("shapes", str(exc)) from None
+    return cue_track(cues, table, _unit(spec, None, (0.0, 1.0), "opening"))
+
+
+_BUILDERS: dict[str, Callable[..., Track]] = {
+    "bottango": _bottango,
+    "blender_servo": _blender,
+    "fseq": _fseq,
+    "audio": _audio,
+    "lipsync": _lipsync,
+}

@@ -1,0 +1,150 @@
+"""What a rig will ask of each joint, before anything moves: its tracks through the springs and
+the safety filter, offline (``hilsim tracks``).
+
+:func:`targets_at` gives every joint's target (degrees, before the spring) at chosen show
+times. :func:`preview` runs the show's own parts - targets, integrator, safety filter - tick by
+tick as :class:`~hilsim.loop.HilLoop` does, with no bus: the target, the spring's position, the
+command the filter lets through and where the filter changed it. The figure starts where the
+rig's ``initial_deg`` puts each joint, else at its target at t = 0 (a real show starts from the
+pose the servos report, through the soft start). :func:`plot_preview` draws it;
+:func:`hilsim.track_check.check_tracks` names the limits the targets break.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from hilsim._types import FloatArray
+
+if TYPE_CHECKING:
+    from hilsim.session import Parts
+
+#: a command this far (rad) from the spring's position was changed by the safety filter
+CLAMP_TOLERANCE_RAD = 1e-9
+#: the longest preview, in ticks (a 10-minute show at 1 kHz)
+MAX_PREVIEW_TICKS = 600_001
+
+
+@dataclass(frozen=True)
+class Preview:
+    """One dry pass over ``len(t)`` ticks. Arrays ``(ticks, joints)`` in degrees; ``clamped``
+    is True where the safety filter's command differs from the spring's position after the
+    soft start (its first ``soft_start_s``, when the command is blended from wherever the
+    figure stands: not a limit)."""
+
+    joints: tuple[str, ...]
+    t: FloatArray
+    target_deg: FloatArray
+    spring_deg: FloatArray
+    cmd_deg: FloatArray
+    clamped: np.ndarray
+    min_deg: tuple[float, ...]
+    max_deg: tuple[float, ...]
+    soft_start_s: float = 0.0
+
+
+def targets_at(parts: Parts, times: Sequence[float]) -> dict[str, list[float]]:
+    """Each joint's target in degrees at ``times`` (show seconds), before the spring."""
+    names = parts.rig.joint_names
+    out: dict[str, list[float]] = {name: [] for name in names}
+    n = len(names)
+    pos = np.zeros(n)
+    for t in times:
+        parts.targets.sample(float(t), pos)
+        for name, value in zip(names, pos.tolist(), strict=True):
+            out[name].append(math.degrees(value))
+    return out
+
+
+def preview(parts: Parts, duration_s: float) -> Preview:
+    """The show's first ``duration_s`` seconds, tick by tick, without a bus.
+
+    Raises ValueError when ``duration_s`` is not a finite positive time or asks for more than
+    :data:`MAX_PREVIEW_TICKS` ticks.
+    """
+    rig = parts.rig
+    period = rig.loop.period_s
+    if not (math.isfinite(duration_s) and duration_s > 0):
+        raise ValueError(f"the preview needs a finite duration > 0 s, got {duration_s!r}")
+    ticks = round(duration_s / period) + 1
+    if ticks > MAX_PREVIEW_TICKS:
+        raise ValueError(
+            f"{duration_s:g} s at {rig.loop.rate_hz:g} Hz is {ticks} ticks; the preview takes "
+            f"at most {MAX_PREVIEW_TICKS} (give a shorter --duration)"
+        )
+    n = len(rig.joints)
+    x, v, u, du, cmd = (np.zeros(n) for _ in range(5))
+    parts.targets.sample(0.0, u, du)
+    for i, jt in enumerate(rig.joints):
+        x[i] = u[i] if jt.initial_rad is None else jt.initial_rad
+    safety = parts.safety
+    safety.start(np.clip(x, [j.min_rad for j in rig.joints], [j.max_rad for j in rig.joints]))
+    integ, h, substeps = parts.integrator, rig.loop.h_s, rig.loop.substeps
+    target = np.empty((ticks, n))
+    spring = np.empty((ticks, n))
+    out = np.empty((ticks, n))
+    for k in range(ticks):
+        t = k * period
+        safety.filter(x, cmd)  # the only way to the wire, as in the loop
+        spring[k] = x
+        out[k] = cmd
+        parts.targets.sample(t, u, du)
+        target[k] = u
+        for j in range(substeps):
+            if j:
+                parts.targets.sample(t + j * h, u, du)
+            integ.step(x, v, h, t + j * h, (u, du))
+    clamped = np.abs(out - spring) > CLAMP_TOLERANCE_RAD
+    soft = math.ceil(rig.safety.soft_start_s / period - 1e-9)
+    clamped[:soft] = False  # the soft start's blend, not a limit
+    return Preview(
+        joints=tuple(rig.joint_names),
+        t=np.arange(ticks) * period,
+        target_deg=np.degrees(target),
+        spring_deg=np.degrees(spring),
+        cmd_deg=np.degrees(out),
+        clamped=clamped,
+        min_deg=tuple(math.degrees(j.min_rad) for j in rig.joints),
+        max_deg=tuple(math.degrees(j.max_rad) for j in rig.joints),
+        soft_start_s=rig.safety.soft_start_s,
+    )
+
+
+def plot_preview(p: Preview, path: Path, title: str, dpi: int = 110) -> Path:
+    """One panel per joint: target, spring, command, the limits, the soft start (shaded) and
+    the ticks where the safety filter changed the command after it (red). Returns the PNG's
+    path."""
+    from hilsim.telemetry.plot_common import new_figure, save
+    from hilsim.telemetry.plot_common import title as set_title
+
+    n = len(p.joints)
+    fig = new_figure(9.0, 1.2 + 1.9 * n, dpi)
+    set_title(fig, title)
+    axes = fig.subplots(n, 1, sharex=True, squeeze=False)[:, 0]
+    for i, (ax, name) in enumerate(zip(axes, p.joints, strict=True)):
+        ax.plot(p.t, p.target_deg[:, i], color="0.6", lw=1.0, label="target")
+        ax.plot(p.t, p.spring_deg[:, i], color="C0", lw=1.2, label="spring")
+        ax.plot(p.t, p.cmd_deg[:, i], color="C1", lw=1.0, ls="--", label="command")
+        for limit in (p.min_deg[i], p.max_deg[i]):
+            ax.axhline(limit, color="k", lw=0.8, ls=":")
+        if p.soft_start_s > 0:
+            ax.axvspan(0, min(p.soft_start_s, p.t[-1]), color="0.9", zorder=0, label="soft start")
+        hit = p.clamped[:, i]
+        if hit.any():
+            ax.plot(p.t[hit], p.cmd_deg[hit, i], "|", color="red", ms=6, label="safety filter")
+        ax.set_ylabel(f"{name} (deg)")
+        ax.grid(alpha=0.3)
+    legend = {}
+    for ax in axes:  # one legend for every panel's lines, on the first
+        for handle, label in zip(*ax.get_legend_handles_labels(), strict=True):
+            legend.setdefault(label, handle)
+    axes[0].legend(legend.values(), legend.keys(), loc="upper right", fontsize="small", ncols=4)
+    axes[-1].set_xlabel("show time (s)")
+    fig.subplots_adjust(left=0.1, right=0.98, top=1 - 0.6 / fig.get_figheight(), hspace=0.25)
+    return save(fig, path, dpi)

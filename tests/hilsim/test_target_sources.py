@@ -1,0 +1,192 @@
+"""Other tools' animation files as rig targets (hilsim.targets.sources): the issue's acceptance
+numbers through the rig and ``hilsim tracks``, every form of a format alike, the unit maps the
+rig gives, the lead from the spring, and one clear line for a bad spec or file."""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from hilsim.cli import main
+from hilsim.springs import Spring
+from hilsim.targets import SpecError, track_from_spec
+from hilsim.targets.formats.common import FormatError
+
+REPO = Path(__file__).resolve().parents[2]
+ANIM = REPO / "configs" / "animations"
+_spec = importlib.util.spec_from_file_location(
+    "samples_audio_jaw", REPO / "tools" / "samples_audio_jaw.py"
+)
+samples_audio = importlib.util.module_from_spec(_spec)
+_spec.loader.exec_module(samples_audio)
+
+
+def deg(track, t: float) -> float:
+    return math.degrees(track.sample(t)[0])
+
+
+def build(spec: dict, base: Path = ANIM, spring: Spring | None = None):
+    return track_from_spec(spec, base_dir=base, joint_name="jaw", csv_cache={}, spring=spring)
+
+
+# ------------------------------------------------------------------ Bottango
+@pytest.mark.parametrize(
+    "file", ["bottango/GeneratedCodeAnimations.cpp", "bottango/sd", "bottango/commands.json"]
+)
+def test_bottango_acceptance_from_every_form(file):
+    track = build(
+        {"type": "bottango", "file": file, "animation": 0, "effector": "0", "degrees": [0, 40]}
+    )
+    assert deg(track, 1.0) == pytest.approx(29.97, abs=0.025)  # 1749.33 us of 1000-2000
+    for t, want in ((0.0, 20.00), (2.0, 34.72), (2.25, 30.92), (3.0, 11.12)):
+        assert deg(track, t) == pytest.approx(want, abs=0.02)  # the review's R3 numbers
+
+
+def test_bottango_signal_and_movement_maps():
+    base = {"type": "bottango", "file": "bottango/sd", "effector": "0"}
+    by_range = build({**base, "degrees": [0, 40]})
+    by_signal = build({**base, "signal": [1000, 2000], "degrees": [0, 40]})
+    by_movement = build({**base, "movement": [0, 1], "degrees": [0, 40]})
+    for t in (0.3, 1.0, 2.6):
+        assert deg(by_signal, t) == pytest.approx(deg(by_range, t))
+        assert deg(by_movement, t) == pytest.approx(deg(by_range, t))
+    # the I2C servo is registered 2000 -> 1000 us: its range maps reversed
+    rev = build({**base, "effector": "643", "degrees": [-45, 45], "animation": 0})
+    assert deg(rev, 0.0) == pytest.approx(-45.0)
+
+
+def test_acceptance_through_hilsim_tracks(capsys):
+    assert main(["tracks", str(REPO / "configs" / "bottango.toml"), "--at", "1.0", "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["jaw"][0] == pytest.approx(29.97, abs=0.025)
+    lips = REPO / "configs" / "lipsync.toml"
+    assert main(["tracks", str(lips), "--at", "0.02,0.10,0.29,0.35,0.45", "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["jaw"] == pytest.approx([0, 20, 10, 4, 0])
+    assert main(["tracks", str(REPO / "configs" / "fseq.toml"), "--at", "0,0.5", "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["pan"] == pytest.approx([-90.0, -2.108], abs=1e-3)
+
+
+# ------------------------------------------------------------------ Blender, FSEQ
+@pytest.mark.parametrize("file", ["r53.json", "r53.bin", "r53.h"])
+def test_blender_servo_forms_and_the_reviews_numbers(file):
+    spec = {"type": "blender_servo", "file": f"blender_servo/{file}", "servo": 0,
+            "position": [544, 2400], "degrees": [0, 180]}  # fmt: skip
+    if file.endswith(".bin"):
+        spec["fps"] = 30
+    assert deg(build(spec), 0.5) == pytest.approx(151.487, abs=1e-3)
+    assert deg(build(spec), 1.25) == pytest.approx(149.838, abs=1e-3)  # held: 2089 us
+    linear = build({**spec, "interpolation": "linear"})
+    assert deg(linear, 1.25) == pytest.approx(147.705, abs=1e-3)  # 2067 us
+
+
+def test_fseq_forms_and_zero_hold():
+    spec = {"type": "fseq", "channel": 1, "fine": 2, "degrees": [-90, 90]}
+    plain = build({**spec, "file": "fseq/r51.fseq"})
+    zlib = build({**spec, "file": "fseq/r51_zlib.fseq"})
+    for t in (0.0, 0.5, 0.73):
+        assert deg(zlib, t) == deg(plain, t)
+    assert deg(plain, 0.5) == pytest.approx(-2.108, abs=1e-3)
+    eight = build({"type": "fseq", "file": "fseq/r51.fseq", "channel": 1, "degrees": [0, 255]})
+    assert deg(eight, 0.5) == pytest.approx(125.0)  # frame 25: 5 * 25, 8-bit full range
+
+
+# ------------------------------------------------------------------ audio, lip-sync
+def test_audio_acceptance_and_the_lead(tmp_path):
+    (tmp_path / "line.wav").write_bytes(
+        samples_audio.wav_bytes(samples_audio.acceptance_signal(), 44_100)
+    )
+    spec = {"type": "audio", "file": "line.wav", "degrees": [0, 20], "window_ms": 10,
+            "attack_ms": 10, "release_ms": 100, "threshold": 0.02, "full": 0.35}  # fmt: skip
+    jaw = build(spec, tmp_path)
+    assert deg(jaw, 0.49) == 0.0
+    assert deg(jaw, 0.60) == pytest.approx(20.0, abs=0.1)
+    assert deg(jaw, 1.5) == 0.0
+    led = build({**spec, "lead_ms": 50}, tmp_path)
+    for t in (0.52, 0.6, 1.05, 1.2):
+        assert deg(led, t - 0.05) == pytest.approx(deg(jaw, t), abs=1e-9)
+    spring = Spring.from_animation(8.0, 0.7, 0.0)
+    auto = build({**spec, "lead_ms": "auto"}, tmp_path, spring)
+    lag = 2 * 0.7 / (2 * math.pi * 8.0)
+    for t in (0.6, 1.1):
+        assert deg(auto, t - lag) == pytest.approx(deg(jaw, t), abs=1e-6)
+
+
+@pytest.mark.parametrize("file", ["hi.tsv", "hi.json", "hi.xml", "hi.pgo", "hi.dat"])
+def test_lipsync_forms_give_the_same_jaw(file):
+    shapes = {"X": 0, "A": 0, "B": 0.2, "C": 0.5, "D": 1.0, "E": 0.6, "F": 0.3, "G": 0.1, "H": 0.4}
+    spec = {"type": "lipsync", "file": f"lipsync/{file}", "degrees": [0, 20], "shapes": shapes}
+    if file.endswith(".dat"):
+        spec["fps"] = 100
+    track = build(spec)
+    reference = build({**spec, "file": "lipsync/hi.tsv"})
+    frame = 1 / 24 if file.endswith(".pgo") else 0.01
+    times = np.arange(0, 0.5, 0.0005)
+    ours = np.array([deg(track, t) for t in times])
+    ref = np.array([deg(reference, t) for t in times])
+    differ = times[np.abs(ours - ref) > 1e-9]
+    # where they differ, the reference takes the same value within one source frame
+    for t in differ:
+        near = [deg(reference, s) for s in np.arange(t - frame, t + frame + 1e-9, 0.0005)]
+        assert any(abs(v - deg(track, t)) < 1e-9 for v in near), t
+
+
+# ------------------------------------------------------------------ bad specs and files
+@pytest.mark.parametrize(
+    ("spec", "match"),
+    [
+        ({"type": "bottango", "file": "bottango/sd", "effector": "0"}, "degrees: missing"),
+        ({"type": "bottango", "file": "nope.cpp", "effector": "0", "degrees": [0, 1]},
+         "file: no such file"),
+        ({"type": "bottango", "file": "bottango/sd", "effector": "0", "degrees": [0]},
+         "degrees: must be two finite numbers"),
+        ({"type": "bottango", "file": "bottango/sd", "effector": "0", "degrees": [0, 40],
+          "signal": [1000, 1000]}, "signal: the two source points are equal"),
+        ({"type": "bottango", "file": "bottango/sd", "effector": "0", "degrees": [0, 40],
+          "signal": [1, 2], "movement": [0, 1]}, "movement: give signal or movement"),
+        ({"type": "bottango", "file": "bottango/sd", "effector": True, "degrees": [0, 40]},
+         "effector: must be"),
+        ({"type": "fseq", "file": "fseq/r51.fseq", "channel": 0, "degrees": [0, 40]},
+         "channel: channel must be a channel number"),
+        ({"type": "audio", "file": "audio_jaw/line.wav", "degrees": [0, 20], "lead_ms": "soon"},
+         "lead_ms: must be a number of ms"),
+        ({"type": "audio", "file": "audio_jaw/line.wav", "degrees": [0, 20], "lead_ms": "auto"},
+         "lead_ms: \"auto\" needs"),
+        ({"type": "lipsync", "file": "lipsync/hi.dat", "degrees": [0, 20], "shapes": {"A": 0}},
+         "fps: a Moho .dat file holds no frame rate"),
+        ({"type": "lipsync", "file": "lipsync/hi.tsv", "degrees": [0, 20], "shapes": {"Q": 1}},
+         "shapes: rhubarb: 'Q' is not a Rhubarb shape"),
+        ({"type": "blender_servo", "file": "blender_servo/r53.json", "servo": 0,
+          "degrees": [0, 1]}, "position: missing"),
+    ],
+)  # fmt: skip
+def test_bad_specs_name_the_key(spec, match):
+    with pytest.raises(SpecError, match=match):
+        build(spec)
+
+
+def test_a_file_the_reader_refuses_names_file_and_position(tmp_path):
+    (tmp_path / "cut.fseq").write_bytes((ANIM / "fseq" / "r51.fseq").read_bytes()[:40])
+    with pytest.raises(FormatError, match=r"cut\.fseq:"):
+        build({"type": "fseq", "file": "cut.fseq", "channel": 1, "degrees": [0, 1]}, tmp_path)
+    (tmp_path / "shapes.tsv").write_text("0.00\tX\n0.10\tQ\n0.20\tX\n")
+    spec = {"type": "lipsync", "file": "shapes.tsv", "degrees": [0, 20], "shapes": {"X": 0}}
+    with pytest.raises(FormatError, match=r"shapes\.tsv:line 2:"):
+        build(spec, tmp_path)
+
+
+def test_hilsim_tracks_says_a_bad_file_in_one_line(tmp_path, capsys):
+    (tmp_path / "cut.fseq").write_bytes(b"PSEQ" + bytes(10))
+    rig = (
+        (REPO / "configs" / "fseq.toml")
+        .read_text()
+        .replace("animations/fseq/r51.fseq", str(tmp_path / "cut.fseq"))
+    )
+    path = tmp_path / "r.toml"
+    path.write_text(rig)
+    assert main(["tracks", str(path), "--at", "0"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "cut.fseq" in err[0] and "joints[0].target (pan)" in err[0]

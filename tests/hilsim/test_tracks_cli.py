@@ -1,0 +1,119 @@
+"""``hilsim tracks``: targets at show times as JSON, and the offline preview (springs and
+safety filter, no bus)."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from hilsim.cli import main
+from hilsim.rig import load_rig
+from hilsim.session import build_parts
+from hilsim.track_preview import preview, targets_at
+
+RIG = """
+name = "t"
+[bus]
+port = "dxlsim://?ids=1-2"
+[loop]
+rate_hz = 100
+[safety]
+soft_start_s = 0.2
+[telemetry]
+out_dir = "{out}"
+[[joints]]
+name = "jaw"
+servo_id = 1
+min_deg = 0
+max_deg = 20
+max_speed_deg_s = 50
+max_accel_deg_s2 = 3000
+spring = {{ frequency_hz = 4.0, damping_ratio = 0.8 }}
+target = {{ type = "keyframes", keys = [[0, 0], [0.5, 30], [1.0, 0]] }}
+[[joints]]
+name = "pan"
+servo_id = 2
+min_deg = -90
+max_deg = 90
+max_speed_deg_s = 300
+max_accel_deg_s2 = 3000
+spring = {{ frequency_hz = 2.0, damping_ratio = 1.0 }}
+target = {{ type = "sine", amplitude_deg = 10, frequency_hz = 0.5 }}
+"""
+
+
+def rig_file(tmp_path: Path) -> Path:
+    path = tmp_path / "t.toml"
+    path.write_text(RIG.format(out=tmp_path / "runs"))
+    return path
+
+
+def test_at_json_prints_each_joints_target_in_degrees(tmp_path, capsys):
+    assert main(["tracks", str(rig_file(tmp_path)), "--at", "0,0.25,0.5,2", "--json"]) == 0
+    values = json.loads(capsys.readouterr().out)
+    assert list(values) == ["jaw", "pan"]
+    assert values["jaw"] == pytest.approx([0.0, 15.0, 30.0, 0.0])
+    assert values["pan"] == pytest.approx([10 * math.sin(math.pi * t) for t in (0, 0.25, 0.5, 2)])
+
+
+@pytest.mark.parametrize(
+    ("argv", "match"),
+    [
+        (["--at", "0,x"], "'x' is not a time"),
+        (["--at", "-1"], "finite time >= 0"),
+        (["--at", "nan"], "finite time >= 0"),
+        (["--json"], "--json needs --at"),
+        (["--duration", "0"], "--duration must be"),
+        (["--out", "preview.txt"], "ending in .png"),
+    ],
+)
+def test_bad_options_are_one_line_and_exit_2(tmp_path, capsys, argv, match):
+    assert main(["tracks", str(rig_file(tmp_path)), *argv]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("hilsim tracks: ")
+    assert match in err[0]
+
+
+def test_a_missing_rig_is_one_line(tmp_path, capsys):
+    assert main(["tracks", str(tmp_path / "nope.toml")]) == 2
+    assert len(capsys.readouterr().err.strip().splitlines()) == 1
+
+
+def test_preview_warns_of_the_limits_and_writes_the_plot(tmp_path, capsys):
+    out = tmp_path / "p.png"
+    assert main(["tracks", str(rig_file(tmp_path)), "--out", str(out)]) == 0
+    err = capsys.readouterr().err
+    assert "jaw: target 20.0" in err or "beyond max_deg 20" in err
+    assert "exceeds max_speed_deg_s 50" in err
+    assert "jaw: the safety filter would change the command on" in err
+    assert out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_the_preview_runs_the_loops_filter_the_command_never_breaks_a_limit(tmp_path):
+    rig = load_rig(rig_file(tmp_path))
+    p = preview(build_parts(rig), 1.5)
+    assert p.t.size == 151 and p.cmd_deg.shape == (151, 2)
+    jaw = p.cmd_deg[:, 0]
+    assert jaw.max() <= 20.0 + 1e-9 and jaw.min() >= -1e-9
+    assert np.abs(np.diff(jaw)).max() <= 50 * 0.01 + 1e-9  # speed limit x period
+    assert p.clamped[:, 0].any()  # the spring reaches for 30 deg: the filter holds it at 20
+    # the targets the preview saw are the targets hilsim tracks --at prints
+    at = targets_at(build_parts(rig), [0.3, 0.7])
+    assert at["jaw"] == pytest.approx([p.target_deg[30, 0], p.target_deg[70, 0]])
+
+
+def test_an_endless_animation_is_previewed_for_a_stated_span(tmp_path, capsys):
+    text = RIG.format(out=tmp_path / "runs").replace(
+        'target = { type = "keyframes", keys = [[0, 0], [0.5, 30], [1.0, 0]] }',
+        'target = { type = "hold", value_deg = 5 }',
+    )
+    path = tmp_path / "e.toml"
+    path.write_text(text)
+    assert main(["tracks", str(path)]) == 0
+    err = capsys.readouterr().err
+    assert "never ends: previewing its first 20 s" in err
+    assert (tmp_path / "runs" / "t-tracks.png").is_file()
