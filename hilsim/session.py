@@ -69,22 +69,38 @@ class Parts:
 
 
 def build_targets(rig: Rig) -> TargetSet:
-    """One track per joint from the rig's ``target`` tables; errors name file and key."""
-    cache: dict = {}  # each file read once, whichever joints use it
-    tracks = []
-    for i, joint in enumerate(rig.joints):
+    """One track per joint from the rig's ``target`` tables, through its ``[[play]]`` of
+    ``[clips]`` if it has them (:mod:`hilsim.targets.clips`); errors name file and key."""
+    cache: dict = {}  # each file read once, whichever joints and clips use it
+
+    def track(spec: dict, joint, where: str):
         try:
-            tracks.append(
-                track_from_spec(
-                    joint.target,
-                    base_dir=rig.base_dir,
-                    joint_name=joint.name,
-                    csv_cache=cache,
-                    spring=joint.spring,
-                )
+            return track_from_spec(
+                spec,
+                base_dir=rig.base_dir,
+                joint_name=joint.name,
+                csv_cache=cache,
+                spring=joint.spring,
             )
         except (ValueError, OSError) as exc:
-            raise RigError(f"{rig.path}: joints[{i}].target ({joint.name}): {exc}") from None
+            raise RigError(f"{rig.path}: {where}: {exc}") from None
+
+    tracks = [
+        track(j.target, j, f"joints[{i}].target ({j.name})") for i, j in enumerate(rig.joints)
+    ]
+    if rig.play:
+        from hilsim.targets.clips import Cue, sequence_for
+
+        names = set(rig.joint_names)
+        clips = {
+            name: {jn: track(spec, rig.joints[rig.joint_names.index(jn)], f"clips.{name}.{jn}")
+                   for jn, spec in table.items() if jn in names}  # this bus's joints
+            for name, table in rig.clips
+        }  # fmt: skip
+        cues = [Cue(p.at_s, p.clip, p.loop) for p in rig.play]
+        tracks = [
+            sequence_for(j.name, tr, cues, clips) for j, tr in zip(rig.joints, tracks, strict=True)
+        ]
     return TargetSet(tracks, rig.joint_names)
 
 

@@ -15,6 +15,7 @@ import sys
 from enum import StrEnum
 from typing import Any
 
+from hilsim.rig.clips import PlayEntry
 from hilsim.rig.forms import TARGET_KEYS, TARGET_TYPES, AnimatorSpring, PhysicsSpring
 from hilsim.rig.keys import REQUIRED, Key, allowed_text, default_value, key_fields, toml_name
 from hilsim.rig.model import BusConfig, JointConfig, LoopConfig, Rig, SafetyConfig, TelemetryConfig
@@ -182,6 +183,44 @@ def _targets() -> list[str]:
     return out
 
 
+CLIPS_EXAMPLE = """\
+[clips.idle]                 # a clip: a target table per joint it drives, from its own t = 0
+jaw = { type = "hold", value_deg = 10 }
+
+[clips.scare]
+jaw = { type = "keyframes", keys = [[0, 30], [0.5, 35], [1.0, 5]] }
+
+[[play]]                     # the show: each entry starts a clip; the next cuts to its own
+at_s = 0
+clip = "idle"
+loop = true
+
+[[play]]
+at_s = 3.0
+clip = "scare"
+"""
+
+
+def _clips() -> list[str]:
+    return [
+        "## Clips",
+        "",
+        "`[clips.<name>]` tables name clips: `<joint> = <target table>` for each joint the clip "
+        "drives (any target type; times from the clip's own start). `[[play]]` tables, in time "
+        "order, start them: each plays until the next, held at its end unless it loops. A joint "
+        "the playing clip does not name follows its own `target`. A cut is a step in the target "
+        "only: the spring and the safety filter take the joint there within its speed and "
+        "acceleration limits.",
+        "",
+        *_table(_rows(PlayEntry)),
+        "",
+        "```toml",
+        CLIPS_EXAMPLE.rstrip("\n"),
+        "```",
+        "",
+    ]
+
+
 def render() -> str:
     """The text of ``docs/rig.md``."""
     missing = set(JOINT_FIELDS) ^ set(COLUMN_UNITS)
@@ -196,6 +235,7 @@ def render() -> str:
         out += ["```toml", *([header] if header else []), *example_lines(cls), "```", ""]
     out += _springs()
     out += _targets()
+    out += _clips()
     out += [
         "## A complete example",
         "",

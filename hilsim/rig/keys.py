@@ -23,8 +23,9 @@ class _Required:
 #: the default of a key that must be given
 REQUIRED: Any = _Required()
 
-#: how a key is read: a finite float, an int, one of an enum's values, a string, a table, a list
-KINDS = ("number", "integer", "choice", "text", "table", "list")
+#: how a key is read: a finite float, an int, one of an enum's values, a string, a table, a list,
+#: true or false
+KINDS = ("number", "integer", "choice", "text", "table", "list", "bool")
 
 
 @dataclass(frozen=True)

@@ -18,6 +18,7 @@ from drivers.protocol2.control_table import model_number, series
 from hilsim.integrators import INTEGRATORS
 from hilsim.joint_map import JointMap
 from hilsim.rig.bus import BUS_NAME_RE, SERIES_MAX_BAUD, SUPPORTED_BAUDS, BusConfig
+from hilsim.rig.clips import read_clips
 from hilsim.rig.forms import (
     MAX_DAMPING_RATIO,
     MAX_FEEDFORWARD,
@@ -387,11 +388,9 @@ def _check_stable(path: Path, loop: LoopConfig, max_substeps: int, joints: tuple
 
 def load_rig(path: str | Path, *, port: str | None = None, bus: str | None = None) -> Rig:
     """Read and validate a rig file. ``port`` overrides ``bus.port`` (the CLI's ``--port``);
-    ``bus`` picks one of a rig's ``[buses.<name>]`` (a rig with several needs it).
-
-    Raises :class:`RigError` (a ValueError) naming the file and key on any problem, including
-    a spring that the configured integrator and rate cannot integrate stably.
-    """
+    ``bus`` picks one of a rig's ``[buses.<name>]`` (a rig with several needs it). Raises
+    :class:`RigError` (a ValueError) naming the file and key on any problem, including a spring
+    that the configured integrator and rate cannot integrate stably."""
     return select_bus(load_rigs(path, port=port), bus)
 
 
@@ -414,8 +413,8 @@ def select_bus(rigs: tuple[Rig, ...], bus: str | None) -> Rig:
 
 
 def load_rigs(path: str | Path, *, port: str | None = None) -> tuple[Rig, ...]:
-    """Every bus of a rig file as a rig of its own (its joints, its bus; loop, safety and
-    telemetry shared), in file order; a rig with one ``[bus]`` is one. Raises RigError."""
+    """Every bus of a rig file as a rig of its own (its joints and bus; the rest shared), in
+    file order; a rig with one ``[bus]`` is one. Raises RigError."""
     path = Path(path)
     text, data = _read_toml(path)
     top = Reader(path, data, "")
@@ -434,6 +433,7 @@ def load_rigs(path: str | Path, *, port: str | None = None) -> tuple[Rig, ...]:
     safety = _safety(top, loop)
     telemetry = _telemetry(top)
     joints = _on_buses(path, _joints(top), buses)
+    clips, play = read_clips(top, joints)
     finish(top, Rig)
 
     by_name = dict(buses) if buses else {None: bus}
@@ -450,6 +450,7 @@ def load_rigs(path: str | Path, *, port: str | None = None) -> tuple[Rig, ...]:
     if len(buses) > 1 and loop.cpu is not None:
         raise top.fail("loop.cpu", "would pin every bus's process to one CPU; leave it out")
     shared = dict(path=path, name=name, loop=loop, safety=safety, telemetry=telemetry, text=text)
+    shared.update(clips=clips, play=play)
     if not buses:
         return (Rig(bus=bus, joints=joints, **shared),)
     return tuple(

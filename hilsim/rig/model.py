@@ -415,6 +415,20 @@ class Rig:
         "One `[[joints]]` table per joint; see [[[joints]]](#joints).",
         allowed="at least one",
     )
+    clips: tuple = rig_key(
+        "table",
+        "Named clips, `[clips.<name>]` tables of `<joint> = <target table>`; see [Clips](#clips).",
+        default=(),
+        default_doc="none",
+        compare=False,
+    )
+    play: tuple = rig_key(
+        "list",
+        "The clips the show plays, `[[play]]` tables in time order; see [Clips](#clips).",
+        default=(),
+        default_doc="none: each joint follows its `target`",
+        compare=False,
+    )
     text: str = field(repr=False, compare=False, default="")
 
     @property

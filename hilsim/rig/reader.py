@@ -120,7 +120,7 @@ class Reader:
             )
 
 
-_TYPES = {"text": str, "table": dict, "list": list, "integer": int}
+_TYPES = {"text": str, "table": dict, "list": list, "integer": int, "bool": bool}
 
 
 def read_key(r: Reader, cls: type, field_name: str, *, hint: str = "", **bounds: Any) -> Any:

@@ -94,3 +94,73 @@ def test_every_cut_is_within_the_joints_speed_and_acceleration(tmp_path: Path):
     assert jaw[round(2.9 / dt)] == pytest.approx(10.0, abs=0.01)
     assert jaw[round(3.0 / dt) : round(4.2 / dt)].max() > 30.0  # it got there, within limits
     assert jaw[-1] == pytest.approx(10.0, abs=0.01)
+
+
+# ------------------------------------------------------------------ the rig's [clips] and [[play]]
+CLIPS = """
+[clips.idle]
+jaw = { type = "hold", value_deg = 10 }
+
+[clips.scare]
+jaw = { type = "keyframes", keys = [[0, 30], [0.5, 35], [1.0, 5]] }
+
+[[play]]
+at_s = 0
+clip = "idle"
+loop = true
+
+[[play]]
+at_s = 3.0
+clip = "scare"
+"""
+
+
+def test_a_rigs_play_drives_its_joints(tmp_path: Path, capsys):
+    from hilsim.cli import main
+
+    path = tmp_path / "c.toml"
+    path.write_text(RIG + CLIPS)
+    rig = load_rig(path)
+    assert [p.clip for p in rig.play] == ["idle", "scare"] and rig.play[0].loop
+    targets = build_parts(rig).targets
+    assert targets.duration == 4.0
+    assert main(["tracks", str(path), "--at", "1,3,3.5,9", "--json"]) == 0
+    import json
+
+    assert json.loads(capsys.readouterr().out)["jaw"] == pytest.approx([10, 30, 35, 5])
+    # the shipped example: Bottango's Idle and Talk, cut at 1.0 s and 4.5 s
+    repo = Path(__file__).resolve().parents[2]
+    p = preview(build_parts(load_rig(repo / "configs" / "clips.toml")), 8.0)
+    dt = 1 / 250
+    assert np.abs(np.diff(p.cmd_deg, axis=0)).max() <= 400 * dt + 1e-9
+
+
+@pytest.mark.parametrize(
+    ("text", "match"),
+    [
+        (CLIPS.replace("jaw = { type = \"hold\"", "nose = { type = \"hold\""),
+         "clips.idle.nose: no such joint"),
+        (CLIPS.replace('clip = "scare"', 'clip = "boo"'), r"play\[1\].clip: no clip 'boo'"),
+        (CLIPS.replace("at_s = 3.0", "at_s = 0"), r"play\[1\].at_s: must be after"),
+        (CLIPS.replace("at_s = 3.0", "at_s = -1"), r"play\[1\].at_s"),
+        (CLIPS.replace("loop = true", "loop = 1"), r"play\[0\].loop"),
+        (CLIPS.replace('clip = "idle"', 'clip = "idle"\nspeed = 2'), r"unknown key\(s\) speed"),
+        (CLIPS.split("[[play]]")[0], "clips: no \\[\\[play\\]\\] entry plays them"),
+        (CLIPS.replace('jaw = { type = "hold", value_deg = 10 }', "jaw = 3"),
+         "clips.idle.jaw: must be a target table"),
+    ],
+)  # fmt: skip
+def test_bad_clips_and_plays_are_one_line(tmp_path: Path, text, match):
+    path = tmp_path / "c.toml"
+    path.write_text(RIG + text)
+    with pytest.raises(ValueError, match=match):
+        load_rig(path)
+
+
+def test_a_bad_target_in_a_clip_is_named_at_build(tmp_path: Path):
+    from hilsim.rig import RigError
+
+    path = tmp_path / "c.toml"
+    path.write_text(RIG + CLIPS.replace("value_deg = 10", "value = 10"))
+    with pytest.raises(RigError, match=r"clips\.idle\.jaw: value:"):
+        build_parts(load_rig(path))
