@@ -101,7 +101,9 @@ def build_targets(rig: Rig) -> TargetSet:
         tracks = [
             sequence_for(j.name, tr, cues, clips) for j, tr in zip(rig.joints, tracks, strict=True)
         ]
-    return TargetSet(tracks, rig.joint_names)
+    targets = TargetSet(tracks, rig.joint_names)
+    targets.notes = tuple(cache.get("notes", ()))
+    return targets
 
 
 def build_parts(rig: Rig, targets: TargetSet | None = None) -> Parts:

@@ -180,6 +180,8 @@ def run(args: argparse.Namespace) -> int:
             "the animation never ends (generators only); running until Ctrl-C. "
             "Give --duration to stop by itself."
         )
+    for note in parts.targets.notes:  # what the animation files say (Bottango's playback
+        _say(f"note: {note}")  # settings, frames a Blender export left out)
     for line in _track_warnings(rig, parts.targets, args.duration):
         _say(f"warning: {line}")
     try:

@@ -79,6 +79,8 @@ def run(args: argparse.Namespace) -> int:
     except (RigError, ValueError) as exc:
         _say(str(exc))
         return int(ExitCode.USAGE)
+    for note in parts.targets.notes:  # what the animation files say, on stderr
+        _say(f"note: {note}")
     if times is not None:
         from hilsim.track_preview import targets_at
 

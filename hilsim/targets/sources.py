@@ -104,6 +104,14 @@ def _cached(cache: dict | None, key: tuple, load: Callable[[], Any]) -> Any:
     return cache[key]
 
 
+def _note(cache: dict | None, *lines: str) -> None:
+    """What the rig's user should read about a file (said once per build): in the cache's
+    ``"notes"`` list, which :func:`hilsim.session.build_targets` hands on."""
+    if cache is not None:
+        notes = cache.setdefault("notes", [])
+        notes.extend(line for line in lines if line not in notes)
+
+
 def _file(spec: Mapping[str, Any], base_dir: Path) -> Path:
     file = spec["file"]
     if not isinstance(file, str) or not file:
@@ -132,6 +140,8 @@ def _bottango(spec, path, _spring, cache) -> Track:
     from hilsim.targets.formats.bottango import read_export
 
     export = _cached(cache, ("bottango", path), lambda: read_export(path))
+    _note(cache, *(f"{path.name}: {a.describe()}" for a in export.animations.values()))
+    _note(cache, *(f"{path.name}: {line}" for line in export.info))
     effector = spec["effector"]
     if isinstance(effector, bool) or not isinstance(effector, str | int):
         raise SourceError("effector", f"must be the effector's identifier, got {effector!r}")
@@ -167,7 +177,9 @@ def _blender(spec, path, _spring, cache) -> Track:
     if isinstance(servo, bool) or not isinstance(servo, int):
         raise SourceError("servo", f"must be the servo ID in the export, got {servo!r}")
     umap = _unit(spec, "position", 0, "position")
-    return anim.track(servo, umap, interpolation=spec.get("interpolation", "hold"))
+    track = anim.track(servo, umap, interpolation=spec.get("interpolation", "hold"))
+    _note(cache, *anim.notes(servo))
+    return track
 
 
 def _fseq(spec, path, _spring, cache) -> Track:

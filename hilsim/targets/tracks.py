@@ -391,6 +391,8 @@ class TargetSet:
         self.names = tuple(names) if names is not None else tuple(f"joint{i}" for i in range(n))
         if len(self.names) != n:
             raise ValueError(f"{len(self.names)} names for {n} tracks")
+        #: what the files behind the tracks say that the user should read (set by the builder)
+        self.notes: tuple[str, ...] = ()
         self._samplers = tuple(enumerate(tr.sample for tr in self.tracks))
         self._sample = tuple(tr.sample for tr in self.tracks)
         self._pos = np.zeros(n)

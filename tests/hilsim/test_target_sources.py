@@ -190,3 +190,15 @@ def test_hilsim_tracks_says_a_bad_file_in_one_line(tmp_path, capsys):
     assert main(["tracks", str(path), "--at", "0"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "cut.fseq" in err[0] and "joints[0].target (pan)" in err[0]
+
+
+def test_what_the_files_say_is_reported(capsys):
+    """Bottango's start/idle/loop/trigger settings and a Blender export's held frames are
+    printed (stderr: the JSON on stdout stays clean), by hilsim tracks and hilsim run."""
+    assert main(["tracks", str(REPO / "configs" / "bottango.toml"), "--at", "0", "--json"]) == 0
+    out, err = capsys.readouterr()
+    json.loads(out)
+    assert 'animation 0 "Talk": trigger on input 10, rising (HIGH), no loop' in err
+    assert 'animation 1 "Idle": idle animation' in err
+    assert main(["tracks", str(REPO / "configs" / "blender_servo.toml"), "--at", "0"]) == 0
+    assert "cannot tell an unchanged position from one Blender dropped" in capsys.readouterr().err
