@@ -11,16 +11,15 @@ from __future__ import annotations
 import csv
 import io
 import math
-from bisect import bisect_right
 from collections.abc import Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from types import MappingProxyType
 
 import numpy as np
-import numpy.typing as npt
 
-from hilsim.targets.tracks import FloatArray, Track, frozen_array, times_values
+from hilsim.targets.formats.common import SampledTrack
+from hilsim.targets.tracks import FloatArray, frozen_array
 
 #: header names accepted for the CSV time column (case-insensitive)
 TIME_COLUMNS = ("time_s", "time", "t")
@@ -35,8 +34,9 @@ class CsvFormatError(ValueError):
 
 
 @dataclass(frozen=True, eq=False)
-class CsvCurve(Track):
-    """One joint's column of a CSV animation: linear between rows, held before and after.
+class CsvCurve(SampledTrack):
+    """One joint's column of a CSV animation: linear between rows, held before and after
+    (a :class:`~hilsim.targets.formats.common.SampledTrack`, ``interpolation="linear"``).
 
     Args:
         times_s: row times, shape ``(k,)``, finite, strictly increasing (s).
@@ -48,34 +48,7 @@ class CsvCurve(Track):
     thousands of rows per joint.
     """
 
-    times_s: npt.ArrayLike
-    values_rad: npt.ArrayLike
-    source: str = ""
-    _t: list[float] = field(init=False, repr=False)
-    _v: list[float] = field(init=False, repr=False)
-    _slope: list[float] = field(init=False, repr=False)
-
-    def __post_init__(self) -> None:
-        t, v = times_values(self.times_s, self.values_rad)
-        object.__setattr__(self, "times_s", t)
-        object.__setattr__(self, "values_rad", v)
-        object.__setattr__(self, "_t", t.tolist())
-        object.__setattr__(self, "_v", v.tolist())
-        object.__setattr__(self, "_slope", (np.diff(v) / np.diff(t)).tolist())
-
-    def sample(self, t: float) -> tuple[float, float]:
-        ts = self._t
-        i = bisect_right(ts, t)
-        if i == 0:
-            return self._v[0], 0.0
-        if i == len(ts):
-            return self._v[-1], 0.0
-        slope = self._slope[i - 1]
-        return self._v[i - 1] + slope * (t - ts[i - 1]), slope
-
-    @property
-    def duration(self) -> float:
-        return float(self.times_s[-1])
+    interpolation: str = "linear"
 
 
 @dataclass(frozen=True, eq=False)

@@ -239,7 +239,7 @@ class ParquetSink:
             with contextlib.suppress(OSError):  # a full disk: leave no half part
                 tmp.unlink()
             raise
-        _fsync_dir(self.path)
+        fsync_dir(self.path)
         self.parts += 1
         written, self._rows = self._rows, 0
         while self._batches:  # freed a batch at a time: one clear() held the GIL ~0.4 ms
@@ -268,7 +268,7 @@ class ParquetSink:
         self._batches.clear()  # rows not flushed by now are lost (the writer counts them)
 
 
-def _fsync_dir(path: Path) -> None:
+def fsync_dir(path: Path) -> None:
     """Persist directory entries (new files, renames); best effort, POSIX only."""
     try:
         fd = os.open(path, os.O_RDONLY)

@@ -79,7 +79,7 @@ from hilsim.telemetry.format import (
     csv_columns,
 )
 from hilsim.telemetry.ring import TickRing
-from hilsim.telemetry.sinks import open_sink
+from hilsim.telemetry.sinks import fsync_dir, open_sink
 from hilsim.telemetry.stats import RunStats
 
 #: event kinds that are fsync-ed by default (``event(..., fsync=None)``)
@@ -109,20 +109,6 @@ def _json_default(obj: Any) -> Any:
 
 def _dumps(obj: Any, **kw: Any) -> str:
     return json.dumps(obj, default=_json_default, ensure_ascii=False, **kw)
-
-
-def _fsync_dir(path: Path) -> None:
-    """Persist directory entries (new files, renames); best effort, POSIX only."""
-    try:
-        fd = os.open(path, os.O_RDONLY)
-    except OSError:
-        return
-    try:
-        os.fsync(fd)
-    except OSError:
-        pass
-    finally:
-        os.close(fd)
 
 
 _STOP = object()
@@ -572,7 +558,7 @@ class TelemetryWriter:
             with contextlib.suppress(OSError):  # a full disk: leave no empty half-file
                 tmp.unlink()
             raise
-        _fsync_dir(self.run_dir)
+        fsync_dir(self.run_dir)
         self._written_summary = summary
 
     def _close_files(self) -> None:
