@@ -268,9 +268,8 @@ def run_group(
                 for c in children:
                     c.signal(signum)
             if start_at is None and not called_off:
-                refused = [
-                    c for c in children if c.proc.poll() is not None and not c.ready.is_set()
-                ]
+                # a bus that ended before the start, ready or not, cannot play its part
+                refused = [c for c in children if c.proc.poll() is not None]
                 if refused:  # one bus cannot start: none does (nothing has moved)
                     called_off = True
                     for c in children:

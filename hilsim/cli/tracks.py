@@ -29,6 +29,9 @@ ENDLESS_PREVIEW_S = 20.0
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("config", metavar="RIG", help="rig file (TOML)")
     parser.add_argument(
+        "--bus", metavar="NAME", help="the bus to show, for a rig with [buses.<name>] tables"
+    )
+    parser.add_argument(
         "--at", metavar="T1,T2,...", help="show times (s) at which to print each joint's target"
     )
     parser.add_argument("--json", action="store_true", help="with --at: print JSON")
@@ -74,7 +77,7 @@ def run(args: argparse.Namespace) -> int:
             raise ValueError(f"--duration must be a finite time > 0 s, got {args.duration!r}")
         if args.out is not None and Path(args.out).suffix.lower() != ".png":
             raise ValueError(f"--out {args.out}: the preview is a PNG; give a name ending in .png")
-        rig = load_rig(args.config)
+        rig = load_rig(args.config, bus=args.bus)
         parts = build_parts(rig)
     except (RigError, ValueError) as exc:
         _say(str(exc))

@@ -401,7 +401,7 @@ def select_bus(rigs: tuple[Rig, ...], bus: str | None) -> Rig:
         if len(rigs) == 1:
             return rigs[0]
         raise RigError(
-            f"{path}: this figure is on {len(rigs)} buses ({names}); this needs one of them "
+            f"{path}: this figure is on {len(rigs)} buses ({names}); give --bus NAME "
             "(hilsim run starts one process per bus)"
         )
     for rig in rigs:

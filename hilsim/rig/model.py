@@ -235,7 +235,9 @@ class TelemetryConfig:
         "1/18 of the CSV; needs `pip install 'hilsim[parquet]'` (pyarrow). `auto`: `csv` while a "
         "10-minute show's CSV stays under 100 MB (rate_hz × (122 + 102 × joints) bytes/s ≤ "
         "166,667: the demo), else `parquet`, or `csv.gz` without pyarrow. A crash keeps every "
-        "row up to the last flush (csv, csv.gz) or fsync, every 2 s (parquet).",
+        "row up to the last flush (csv, csv.gz) or fsync, every 2 s (parquet); a full disk "
+        "stops the show (`on_failure`), and a Parquet run then keeps only the parts written "
+        "before it (up to 2 s of rows are lost, and the failure is noticed at the next part).",
         default=TelemetryFormat.AUTO,
     )
 

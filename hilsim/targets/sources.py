@@ -55,6 +55,10 @@ SOURCE_KEYS: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = {
 }
 
 
+#: the highest frame rate a file's frames may be read at (a slip, beyond it)
+MAX_FPS = 1000
+
+
 class SourceError(ValueError):
     """A source spec key that cannot be used: ``key`` and the message, as SpecError has."""
 
@@ -170,8 +174,10 @@ def _blender(spec, path, _spring, cache) -> Track:
     from hilsim.targets.formats.blender_servo import read_blender_servo
 
     fps = spec.get("fps")
-    if fps is not None and (isinstance(fps, bool) or not isinstance(fps, int) or fps < 1):
-        raise SourceError("fps", f"must be a whole number of frames per second, got {fps!r}")
+    if fps is not None and (
+        isinstance(fps, bool) or not isinstance(fps, int) or not 1 <= fps <= MAX_FPS
+    ):
+        raise SourceError("fps", f"must be a whole 1 .. {MAX_FPS:g} frames per second, got {fps!r}")
     anim = _cached(cache, ("blender_servo", path, fps), lambda: read_blender_servo(path, fps=fps))
     servo = spec["servo"]
     if isinstance(servo, bool) or not isinstance(servo, int):
@@ -243,8 +249,14 @@ def _lipsync(spec, path, _spring, cache) -> Track:
     fps = spec.get("fps")
     if fps is not None:
         fps = _number(spec, "fps")
+        if not 1.0 <= fps <= MAX_FPS:
+            raise SourceError("fps", f"must be 1 .. {MAX_FPS:g} frames per second, got {fps!r}")
     voice = spec.get("voice")
+    if voice is not None and (isinstance(voice, bool) or not isinstance(voice, str | int)):
+        raise SourceError("voice", f"must be a voice's name or index, got {voice!r}")
     names = spec.get("names", "auto")
+    if not isinstance(names, str):
+        raise SourceError("names", f"must be a vocabulary's name, got {names!r}")
     try:
         cues = _cached(
             cache,

@@ -76,7 +76,7 @@ def test_two_buses_split_into_one_rig_each_with_its_joints_in_file_order(tmp_pat
 def test_load_rig_picks_one_bus_and_a_several_bus_rig_needs_one(tmp_path):
     path = write(tmp_path, TWO)
     assert load_rig(path, bus="leg").joint_names == ("l1", "l3")
-    with pytest.raises(RigError, match=r"on 2 buses \(arm, leg\); this needs one of them"):
+    with pytest.raises(RigError, match=r"on 2 buses \(arm, leg\); give --bus NAME"):
         load_rig(path)
     with pytest.raises(RigError, match=r"no bus named 'hip'; this rig's: arm, leg"):
         load_rig(path, bus="hip")

@@ -222,3 +222,37 @@ def test_a_bus_that_cannot_start_keeps_every_bus_still(tmp_path):
     assert "another bus of the figure could not start: nothing moved" in parent.text
     assert not (out / "a").exists() and not (out / "b").exists()  # no run began
     assert [r["exit_code"] for r in group_record(out)["buses"]] == [2, 2]
+
+
+def test_a_bus_that_ends_after_saying_ready_calls_the_start_off(tmp_path, monkeypatch):
+    """A child that said "ready" and then died (a crash, a telemetry refusal) cannot play its
+    part: the others are told to stand down instead of being sent the start instant."""
+    import hilsim.show_group as group
+
+    marker = tmp_path / "a-pid"
+    dies = (
+        f"import os; print('ready', flush=True); open({str(marker)!r}, 'w').write(str(os.getpid()))"
+        "; raise SystemExit(1)"
+    )
+    # b says ready only once a is gone (reaped by the parent), then reports what it was sent
+    waits = (
+        "import os, sys\n"
+        f"while not os.path.exists({str(marker)!r}) or not open({str(marker)!r}).read(): pass\n"
+        f"pid = int(open({str(marker)!r}).read())\n"
+        "while True:\n"
+        "    try:\n"
+        "        os.kill(pid, 0)\n"
+        "    except ProcessLookupError:\n"
+        "        break\n"
+        "print('ready', flush=True)\n"
+        "line = sys.stdin.readline().strip()\n"
+        "raise SystemExit(9 if line else 2)\n"
+    )
+
+    def argv(config, bus, run_dir, extra):
+        return [sys.executable, "-c", dies if bus == "a" else waits]
+
+    monkeypatch.setattr(group, "child_argv", argv)
+    result = group.run_group("x", ["a", "b"], tmp_path / "run", [], echo=lambda line: None)
+    assert result.start_at is None  # never sent
+    assert {o.name: o.exit_code for o in result.outcomes}["b"] == 2  # told: nothing moves

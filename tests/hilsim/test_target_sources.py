@@ -161,6 +161,14 @@ def test_lipsync_forms_give_the_same_jaw(file):
          "shapes: rhubarb: 'Q' is not a Rhubarb shape"),
         ({"type": "blender_servo", "file": "blender_servo/r53.json", "servo": 0,
           "degrees": [0, 1]}, "position: missing"),
+        ({"type": "blender_servo", "file": "blender_servo/r53.bin", "servo": 0,
+          "position": [544, 2400], "degrees": [0, 1], "fps": 10**9}, "fps: must be a whole 1"),
+        ({"type": "lipsync", "file": "lipsync/hi.dat", "degrees": [0, 20], "shapes": {"A": 0},
+          "fps": 1e-300}, "fps: must be 1 .. 1000"),
+        ({"type": "lipsync", "file": "lipsync/hi.tsv", "degrees": [0, 20], "shapes": {"A": 0},
+          "names": ["a"]}, "names: must be a vocabulary's name"),
+        ({"type": "lipsync", "file": "lipsync/hi.pgo", "degrees": [0, 20], "shapes": {"A": 0},
+          "voice": {"a": 1}}, "voice: must be a voice's name or index"),
     ],
 )  # fmt: skip
 def test_bad_specs_name_the_key(spec, match):

@@ -117,3 +117,11 @@ def test_an_endless_animation_is_previewed_for_a_stated_span(tmp_path, capsys):
     err = capsys.readouterr().err
     assert "never ends: previewing its first 20 s" in err
     assert (tmp_path / "runs" / "t-tracks.png").is_file()
+
+
+def test_a_rig_with_several_buses_is_shown_one_bus_at_a_time(capsys):
+    rig = str(Path(__file__).resolve().parents[2] / "configs" / "two_buses.toml")
+    assert main(["tracks", rig, "--bus", "right", "--at", "0", "--json"]) == 0
+    assert next(iter(json.loads(capsys.readouterr().out))) == "r1"
+    assert main(["tracks", rig, "--at", "0"]) == 2
+    assert "give --bus NAME" in capsys.readouterr().err
