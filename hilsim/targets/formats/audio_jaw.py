@@ -51,7 +51,7 @@ from pathlib import Path
 import numpy as np
 
 from hilsim.springs import Spring
-from hilsim.targets.formats.common import FormatError, SampledTrack, UnitMap
+from hilsim.targets.formats.common import FormatError, SampledTrack, UnitMap, read_bytes
 
 #: channel choices besides a 0-based index
 CHANNELS = ("left", "right", "mix")
@@ -154,10 +154,7 @@ def read_audio(path: str | Path, channel: str | int = "mix") -> Audio:
     ``"mix"`` (the mean of all) or a 0-based index. Raises FormatError.
     """
     path = Path(path)
-    try:
-        data = path.read_bytes()
-    except OSError as exc:
-        raise FormatError(path, "", f"cannot read: {exc.strerror or exc}") from None
+    data = read_bytes(path)
     if not data:
         raise FormatError(path, "", "empty file: no audio")
     try:

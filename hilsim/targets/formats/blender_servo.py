@@ -65,7 +65,7 @@ from hilsim.targets.formats.blender_servo_forms import (
     parse_json,
     records,
 )
-from hilsim.targets.formats.common import FormatError, SampledTrack, UnitMap
+from hilsim.targets.formats.common import FormatError, SampledTrack, UnitMap, read_bytes
 
 #: the suffixes read, each a form of the same frames
 FORMS = (".json", ".bin", ".h")
@@ -259,10 +259,7 @@ def read_blender_servo(path: str | Path, *, fps: int | None = None) -> BlenderSe
     if suffix not in FORMS:
         raise FormatError(p, "", f"unknown form {suffix or '(no suffix)'!r}: a blender-servo-"
                           f"animation export is one of {', '.join(FORMS)}")  # fmt: skip
-    try:
-        data = p.read_bytes()
-    except OSError as exc:
-        raise FormatError(p, "", f"cannot read: {exc.strerror or exc}") from None
+    data = read_bytes(p)
     return parse_blender_servo(data, suffix[1:], p, fps=fps)
 
 

@@ -14,7 +14,7 @@ import re
 
 import numpy as np
 
-from hilsim.targets.formats.common import FormatError
+from hilsim.targets.formats.common import FormatError, decode_text
 
 REC_START, REC_END, FRAME_END, REC_LEN = 0x3C, 0x3E, 0x0A, 5
 MAX_POSITION = 0xFFFF  # a position is a big-endian u16 in .bin and .h
@@ -223,12 +223,7 @@ def tokens(body: bytes, base: int, path, line) -> bytes:
 
 
 def _text(data: bytes, path) -> str:
-    if NUL in data:
-        raise FormatError(path, f"byte {data.index(NUL)}", "a NUL byte: binary, not text")
-    try:
-        return data.decode("utf-8-sig")
-    except UnicodeDecodeError as exc:
-        raise FormatError(path, f"byte {exc.start}", "not UTF-8 text") from None
+    return decode_text(data, path, "a NUL byte: binary, not text")
 
 
 def is_int(x) -> bool:

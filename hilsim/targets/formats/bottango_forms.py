@@ -28,7 +28,7 @@ from bisect import bisect_right
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from hilsim.targets.formats.common import FormatError
+from hilsim.targets.formats.common import FormatError, decode_text, read_bytes
 
 #: registration and clean-up commands: a JSON block of only these is the setup
 _SETUP_NAMES = "rSVPin rSVI2C rSTPin rSTDir rECC rECOnOff rECTrig rECColor rMTR rAud rCtrl upE"
@@ -69,19 +69,8 @@ class RawExport:
 
 def read_text(path: Path) -> str:
     """The file as text; binary data or a file that cannot be read is one FormatError."""
-    try:
-        raw = path.read_bytes()
-    except OSError as exc:
-        raise FormatError(path, "", f"cannot read: {exc.strerror or exc}") from None
-    nul = raw.find(b"\0")
-    if nul >= 0:
-        raise FormatError(path, f"byte {nul}", "binary data (a NUL byte) where text is expected")
-    try:
-        return raw.decode("utf-8")
-    except UnicodeDecodeError as exc:
-        raise FormatError(
-            path, f"byte {exc.start}", "not UTF-8 text (binary data where text is expected)"
-        ) from None
+    nul = "binary data (a NUL byte) where text is expected"
+    return decode_text(read_bytes(path), path, nul, encoding="utf-8")
 
 
 def _int(text: str, path: str, where: str, what: str) -> int:

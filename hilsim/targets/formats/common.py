@@ -2,7 +2,8 @@
 the file's numbers to joint degrees, and the track of a sampled curve.
 
 * :class:`FormatError` - a file that cannot be used; the message is ``file:where: what``,
-  ``where`` naming the position (``line 12``, ``byte 40``, ``frame 7``, ``record 3``).
+  ``where`` naming the position (``line 12``, ``byte 40``, ``frame 7``, ``record 3``);
+  :func:`read_bytes` and :func:`decode_text` read a text file with those errors.
 * :class:`UnitMap` - the file's units to joint degrees, linear between two points the rig
   gives (e.g. 1000-2000 µs -> 0-40°). The files never say what their numbers mean (µs, PWM
   ticks, DMX values, Bottango's 0-8192): the rig does, and a missing or impossible mapping is
@@ -39,6 +40,26 @@ class FormatError(ValueError):
         at = f"{path}:{where}: " if where else f"{path}: "
         super().__init__(at + message)
         self.path, self.where, self.detail = str(path), where, message
+
+
+def decode_text(data: bytes, path: str | Path, nul: str, encoding: str = "utf-8-sig") -> str:
+    """A text file's bytes as text: a NUL byte (binary data; ``nul`` says what the reader
+    expected instead) or bytes that are not UTF-8 are one FormatError naming the byte."""
+    i = data.find(b"\0")
+    if i >= 0:
+        raise FormatError(path, f"byte {i}", nul)
+    try:
+        return data.decode(encoding)
+    except UnicodeDecodeError as exc:
+        raise FormatError(path, f"byte {exc.start}", "not UTF-8 text") from None
+
+
+def read_bytes(path: str | Path) -> bytes:
+    """The file's bytes; one FormatError if it cannot be read."""
+    try:
+        return Path(path).read_bytes()
+    except OSError as exc:
+        raise FormatError(path, "", f"cannot read: {exc.strerror or exc}") from None
 
 
 @dataclass(frozen=True)

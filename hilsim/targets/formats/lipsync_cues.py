@@ -13,7 +13,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from xml.parsers import expat
 
-from hilsim.targets.formats.common import FormatError
+from hilsim.targets.formats.common import FormatError, decode_text, read_bytes
 
 RHUBARB_SHAPES = ("A", "B", "C", "D", "E", "F", "G", "H", "X")
 #: Rhubarb's own Preston Blair names for its shapes (its DAT exporter's table)
@@ -53,17 +53,7 @@ class Cues:
 
 def text_lines(path: str | Path) -> tuple[str, list[str]]:
     """(the file as text, its lines); FormatError for empty, binary or non-UTF-8 files."""
-    try:
-        data = Path(path).read_bytes()
-    except OSError as exc:
-        raise FormatError(path, "", f"cannot read: {exc.strerror or exc}") from None
-    nul = data.find(b"\0")
-    if nul >= 0:
-        raise FormatError(path, f"byte {nul}", "a NUL byte: a binary file, not lip-sync text")
-    try:
-        text = data.decode("utf-8-sig")
-    except UnicodeDecodeError as exc:
-        raise FormatError(path, f"byte {exc.start}", "not UTF-8 text") from None
+    text = decode_text(read_bytes(path), path, "a NUL byte: a binary file, not lip-sync text")
     if not text.strip():
         raise FormatError(path, "", "empty file: no mouth cues")
     return text, text.splitlines()
