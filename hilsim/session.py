@@ -72,6 +72,7 @@ def build_targets(rig: Rig) -> TargetSet:
     """One track per joint from the rig's ``target`` tables, through its ``[[play]]`` of
     ``[clips]`` if it has them (:mod:`hilsim.targets.clips`); errors name file and key."""
     cache: dict = {}  # each file read once, whichever joints and clips use it
+    notes: list[str] = []  # what the files say the user should read (TargetSet.notes)
 
     def track(spec: dict, joint, where: str):
         try:
@@ -80,6 +81,7 @@ def build_targets(rig: Rig) -> TargetSet:
                 base_dir=rig.base_dir,
                 joint_name=joint.name,
                 csv_cache=cache,
+                notes=notes,
                 spring=joint.spring,
             )
         except (ValueError, OSError) as exc:
@@ -102,7 +104,7 @@ def build_targets(rig: Rig) -> TargetSet:
             sequence_for(j.name, tr, cues, clips) for j, tr in zip(rig.joints, tracks, strict=True)
         ]
     targets = TargetSet(tracks, rig.joint_names)
-    targets.notes = tuple(cache.get("notes", ()))
+    targets.notes = tuple(notes)
     return targets
 
 

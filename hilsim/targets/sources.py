@@ -108,11 +108,9 @@ def _cached(cache: dict | None, key: tuple, load: Callable[[], Any]) -> Any:
     return cache[key]
 
 
-def _note(cache: dict | None, *lines: str) -> None:
-    """What the rig's user should read about a file (said once per build): in the cache's
-    ``"notes"`` list, which :func:`hilsim.session.build_targets` hands on."""
-    if cache is not None:
-        notes = cache.setdefault("notes", [])
+def _note(notes: list[str] | None, *lines: str) -> None:
+    """What the rig's user should read about a file, said once per build."""
+    if notes is not None:
         notes.extend(line for line in lines if line not in notes)
 
 
@@ -133,19 +131,22 @@ def track_from_source(
     base_dir: Path,
     spring: Spring | None = None,
     cache: dict | None = None,
+    notes: list[str] | None = None,
 ) -> Track:
     """The track of a source spec (keys already checked against :data:`SOURCE_KEYS`).
-    Raises SourceError for a bad key, FormatError (``file:where: ...``) for a bad file."""
+    ``notes`` gathers what the files say that the user should read (a Bottango animation's
+    playback settings, frames a Blender export left out). Raises SourceError for a bad key,
+    FormatError (``file:where: ...``) for a bad file."""
     path = _file(spec, base_dir)
-    return _BUILDERS[kind](spec, path, spring, cache)
+    return _BUILDERS[kind](spec, path, spring, cache, notes)
 
 
-def _bottango(spec, path, _spring, cache) -> Track:
+def _bottango(spec, path, _spring, cache, notes) -> Track:
     from hilsim.targets.formats.bottango import read_export
 
     export = _cached(cache, ("bottango", path), lambda: read_export(path))
-    _note(cache, *(f"{path.name}: {a.describe()}" for a in export.animations.values()))
-    _note(cache, *(f"{path.name}: {line}" for line in export.info))
+    _note(notes, *(f"{path.name}: {a.describe()}" for a in export.animations.values()))
+    _note(notes, *(f"{path.name}: {line}" for line in export.info))
     effector = spec["effector"]
     if isinstance(effector, bool) or not isinstance(effector, str | int):
         raise SourceError("effector", f"must be the effector's identifier, got {effector!r}")
@@ -170,7 +171,7 @@ def _bottango(spec, path, _spring, cache) -> Track:
     return export.track(animation, str(effector), signal=umap)
 
 
-def _blender(spec, path, _spring, cache) -> Track:
+def _blender(spec, path, _spring, cache, notes) -> Track:
     from hilsim.targets.formats.blender_servo import read_blender_servo
 
     fps = spec.get("fps")
@@ -184,11 +185,11 @@ def _blender(spec, path, _spring, cache) -> Track:
         raise SourceError("servo", f"must be the servo ID in the export, got {servo!r}")
     umap = _unit(spec, "position", 0, "position")
     track = anim.track(servo, umap, interpolation=spec.get("interpolation", "hold"))
-    _note(cache, *anim.notes(servo))
+    _note(notes, *anim.notes(servo))
     return track
 
 
-def _fseq(spec, path, _spring, cache) -> Track:
+def _fseq(spec, path, _spring, cache, _notes) -> Track:
     from hilsim.targets.formats.fseq import FseqChannel, dmx_unit_map, read_fseq
 
     seq = _cached(cache, ("fseq", path), lambda: read_fseq(path))
@@ -210,7 +211,7 @@ def _fseq(spec, path, _spring, cache) -> Track:
     return seq.tracks({"joint": channel})["joint"]
 
 
-def _audio(spec, path, spring, _cache) -> Track:
+def _audio(spec, path, spring, _cache, _notes) -> Track:
     from hilsim.targets.formats.audio_jaw import EnvelopeSettings, jaw_track, spring_lag_s
 
     settings: dict[str, Any] = {}
@@ -243,7 +244,7 @@ def _audio(spec, path, spring, _cache) -> Track:
         raise
 
 
-def _lipsync(spec, path, _spring, cache) -> Track:
+def _lipsync(spec, path, _spring, cache, _notes) -> Track:
     from hilsim.targets.formats.lipsync import ShapeTable, cue_track, read_cues
 
     fps = spec.get("fps")

@@ -56,6 +56,7 @@ def track_from_spec(
     joint_name: str,
     csv_cache: dict | None = None,
     spring: Spring | None = None,
+    notes: list[str] | None = None,
     _depth: int = 0,
 ) -> Track:
     """Build a track from a rig file's target table (angles in degrees, times in seconds).
@@ -78,6 +79,7 @@ def track_from_spec(
         csv_cache: a dict shared across calls so each file (CSV or another tool's) is read
             once (keyed by the resolved path, with the reader's options).
         spring: the joint's spring (an audio target's ``lead_ms = "auto"`` is its lag).
+        notes: a list that gathers what another tool's file says the user should read.
 
     Raises:
         SpecError: unknown type or key, a missing key, a wrong value; names the key, lists what is
@@ -118,18 +120,18 @@ def track_from_spec(
     if kind == "keyframes":
         return _keyframes_from_spec(spec)
     if kind == "layers":
-        return _layers_from_spec(spec, base_dir, joint_name, csv_cache, spring, _depth)
+        return _layers_from_spec(spec, base_dir, joint_name, csv_cache, spring, notes, _depth)
     if kind in SOURCE_KEYS:
         try:
             return track_from_source(
-                kind, spec, base_dir=Path(base_dir), spring=spring, cache=csv_cache
+                kind, spec, base_dir=Path(base_dir), spring=spring, cache=csv_cache, notes=notes
             )
         except SourceError as exc:
             raise SpecError(exc.key, exc.detail) from None
     return _csv_from_spec(spec, Path(base_dir), joint_name, csv_cache)
 
 
-def _layers_from_spec(spec, base_dir, joint_name, csv_cache, spring, depth: int) -> Layered:
+def _layers_from_spec(spec, base_dir, joint_name, csv_cache, spring, notes, depth: int) -> Layered:
     layers = spec["layers"]
     if not isinstance(layers, list | tuple) or not layers:
         raise SpecError("layers", f"must be a non-empty list of target tables, got {layers!r}")
@@ -147,6 +149,7 @@ def _layers_from_spec(spec, base_dir, joint_name, csv_cache, spring, depth: int)
                     joint_name=joint_name,
                     csv_cache=csv_cache,
                     spring=spring,
+                    notes=notes,
                     _depth=depth + 1,
                 )
             )
