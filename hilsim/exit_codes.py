@@ -14,6 +14,9 @@ code   meaning
 4      the show was not stopped by a fault, but the exit policy could not be confirmed on
        some servo (named on stderr and in ``summary.json``): the figure may not be in a safe
        state. (After a fault, 3 stands and the unconfirmed servos are named the same way.)
+5      stopped by a stop command from the show's control: OSC ``/hilsim/stop``, Bottango's
+       ``STOP`` (``hilsim run --show``/``--live``); the exit policy was applied and confirmed
+       (unconfirmed: 4)
 130    stopped by SIGINT (Ctrl-C); exit policy applied (128 + the signal number)
 143    stopped by SIGTERM; exit policy applied
 =====  ==================================================================================
@@ -31,6 +34,7 @@ class ExitCode(IntEnum):
     USAGE = 2
     FAULT = 3
     UNSAFE_EXIT = 4
+    STOPPED = 5
     SIGINT = 130
     SIGTERM = 143
 

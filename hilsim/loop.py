@@ -88,13 +88,25 @@ __all__ = ["HilLoop", "LoopFaultError", "RunResult", "StopFlag"]
 
 @dataclass
 class StopFlag:
-    """Set from a signal handler; the loop looks at it once per tick (and during start-up)."""
+    """Set from a signal handler, or by a stop command from the show's control (OSC
+    ``/hilsim/stop``, Bottango's ``STOP``: :mod:`hilsim.live.director`); the loop looks at it
+    once per tick (and during start-up). The first request wins."""
 
     signum: int | None = None
+    #: what sent the stop command (e.g. "OSC /hilsim/stop"), None: none was sent
+    command: str | None = None
 
     def request(self, signum: int) -> None:
-        if self.signum is None:
+        if self.signum is None and self.command is None:
             self.signum = signum
+
+    def request_command(self, what: str) -> None:
+        if self.signum is None and self.command is None:
+            self.command = what
+
+    @property
+    def requested(self) -> bool:
+        return self.signum is not None or self.command is not None
 
 
 @dataclass
@@ -154,6 +166,8 @@ class HilLoop:
         self.rig, self.bus, self.telemetry = rig, bus, telemetry
         self.targets, self.map = parts.targets, parts.joint_map
         self.safety, self.integrator = parts.safety, parts.integrator
+        #: live inputs and the show runtime (hilsim.live.director), or None
+        self.director = parts.director
         self.clock = bus.clock
         self.stop = stop or StopFlag()
         self.on_status = on_status
@@ -205,7 +219,7 @@ class HilLoop:
 
     # ------------------------------------------------------------------ start / stop
     def _stopping(self) -> bool:
-        return self.stop.signum is not None
+        return self.stop.signum is not None or self.stop.command is not None
 
     def _start(self) -> bool:
         """Read where the figure is, hold it there with torque on, seed the springs.
@@ -292,11 +306,15 @@ class HilLoop:
                 self.clock.wait_until(self.start_at - lead)
             k = self._ticks() if self._start() else 0
             if self._stopping():
-                exit_code = for_signal(self.stop.signum)
-                reason = f"stopped by {_signal_name(self.stop.signum)}"
+                stop = self.stop
+                if stop.signum is not None:
+                    exit_code = for_signal(stop.signum)
+                    reason = f"stopped by {_signal_name(stop.signum)}"
+                else:
+                    exit_code, reason = int(ExitCode.STOPPED), f"stopped by {stop.command}"
                 if not self._energised:
                     reason += " before the show started: nothing was energised"
-                self.log.event("signal", reason, tick=k)
+                self.log.event("signal" if stop.signum is not None else "stop", reason, tick=k)
         except LoopFaultError as exc:
             exit_code, reason, fault = int(ExitCode.FAULT), str(exc), True
             if not self._energised:  # refused before anything could move: a clear error
@@ -367,6 +385,8 @@ class HilLoop:
             clock.wait_until(self.start_at)  # at once if the start-up took longer: late, said
         t0 = self._t0 = clock.now()
         self.loop_stats["clock_t0"] = t0  # the clock time of tick 0 (fault plans use it)
+        if self.director is not None:
+            self.director.begin(t0, self.log.event, self.stop)
         self.watch.silence.start(t0)
         self._next_status = time.perf_counter() + 0.5
         # host-stall accounting per iteration: wall time less the sleep, the time the driver
@@ -429,6 +449,8 @@ class HilLoop:
             view = self._positions_view = Packed(reading.positions)
         present = jmap.to_joint_list(view.tolist())
         self._present_view.put(*present)
+        if self.director is not None:  # live inputs, cues, timecode: this tick's targets
+            self.director.tick(k, t_sim, present)
         # u(t_k) recorded; u and u' as tuples for the springs (u' needs no array of its own)
         target = self.targets.sample_into(t_sim, self.u)
         c3 = perf()
@@ -516,6 +538,7 @@ class HilLoop:
                     "overruns": self.overruns,
                     "host_stalls": self.stalls.count,
                     "lateness_p99_us": float(np.percentile(self._recent[: min(k, 512)], 99)),
+                    "cue": None if self.director is None else self.director.now_playing,
                 }
             )
         return k

@@ -66,6 +66,8 @@ class Parts:
     joint_map: JointMap
     safety: SafetyFilter
     integrator: Integrator
+    #: live inputs and the show runtime (``hilsim run --show/--live``), or None
+    director: Any = None
 
 
 def build_targets(rig: Rig) -> TargetSet:
@@ -127,6 +129,47 @@ def build_parts(rig: Rig, targets: TargetSet | None = None) -> Parts:
         safety=safety,
         integrator=make_integrator(rig.loop.integrator, rig.spring_bank()),
     )
+
+
+def with_show(parts: Parts, show_path: str | None, live: bool) -> Parts:
+    """``parts`` with a :class:`~hilsim.live.director.Director` for the show file (and/or
+    ``--live``: OSC on 127.0.0.1 for every joint); its targets replace the rig's, which stay
+    under it. Raises RigError (one line) for a show file that cannot be used."""
+    from hilsim.live.director import build_director
+    from hilsim.live.showfile import OscConfig, live_spec, load_show
+
+    rig = parts.rig
+    if show_path is None:
+        spec = live_spec(rig)
+    else:
+        base_dir = Path(show_path).parent
+        cache: dict = {}
+        notes: list[str] = []
+
+        def make_track(spec: dict, joint: str, where: str):
+            jt = rig.joints[rig.joint_names.index(joint)]
+            try:
+                return track_from_spec(
+                    spec,
+                    base_dir=base_dir,
+                    joint_name=joint,
+                    csv_cache=cache,
+                    notes=notes,
+                    spring=jt.spring,
+                )
+            except (ValueError, OSError) as exc:
+                raise RigError(f"{show_path}: {where}: {exc}") from None  # fmt: skip
+
+        spec = load_show(show_path, rig, make_track)
+        spec.notes += notes
+        if live and spec.osc is None:
+            spec.osc = OscConfig(joints=live_spec(rig).osc.joints)
+    try:
+        director = build_director(spec, rig.joint_names, parts.targets)
+    except (ValueError, OSError) as exc:
+        raise RigError(f"{show_path or '--live'}: {exc}") from None
+    parts.director, parts.targets = director, director.targets
+    return parts
 
 
 # ---------------------------------------------------------------------- the bus
@@ -340,6 +383,8 @@ def run_show(
         result = loop.run()
         wall = time.perf_counter() - wall0
     except BaseException:
+        if parts.director is not None:
+            parts.director.close_inputs()
         _close_quietly(telemetry, {"exit_code": int(ExitCode.INTERNAL), "exit_reason": "crashed"})
         raise
     exit_code, reason = result.exit_code, result.reason
@@ -354,6 +399,8 @@ def run_show(
         "read_mode": bus.read_mode.value,
         "loop": result.loop,
     }
+    if parts.director is not None:  # the inputs stopped, the take written, their counts
+        summary_in["live"] = parts.director.close(telemetry.run_dir)
     show = ShowResult(exit_code, reason, result.ticks, wall, result.exit_policy)
     try:
         show.summary = telemetry.close(summary_in)

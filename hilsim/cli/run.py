@@ -57,6 +57,18 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument("--no-plots", action="store_true", help="do not draw plots after the run")
     p.add_argument(
+        "--show",
+        metavar="SHOW",
+        help="a show file (TOML): clips, idle, cues and their triggers, live inputs "
+        "(OSC, MIDI, timecode, Bottango, gamepad, keys), a take to record",
+    )
+    p.add_argument(
+        "--live",
+        action="store_true",
+        help="drive the joints live over OSC on 127.0.0.1:9000 (/hilsim/joint/<name> 0..1, "
+        "/hilsim/stop); the live input is recorded as a take in the run directory",
+    )
+    p.add_argument(
         "--bus",
         metavar="NAME",
         help="a rig with several [buses.<name>]: run this bus's joints alone (default: every "
@@ -141,6 +153,8 @@ def _status_printer(rate_hz: float):
             f"late p99 {st.get('lateness_p99_us', float('nan')):.0f} us  "
             f"comm err {st['comm_errors']}  overruns {st['overruns']}  "
             f"stalls {st.get('host_stalls', 0)} "
+            + (f" | {st['cue']}" if st.get("cue") else "")
+            + "\033[K"
         )
         sys.stderr.flush()
 
@@ -172,10 +186,22 @@ def run(args: argparse.Namespace) -> int:
         rig = select_bus(rigs, args.bus)
         port = port_for(rig, args.virtual_time)
         parts = build_parts(rig)
+        if args.show is not None or args.live:
+            from hilsim.session import with_show
+
+            parts = with_show(parts, args.show, args.live)
     except (RigError, ValueError) as exc:
         _say(str(exc))
         return EXIT_USAGE
-    if args.duration is None and parts.targets.duration is None:
+    if parts.director is not None:
+        for note in parts.director.spec.notes:
+            _say(f"note: {note}")
+        if parts.targets.duration is None and args.duration is None:
+            if args.virtual_time:
+                _say("a live show never ends by itself: give --duration with --virtual-time")
+                return EXIT_USAGE
+            _say("the show runs until stopped: Ctrl-C, or a stop command (exit policy applied)")
+    elif args.duration is None and parts.targets.duration is None:
         _say(
             "the animation never ends (generators only); running until Ctrl-C. "
             "Give --duration to stop by itself."
@@ -304,8 +330,12 @@ def _run_on_bus(args, parts, bus, run_dir: Path) -> int:
                 _say(f"stopped by signal {stop.signum} during the start-up check: nothing moved")
                 _remove_if_empty(run_dir)
                 return for_signal(stop.signum)
+            if parts.director is not None:  # its ports, before anything moves
+                _open_inputs(parts.director, bus.clock)
             telemetry = open_telemetry(rig, run_dir, virtual)
         except ShowRefusedError as exc:
+            if parts.director is not None:
+                parts.director.close_inputs()
             _say(str(exc))
             _remove_if_empty(run_dir)
             return EXIT_USAGE
@@ -363,6 +393,16 @@ def _run_on_bus(args, parts, bus, run_dir: Path) -> int:
             _say(f"plots not drawn: {type(exc).__name__}: {exc}")
     _say(f"exit code {show.exit_code}")
     return show.exit_code
+
+
+def _open_inputs(director, clock) -> None:
+    """The show's inputs opened (sockets, ports, threads); a refusal is one line, exit 2."""
+    from hilsim.session import ShowRefusedError
+
+    try:
+        director.open(clock, _say)
+    except (OSError, ValueError, RuntimeError, ImportError) as exc:
+        raise ShowRefusedError(f"cannot open the show's inputs: {exc}") from None
 
 
 def _track_warnings(rig, targets, duration_s: float | None) -> list[str]:

@@ -2,8 +2,9 @@
 
 Every input is driven by messages stamped with show time (s, the loop's clock; tests inject them,
 a receiver thread stamps them on arrival), and the loop calls a non-blocking ``poll(t)`` once per
-tick: bounded work, never a wait. Optional package: mido (MIDI); OSC uses its own decoder are imported lazily; a
-missing one is one clear line naming the extra (``pip install 'hilsim[live]'``).
+tick: bounded work, never a wait. The optional packages (mido for
+MIDI ports, sounddevice for sound) are imported lazily; a missing one is one clear line naming
+the extra (``pip install 'hilsim[live]'``). OSC needs none: its decoder is our own.
 
 ============================  ===================================================================
 module                        what it holds

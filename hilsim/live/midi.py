@@ -311,3 +311,43 @@ def open_midi_input(
     except OSError as exc:
         raise ValueError(f"cannot open MIDI input port {name!r}: {exc}") from None
     return MidiPort(port, port.name)
+
+
+class MidiTriggerInput:
+    """MIDI notes and controller presses -> a show's trigger keys (:mod:`hilsim.live.show_spec`).
+
+    A note-on with velocity > 0 gives ``"midi:note:<n>:ch<c>"``; a control change crossing from
+    below 64 to 64 or more (a foot switch, a button sending 127/0) gives ``"midi:cc:<n>:ch<c>"``
+    (channel 1–16). Only the keys in ``keys`` are kept; everything else moves nothing. Fed by a
+    port's receiver like :class:`MidiCcInput`; ``poll(t)`` returns ``(t, key)`` in order.
+    """
+
+    def __init__(self, keys: Sequence[str], *, capacity: int = DEFAULT_CAPACITY) -> None:
+        self.keys = frozenset(keys)
+        self.inbox = Inbox(capacity)
+        self._cc_high: dict[tuple[int, int], bool] = {}
+
+    def feed(self, message: Any, t: float) -> None:
+        self.inbox.put(t, message)
+
+    def poll(self, t: float) -> list[tuple[float, str]]:
+        out = []
+        for tm, msg in self.inbox.take_due(t):
+            kind = getattr(msg, "type", None)
+            channel = getattr(msg, "channel", None)
+            if not _is_int(channel) or not 0 <= channel <= 15:
+                continue
+            if kind == "note_on" and _is_int(getattr(msg, "velocity", None)) and msg.velocity:
+                key = f"midi:note:{msg.note}:ch{channel + 1}"
+            elif kind == "control_change" and _is_int(getattr(msg, "value", None)):
+                cc = (channel, msg.control)
+                high, was = msg.value >= 64, self._cc_high.get(cc, False)
+                self._cc_high[cc] = high
+                if not high or was:
+                    continue
+                key = f"midi:cc:{msg.control}:ch{channel + 1}"
+            else:
+                continue
+            if key in self.keys:
+                out.append((tm, key))
+        return out

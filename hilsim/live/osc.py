@@ -5,7 +5,8 @@ Addresses (OSC 1.0 messages, alone or in bundles):
 - ``/hilsim/joint/<name>`` with one number (``f d i h``) in 0..1: the joint's live target,
   ``lo + v·(hi − lo)`` degrees;
 - ``/hilsim/cue/<name>`` with no argument, or a first argument that is not the number 0: a
-  ``cue`` event (a push button's release sends 0: ignored, not a drop);
+  ``cue`` event (a push button's release sends 0: ignored, not a drop); so is any address in
+  ``triggers`` (a show file's ``"osc:/trigger/pir"``: QLab and show desks send their own);
 - ``/hilsim/stop`` with any arguments: a ``stop`` event (the loop turns it into its stop code).
 
 **The decoder is our own** (:func:`decode_packet`, strict OSC 1.0: types ``i f d h s b T F N I``,
@@ -253,6 +254,7 @@ class OscInput:
         guard: GuardConfig | None = None,
         lost_after_s: float = 0.5,
         cues: Collection[str] | None = None,
+        triggers: Collection[str] = (),
         queue_size: int = 64,
     ) -> None:
         self.ranges: dict[str, tuple[float, float]] = {}
@@ -266,6 +268,8 @@ class OscInput:
         self.guard = NetGuard(guard)
         self.targets = LiveTargets("osc", lost_after_s)
         self.cues = None if cues is None else frozenset(cues)
+        #: other addresses a show's cues are triggered by (e.g. QLab's "/trigger/pir")
+        self.trigger_addresses = frozenset(triggers)
         self._lock = threading.Lock()
         self._latest: dict[str, tuple[float, float]] = {}  # joint -> (deg, t), handed over
         self._events: collections.deque[LiveEvent] = collections.deque(maxlen=queue_size)
@@ -325,6 +329,10 @@ class OscInput:
             return ("cue", name)
         if address == STOP_ADDRESS:
             return ("stop",)
+        if address in self.trigger_addresses:
+            if args and _is_number(args[0]) and args[0] == 0:
+                return None  # a button's release
+            return ("trigger", address)
         drops.count("unknown")
         return None
 
@@ -334,13 +342,17 @@ class OscInput:
             for action in actions:
                 if action[0] == "joint":
                     self._latest[action[1]] = (action[2], t)
-                elif action[0] == "cue":
+                elif action[0] in ("cue", "trigger"):
                     if len(self._events) == self._events.maxlen:
                         self.guard.drops.count("queue_full")
                     name = action[1]
+                    address = name if action[0] == "trigger" else CUE_PREFIX + name
                     self._events.append(
-                        LiveEvent(t, "cue", "osc", {"cue": name, "message": f"OSC cue {name}"})
-                    )
+                        LiveEvent(
+                            t, "cue", "osc", {"cue": name, "address": address,
+                                              "message": f"OSC {address}"}
+                        )
+                    )  # fmt: skip
                 elif self._stop is None:
                     self._stop = LiveEvent(t, "stop", "osc", {"message": "OSC /hilsim/stop"})
 

@@ -233,3 +233,35 @@ def write_csv_track(
         os.fsync(f.fileno())
     os.replace(tmp, path)
     return path
+
+
+def write_take(take: Take, directory: str | Path, tolerance_deg: float) -> dict:
+    """Write a take into ``directory`` (created): ``raw.csv`` (every sample), ``keys.csv`` (the
+    keys within ``tolerance_deg``) and ``take.toml``, a ``[clips.take]`` table to paste into a
+    rig or show file (``type = "keyframes"``, linear). Each file is whole or absent. Returns
+    what was written: paths, keys and raw samples per joint, the largest error found."""
+    directory = Path(directory)
+    directory.mkdir(parents=True, exist_ok=True)
+    reduced = take.reduce(tolerance_deg)
+    raw = take.write_raw_csv(directory / "raw.csv", overwrite=True)
+    keys = reduced.write_csv(directory / "keys.csv", overwrite=True)
+    lines = [f"# a take reduced within {tolerance_deg:g} deg; linear keys [[t_s, deg], ...]",
+             "[clips.take]"]  # fmt: skip
+    for joint in reduced.keys_deg:
+        pairs = ", ".join(f"[{t!r}, {d!r}]" for t, d in reduced.keys(joint))
+        lines.append(f'{joint} = {{ type = "keyframes", easing = "linear", keys = [{pairs}] }}')
+    toml = directory / "take.toml"
+    tmp = toml.with_name(toml.name + ".tmp")
+    with open(tmp, "w", encoding="utf-8") as f:
+        f.write("\n".join(lines) + "\n")
+        f.flush()
+        os.fsync(f.fileno())
+    os.replace(tmp, toml)
+    return {
+        "raw_csv": str(raw),
+        "keys_csv": str(keys),
+        "take_toml": str(toml),
+        "raw_samples": {j: len(take.raw(j)[0]) for j in reduced.keys_deg},
+        "keys": {j: len(k) for j, k in reduced.keys_deg.items()},
+        "max_error_deg": dict(reduced.max_error_deg),
+    }

@@ -1,0 +1,365 @@
+"""The director: once per tick, everything live decides where each joint should go.
+
+``hilsim run RIG --show SHOW.toml`` (or ``--live``) gives the loop a :class:`Director`. Per
+tick, before the loop samples the targets (:meth:`Director.tick`)::
+
+    timecode (MTC chase)         the show time: t_show = t_sim, or the chased timecode
+    live inputs, polled          OSC, MIDI CC, gamepad, Bottango live, teach-by-hand: the
+                                 latest value per joint; triggers (OSC, MIDI note/CC, keys)
+    the show runtime             cues fired (lockout, windows, timers), clips started and
+                                 ended, idle resumed; sounds started with their clips
+    events, takes, stop          events.jsonl; live samples kept for the take; a stop
+                                 command (OSC /hilsim/stop, Bottango STOP) -> the exit policy
+
+Each joint's target is one :class:`DirectedTrack`: its live value once a live input has set
+one (held when the input is lost), else the show runtime's clip, else the rig's own target,
+sampled at the show time. Where two live inputs drive one joint, the latest value wins. All
+of it reaches the servos only through the springs and the safety filter: a cut, a timecode
+jump or a fader slammed to the end is a step in the *target*, never in the command.
+
+Nothing here waits: the inputs' receiver threads hand over under a lock and the loop takes
+what is there. Inputs are stamped with show time (``now()`` below; 0 until tick 0), so a test
+feeds them with timestamps and runs the loop in virtual time.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import math
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import Any
+
+from hilsim.live.inbox import LiveEvent
+from hilsim.live.showfile import ShowSpec
+from hilsim.targets.tracks import TargetSet, Track
+
+#: an event's ``detail`` keys that the log line's own fields take
+_RESERVED = frozenset(("kind", "message", "t", "event", "tick"))
+
+
+class DirectedTrack(Track):
+    """One joint's target under the director: ``live`` (rad) when set, else ``inner`` at the
+    show time (t + the director's offset)."""
+
+    def __init__(self, inner: Track, director: Director) -> None:
+        self.inner, self._director = inner, director
+        self.live: float | None = None
+        self.end: float | None = None  # a show with an end (a timeline only): its length
+
+    def sample(self, t: float) -> tuple[float, float]:
+        live = self.live
+        if live is not None:
+            return live, 0.0
+        return self.inner.sample(t + self._director.offset)
+
+    @property
+    def duration(self) -> float | None:
+        return self.end
+
+
+class Director:
+    """Built by :func:`build_director`; :meth:`open` starts the inputs (before the show),
+    the loop calls :meth:`begin` at tick 0 and :meth:`tick` every tick, :meth:`close` ends it."""
+
+    def __init__(self, spec: ShowSpec, names: Sequence[str], base: TargetSet) -> None:
+        self.spec, self.names = spec, tuple(names)
+        self.index = {n: i for i, n in enumerate(self.names)}
+        self.offset = 0.0  # t_show - t_sim (MTC chase)
+        self.t0: float | None = None  # the clock time of tick 0
+        self.clock: Any = None
+        self.runtime: Any = None
+        inner = list(base.tracks)
+        if spec.runtime is not None:
+            from hilsim.live.show import ShowRuntime
+
+            self.runtime = ShowRuntime(spec.runtime, self.names, inner, seed=spec.seed)
+            inner = list(self.runtime.tracks)
+        self.tracks = [DirectedTrack(tr, self) for tr in inner]
+        self.targets = TargetSet(self.tracks, self.names)
+        self.targets.notes = base.notes
+        if self.runtime is not None and not self._live_inputs(spec):
+            end = getattr(self.runtime, "duration", None)
+            if end is not None:  # a timeline only: the show ends with it
+                for tr in self.tracks:
+                    tr.end = end
+        self._build_inputs(spec)
+        self._log: Callable[..., None] = lambda *a, **k: None
+        self._stop: Any = None
+        self._closers: list[Callable[[], None]] = []
+        self.take = None
+        if spec.record is not None:
+            from hilsim.live.takes import Take
+
+            self.take = Take(spec.record.joints)
+        self.counts = {"events": 0, "cues": 0, "stops": 0, "live_values": 0}
+        self.lost: set[str] = set()
+        self.status_note = ""
+
+    @staticmethod
+    def _live_inputs(spec: ShowSpec) -> bool:
+        return any(
+            x is not None
+            for x in (spec.osc, spec.midi, spec.bottango, spec.gamepad, spec.keyboard, spec.teach)
+        )
+
+    def _build_inputs(self, spec: ShowSpec) -> None:
+        """The inputs' state machines (no I/O yet)."""
+        keys = tuple(getattr(self.runtime, "trigger_keys", ()) or ())
+        self.osc = self.midi = self.midi_triggers = self.chase = None
+        self.bottango = self.gamepad = self.keyboard = self.teach = self.audio = None
+        if spec.osc is not None:
+            from hilsim.live.osc import OscInput
+
+            osc_keys = [k[4:] for k in keys if k.startswith("osc:")]
+            self.osc = OscInput(
+                spec.osc.joints,
+                guard=spec.osc.guard,
+                lost_after_s=spec.osc.lost_after_s,
+                triggers=[a for a in osc_keys if not a.startswith("/hilsim/cue/")],
+            )
+        if spec.midi is not None:
+            from hilsim.live.midi import MidiCcInput, MidiTriggerInput
+
+            if spec.midi.cc:
+                self.midi = MidiCcInput(spec.midi.cc, lost_after_s=spec.midi.lost_after_s)
+            midi_keys = [k for k in keys if k.startswith("midi:")]
+            if midi_keys:
+                self.midi_triggers = MidiTriggerInput(midi_keys)
+        if spec.mtc is not None:
+            from hilsim.live.timecode import MtcChase
+
+            m = spec.mtc
+            self.chase = MtcChase(freewheel_s=m.freewheel_s, jump_s=m.jump_s, offset_s=m.offset_s)
+        if spec.bottango is not None:
+            from hilsim.live.bottango_live import BottangoLive
+
+            self.bottango = BottangoLive.from_config(spec.bottango)
+        if spec.gamepad is not None:
+            from hilsim.live.gamepad import GamepadInput
+
+            self.gamepad = GamepadInput(spec.gamepad)
+        if spec.keyboard is not None:
+            from hilsim.live.keyboard import KeyboardInput
+
+            self.keyboard = KeyboardInput(spec.keyboard)
+        if spec.teach is not None:
+            from hilsim.live.teach import Teach
+
+            self.teach = Teach(self.names, spec.teach)
+        sounds = getattr(spec.runtime, "sounds", None)
+        if sounds:
+            from hilsim.live.audio_out import AudioOut
+
+            self.audio = AudioOut()
+            self.audio.preload([s.path for s in sounds.values()])
+
+    # ------------------------------------------------------------------ life cycle
+    def now(self) -> float:
+        """The show time a receiver stamps a message with: 0 until tick 0, then clock − t0."""
+        t0 = self.t0
+        return 0.0 if t0 is None else max(0.0, self.clock.now() - t0)
+
+    def open(self, clock: Any, say: Callable[[str], None]) -> None:
+        """Start the receivers (sockets, ports, threads) before anything moves. Raises
+        ValueError / OSError / RuntimeError with one line on a port that cannot be opened."""
+        self.clock = clock
+        spec = self.spec
+        try:
+            if self.osc is not None:
+                from hilsim.live.osc import listen
+
+                rx = listen(self.osc, spec.osc.port, self.now, max_rx_per_s=spec.osc.max_rx_per_s)
+                self._closers.append(rx.close)
+                say(f"OSC on {spec.osc.guard.bind_address}:{spec.osc.port}: "
+                    f"/hilsim/joint/<{'|'.join(self.osc.ranges)}> 0..1, /hilsim/cue/<name>, "
+                    "/hilsim/stop")  # fmt: skip
+            sinks = [s for s in (self.midi, self.midi_triggers, self.chase) if s is not None]
+            if sinks:
+                from hilsim.live.midi import open_midi_input
+
+                port = open_midi_input(spec.midi.port, sinks, self.now)
+                self._closers.append(port.close)
+                say(f"MIDI in: {port.name}")
+            for part in (self.bottango, self.gamepad, self.keyboard, self.audio):
+                if part is not None and hasattr(part, "start"):
+                    note = part.start(self.now)
+                    self._closers.append(part.close)
+                    if note:
+                        say(str(note))
+        except BaseException:
+            self.close_inputs()
+            raise
+
+    def begin(self, t0: float, log: Callable[..., None], stop: Any) -> None:
+        """Tick 0 is at clock time ``t0``; ``log(kind, message, **fields)`` writes an event,
+        ``stop.request_command(what)`` ends the show through the exit policy."""
+        self.t0, self._log, self._stop = t0, log, stop
+
+    def close_inputs(self) -> None:
+        while self._closers:
+            close = self._closers.pop()
+            with contextlib.suppress(Exception):  # closing never stops the exit path
+                close()
+
+    # ------------------------------------------------------------------ one tick
+    def tick(self, k: int, t: float, present_rad: Sequence[float]) -> None:
+        """Tick ``k`` at show time ``t`` (s, k·period): poll, decide, log. ``present_rad``: the
+        joints' present positions (joint frame) read this tick."""
+        events: list[LiveEvent] = []
+        triggers: list[str] = []
+        chase = self.chase
+        if chase is not None:
+            cp = chase.poll(t)
+            events += cp.events
+            self.offset = (0.0 if cp.show_time_s is None else cp.show_time_s) - t
+        t_show = t + self.offset
+        osc = self.osc
+        if osc is not None:
+            for ev in osc.poll(t):
+                if ev.kind == "cue":
+                    triggers.append("osc:" + ev.detail["address"])
+                    events.append(ev)
+                elif ev.kind == "stop":
+                    self._stop_command(ev.detail.get("message", "OSC /hilsim/stop"), ev, events)
+                else:
+                    events.append(ev)
+            for joint, cur in osc.targets.items():
+                self._set(joint, cur.deg, cur.t)
+        midi = self.midi
+        if midi is not None:
+            mp = midi.poll(t)
+            events += mp.events
+            for tm, joint, deg in mp.samples:
+                self._set(joint, deg, tm)
+        if self.midi_triggers is not None:
+            triggers += [key for _, key in self.midi_triggers.poll(t)]
+        for part in (self.gamepad, self.bottango):
+            if part is not None:
+                self._poll_part(part, t, events, triggers)
+        if self.keyboard is not None:
+            triggers += self.keyboard.poll(t)
+        teach = self.teach
+        if teach is not None:
+            present_deg = [math.degrees(x) for x in present_rad]
+            teach.record(t, present_deg)
+            for joint, deg in teach.targets_deg(present_deg).items():
+                self.tracks[self.index[joint]].live = math.radians(deg)
+        runtime = self.runtime
+        if runtime is not None:
+            for key in triggers:
+                runtime.trigger(key, t_show)
+            for ev in runtime.tick(t_show):
+                events.append(ev)
+                if ev.kind in ("cue_start", "clip_start"):
+                    self._sound(ev, t_show)
+        elif triggers:
+            for key in triggers:
+                events.append(LiveEvent(t, "trigger", "show", {"message": f"{key}: no cues"}))
+        for ev in events:
+            self._event(k, ev)
+
+    def _set(self, joint: str, deg: float, t_msg: float) -> None:
+        """A live value (degrees) for ``joint``; kept for the take when it changed."""
+        i = self.index.get(joint)
+        if i is None:
+            return
+        rad = math.radians(deg)
+        track = self.tracks[i]
+        if track.live == rad:
+            return
+        track.live = rad
+        self.counts["live_values"] += 1
+        if self.take is not None:
+            self.take.record(t_msg + self.offset, joint, deg)
+
+    def _poll_part(self, part: Any, t: float, events: list, triggers: list) -> None:
+        """A gamepad or the Bottango live driver: values, triggers, events, a stop."""
+        p = part.poll(t)
+        events += getattr(p, "events", ())
+        triggers += getattr(p, "triggers", ())
+        for joint, deg in (getattr(p, "values", None) or {}).items():
+            if deg is not None:
+                self._set(joint, deg, t)
+        if getattr(p, "stop", False):
+            what = getattr(p, "stop_reason", None) or f"{type(part).__name__} stop"
+            self._stop_command(what, LiveEvent(t, "stop", "live", {"message": what}), events)
+
+    def _stop_command(self, what: str, ev: LiveEvent, events: list) -> None:
+        events.append(ev)
+        self.counts["stops"] += 1
+        if self._stop is not None:
+            self._stop.request_command(what)
+
+    def _sound(self, ev: LiveEvent, t_show: float) -> None:
+        path = ev.detail.get("sound")
+        if path and self.audio is not None:
+            self.audio.play(path, float(ev.detail.get("sound_offset_s", 0.0)), ev.t, t_show)
+
+    def _event(self, k: int, ev: LiveEvent) -> None:
+        self.counts["events"] += 1
+        if ev.kind == "cue_start":
+            self.counts["cues"] += 1
+        if ev.kind == "input_lost":
+            self.lost.add(str(ev.detail.get("joint", ev.source)))
+        elif ev.kind in ("input_returned", "input_resumed"):
+            self.lost.discard(str(ev.detail.get("joint", ev.source)))
+        fields = {key: v for key, v in ev.detail.items() if key not in _RESERVED}
+        self._log(ev.kind, str(ev.detail.get("message", ev.kind)), tick=k, t=ev.t,
+                  source=ev.source, **fields)  # fmt: skip
+
+    # ------------------------------------------------------------------ the status line
+    @property
+    def now_playing(self) -> str:
+        parts = []
+        if self.runtime is not None:
+            parts.append(str(self.runtime.now_playing))
+        live = [n for n, tr in zip(self.names, self.tracks, strict=True) if tr.live is not None]
+        if live:
+            parts.append("live " + ",".join(live))
+        if self.lost:
+            parts.append("LOST " + ",".join(sorted(self.lost)))
+        if self.chase is not None:
+            parts.append(f"MTC {self.chase.state}")
+        return "; ".join(parts) or "waiting for input"
+
+    # ------------------------------------------------------------------ the end
+    def close(self, run_dir: Path | None) -> dict:
+        """Stop the inputs; write the take (raw CSV and reduced keys) into ``run_dir``;
+        return the summary's ``live`` section. Never raises: a full disk is said in it."""
+        self.close_inputs()
+        out: dict[str, Any] = {"show": self.spec.name, **self.counts}
+        if self.osc is not None:
+            out["osc_drops"] = self.osc.guard.drops.snapshot()
+        for name in ("midi", "chase", "bottango", "gamepad", "teach"):
+            part = getattr(self, name)
+            summary = getattr(part, "summary", None)
+            if callable(summary):
+                try:
+                    out[name] = summary()
+                except Exception as exc:  # a summary is a report: never the exit path's end
+                    out[name] = {"error": repr(exc)}
+        if run_dir is not None:
+            out["takes"] = self._write_takes(run_dir)
+        return out
+
+    def _write_takes(self, run_dir: Path) -> dict:
+        written: dict[str, Any] = {}
+        try:
+            if self.take is not None and any(len(self.take.raw(j)[0]) for j in self.take.joints):
+                from hilsim.live.takes import write_take
+
+                written["live"] = write_take(
+                    self.take, run_dir / "take", self.spec.record.tolerance_deg
+                )
+            if self.teach is not None:
+                written["teach"] = self.teach.finish(run_dir / "teach")
+        except Exception as exc:  # a full disk: the show is over; say what was lost
+            written["error"] = f"the take could not be written: {exc}"
+        return written
+
+
+def build_director(spec: ShowSpec, names: Sequence[str], base: TargetSet) -> Director:
+    """The director for ``spec`` over the rig's own targets ``base``. Raises ValueError on a
+    spec the inputs refuse (one line)."""
+    return Director(spec, names, base)

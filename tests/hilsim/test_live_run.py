@@ -1,0 +1,262 @@
+"""Live inputs through the whole show (issue 14): the director in the loop, on the emulator in
+virtual time, with messages injected at chosen ticks or stamped ahead of time."""
+
+from __future__ import annotations
+
+import struct
+from pathlib import Path
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from hilsim.exit_codes import ExitCode
+from hilsim.loop import StopFlag
+from hilsim.rig import load_rig
+from hilsim.session import build_parts, open_bus, open_telemetry, port_for, run_show, with_show
+from hilsim.telemetry.reader import read_run
+
+RIG = """
+name = "live"
+[bus]
+port = "dxlsim://?ids=1-2&rdt_us=0&latency_ms=1"
+[loop]
+rate_hz = 250
+[safety]
+soft_start_s = 0.1
+[[joints]]
+name = "head_pan"
+servo_id = 1
+min_deg = -40
+max_deg = 40
+max_speed_deg_s = 400
+max_accel_deg_s2 = 20000
+spring = { frequency_hz = 6.0, damping_ratio = 0.9, response = 0.0 }
+target = { type = "hold", value_deg = 0 }
+[[joints]]
+name = "jaw"
+servo_id = 2
+min_deg = 0
+max_deg = 20
+max_speed_deg_s = 300
+max_accel_deg_s2 = 20000
+spring = { frequency_hz = 6.0, damping_ratio = 0.9, response = 0.0 }
+target = { type = "keyframes", keys = [[0, 0], [10, 20]], easing = "linear" }
+"""
+PERIOD = 0.004
+
+
+def pad(b: bytes) -> bytes:
+    return b + b"\0" * (4 - len(b) % 4)
+
+
+def osc(address: str, *floats: float) -> bytes:
+    tags = "," + "f" * len(floats)
+    return (
+        pad(address.encode()) + pad(tags.encode()) + b"".join(struct.pack(">f", f) for f in floats)
+    )
+
+
+def show(tmp_path: Path, show_text: str | None, *, duration: float, inject=None, live=False):
+    """Run the rig with the show file (virtual time); ``inject(k, director)`` runs after the
+    director's tick k (a message arriving during tick k is seen at tick k + 1)."""
+    rig_path = tmp_path / "rig.toml"
+    rig_path.write_text(RIG)
+    show_path = None
+    if show_text is not None:
+        show_path = tmp_path / "show.toml"
+        show_path.write_text(show_text)
+    rig = load_rig(rig_path)
+    parts = with_show(build_parts(rig), None if show_path is None else str(show_path), live)
+    director = parts.director
+    if inject is not None:
+        real_tick = director.tick
+
+        def tick(k, t, present):
+            real_tick(k, t, present)
+            inject(k, director)
+
+        director.tick = tick
+    bus = open_bus(rig, port_for(rig, True))
+    out = tmp_path / "run"
+    tel = open_telemetry(rig, out, True)
+    try:
+        result = run_show(parts, bus, tel, duration_s=duration, stop=StopFlag())
+    finally:
+        bus.close()
+    return SimpleNamespace(result=result, run=read_run(out), director=director, out=out)
+
+
+def deg(run, quantity: str, joint: int) -> np.ndarray:
+    return np.degrees(run.joint(quantity)[:, joint])
+
+
+# ------------------------------------------------------------------ OSC
+OSC_SHOW = """
+[inputs.osc]
+port = 9000
+joints = { jaw = [0, 20] }
+"""
+
+
+def test_osc_joint_sets_the_target_on_the_next_tick(tmp_path):
+    def inject(k, d):
+        if k == 250:
+            d.osc.feed(k * PERIOD, osc("/hilsim/joint/jaw", 0.5), ("127.0.0.1", 5000))
+
+    r = show(tmp_path, OSC_SHOW, duration=1.2, inject=inject)
+    target = deg(r.run, "target", 1)
+    assert target[250] == pytest.approx(250 * PERIOD * 2.0)  # still the rig's own keyframes
+    assert target[251] == pytest.approx(10.0)
+    assert r.result.exit_code == 0
+    live = r.result.summary["live"]
+    assert live["live_values"] == 1 and live["takes"] == {}
+
+
+def test_osc_stop_applies_the_exit_policy_and_ends_with_the_stop_code(tmp_path):
+    def inject(k, d):
+        if k == 100:
+            d.osc.feed(k * PERIOD, osc("/hilsim/stop"), ("127.0.0.1", 5000))
+
+    r = show(tmp_path, OSC_SHOW, duration=5.0, inject=inject)
+    assert r.result.exit_code == ExitCode.STOPPED == 5
+    assert "OSC /hilsim/stop" in r.result.reason
+    assert r.result.summary["exit_policy_confirmed"] is True
+    assert r.run.n_ticks == 102  # the stop seen at tick 101 ends the show before tick 102
+    kinds = [e["kind"] for e in r.run.events]
+    assert "stop" in kinds and "exit_policy" in kinds
+
+
+def test_a_flood_of_malformed_packets_and_a_stranger_change_nothing(tmp_path):
+    """10,000 malformed datagrams during the show and a well-formed one from a sender outside
+    the allow-list: every target is the rig's own, every drop counted, no overrun."""
+    rng = np.random.default_rng(7)
+    junk = [
+        bytes(rng.integers(0, 256, int(rng.integers(1, 200)), dtype=np.uint8)) for _ in range(64)
+    ]
+    text = OSC_SHOW.replace(
+        "port = 9000", 'port = 9000\ninterface = "127.0.0.1"\nallow = ["127.0.0.2"]'
+    )
+
+    def inject(k, d):
+        if 10 <= k < 110:  # 100 a tick for 100 ticks
+            for i in range(100):
+                d.osc.feed(k * PERIOD, junk[(k + i) % 64] + b"\xff", ("127.0.0.2", 5000))
+        if k == 120:
+            d.osc.feed(k * PERIOD, osc("/hilsim/joint/jaw", 0.9), ("127.0.0.1", 5000))
+
+    r = show(tmp_path, text, duration=1.0, inject=inject)
+    target = deg(r.run, "target", 1)
+    np.testing.assert_allclose(target, np.arange(len(target)) * PERIOD * 2.0, atol=1e-9)
+    drops = r.result.summary["live"]["osc_drops"]
+    assert drops["sender"] == 1
+    assert sum(drops.values()) == 10_001
+    assert r.result.summary.get("overruns", 0) == 0
+    assert r.result.exit_code == 0
+
+
+# ------------------------------------------------------------------ MIDI
+MIDI_SHOW = """
+[inputs.midi]
+[[inputs.midi.cc]]
+joint = "head_pan"
+channel = 1
+control = 7
+degrees = [-30, 30]
+[record]
+tolerance_deg = 0.5
+"""
+
+
+def test_midi_cc_ramp_drives_the_joint_and_records_a_take(tmp_path):
+    """The issue's MIDI acceptance through the loop: CC 7 ch 1 0->127 at 100 Hz over 1.27 s."""
+    mido = pytest.importorskip("mido")
+
+    def inject(k, d):
+        if k == 0:
+            for v in range(128):
+                d.midi.feed(mido.Message("control_change", channel=0, control=7, value=v), v / 100)
+
+    r = show(tmp_path, MIDI_SHOW, duration=2.0, inject=inject)
+    target = deg(r.run, "target", 0)
+    t = np.arange(len(target)) * PERIOD
+    # tick 0 saw no message yet (fed after its poll); tick 1 at 4 ms sees v = 0
+    assert target[1] == pytest.approx(-30.0)
+    i063 = int(np.searchsorted(t, 0.63 - 1e-9))
+    assert target[i063] == pytest.approx(-30 + 60 * 63 / 127, abs=1e-9)  # -0.236 deg
+    assert target[i063] == pytest.approx(-0.24, abs=0.005)
+    assert np.all(target[t >= 1.27] == pytest.approx(30.0))
+    takes = r.result.summary["live"]["takes"]["live"]
+    assert takes["raw_samples"] == {"head_pan": 128}
+    assert takes["keys"]["head_pan"] <= 3
+    # the reduced take replays within 0.5 deg of the raw take at every tick
+    raw = np.loadtxt(r.out / "take" / "raw.csv", delimiter=",", skiprows=1)
+    keys = np.loadtxt(r.out / "take" / "keys.csv", delimiter=",", skiprows=1, ndmin=2)
+    ticks = np.arange(0, 1.27 + 1e-9, PERIOD)
+    assert (
+        np.max(
+            np.abs(
+                np.interp(ticks, keys[:, 0], keys[:, 1]) - np.interp(ticks, raw[:, 0], raw[:, 1])
+            )
+        )
+        <= 0.5
+    )
+    assert (r.out / "take" / "take.toml").read_text().startswith("# a take")
+
+
+# ------------------------------------------------------------------ MTC
+MTC_SHOW = """
+[inputs.mtc]
+freewheel_s = 0.5
+"""
+
+
+def test_mtc_chase_locks_the_show_time_then_freewheels_and_holds(tmp_path):
+    """Quarter frames for 00:00:02:15 at 30 fps at 120 Hz from 1.0 s; the jaw follows its rig
+    keyframes (2 deg/s) at the chased show time; 500 ms after the timecode stops it holds."""
+    mido = pytest.importorskip("mido")
+    data = [0x0F, 0x10, 0x22, 0x30, 0x40, 0x50, 0x60, 0x76]
+
+    def inject(k, d):
+        if k == 0:
+            for i, b in enumerate(data):
+                d.chase.feed(mido.Message("quarter_frame", frame_type=b >> 4, frame_value=b & 15),
+                             1.0 + i / 120)  # fmt: skip
+
+    r = show(tmp_path, MTC_SHOW, duration=2.5, inject=inject)
+    target = deg(r.run, "target", 1)
+    t = np.arange(len(target)) * PERIOD
+    locked = t[np.argmax(target > 0.5)]  # the first tick after the 8th quarter frame
+    assert 1.0 + 7 / 120 <= locked <= 1.0 + 7 / 120 + PERIOD + 1e-9
+    show_t = target[t == locked][0] / 2.0
+    assert show_t == pytest.approx(2 + 15 / 30 + 2 / 30, abs=1 / 30)  # 2.5667 s
+    held = target[t > locked + 0.5 + 1 / 30 + PERIOD]
+    assert np.all(held == held[0])  # freewheel over, the show time holds
+    assert held[0] == pytest.approx(target[t == locked][0] + 2.0 * 0.5, abs=2.0 / 30 + 0.01)
+    kinds = [e["kind"] for e in r.run.events]
+    assert {"timecode_locked", "timecode_stopped", "timecode_held"} <= set(kinds)
+
+
+# ------------------------------------------------------------------ the files
+def test_a_show_file_mistake_is_one_line(tmp_path, capsys):
+    from hilsim.cli import main
+
+    (tmp_path / "rig.toml").write_text(RIG)
+    bad = tmp_path / "show.toml"
+    for text, words in [
+        ("[inputs.osc]\nport = 70000\n", "inputs.osc.port"),
+        ("[inputs.midi]\n[[inputs.midi.cc]]\njoint = 'nose'\ncontrol = 7\ndegrees = [0, 1]\n",
+         "no such joint 'nose'"),
+        ("[inputs.osc]\ninterface = '10.0.0.5'\n", "allow"),
+        ("[inputs.nope]\n", "unknown key(s) nope"),
+        ("[record]\ntolerance_deg = -1\n", "record.tolerance_deg"),
+        ("not toml [", "not valid TOML"),
+    ]:  # fmt: skip
+        bad.write_text(text)
+        out = tmp_path / f"r{len(words)}"
+        code = main(["run", str(tmp_path / "rig.toml"), "--show", str(bad), "--virtual-time",
+                     "--duration", "0.1", "--no-plots", "--out", str(out)])  # fmt: skip
+        err = capsys.readouterr().err
+        assert code == 2, text
+        assert words in err and "Traceback" not in err, err
+        assert len(err.strip().splitlines()) == 1, err
