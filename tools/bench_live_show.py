@@ -93,11 +93,11 @@ def main() -> int:
         "of flooding for the whole show with a value every 50 ms",
     )
     args = ap.parse_args()
-    print(f"load: {open('/proc/loadavg').read().strip()}  cpus: {os.cpu_count()}")
+    print(f"load: {Path('/proc/loadavg').read_text().strip()}  cpus: {os.cpu_count()}")
     for flooded in (False, True):
         r = run_show(args.rig, args.seconds, args.port, flooded, args.count)
         print(json.dumps(r))
-    print(f"load: {open('/proc/loadavg').read().strip()}")
+    print(f"load: {Path('/proc/loadavg').read_text().strip()}")
     return 0
 
 
