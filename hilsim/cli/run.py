@@ -25,15 +25,12 @@ import time
 from pathlib import Path
 
 from hilsim.cli._args import add_port
+from hilsim.cli._report import print_stats, status_printer, verdict
 from hilsim.exit_codes import ExitCode, for_signal
 
 HELP = "run a rig: springs follow the animation, streamed to the servos (or the emulator)"
 
 EXIT_USAGE = int(ExitCode.USAGE)
-#: a show that completes with more than this share of overrunning ticks, or of failed reads,
-#: ends with a verdict line saying so (the exit code stays 0: the show did go on)
-VERDICT_OVERRUN_SHARE = 0.05
-VERDICT_COMM_SHARE = 0.01
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -136,29 +133,6 @@ def _mkdir(path: Path, *, exist_ok: bool) -> None:
         ) from None
     if not os.access(path, os.W_OK | os.X_OK):
         raise UsageError(f"{path}: the run directory is not writable")
-
-
-def _status_printer(rate_hz: float):
-    if not sys.stderr.isatty():
-        return None
-    start = time.perf_counter()
-
-    def show(st: dict) -> None:
-        wall = time.perf_counter() - start
-        rate = st["tick"] / wall if wall > 0 else 0.0
-        total = st.get("duration")
-        of = f"/{total:.1f}" if total is not None else ""
-        sys.stderr.write(
-            f"\r t {st['t']:.1f}{of} s  {rate:.0f}/{rate_hz:g} Hz  "
-            f"late p99 {st.get('lateness_p99_us', float('nan')):.0f} us  "
-            f"comm err {st['comm_errors']}  overruns {st['overruns']}  "
-            f"stalls {st.get('host_stalls', 0)} "
-            + (f" | {st['cue']}" if st.get("cue") else "")
-            + "\033[K"
-        )
-        sys.stderr.flush()
-
-    return show
 
 
 def _say(message: str) -> None:
@@ -354,7 +328,7 @@ def _run_on_bus(args, parts, bus, run_dir: Path) -> int:
             telemetry,
             duration_s=args.duration,
             stop=stop,
-            on_status=None if virtual else _status_printer(rig.loop.rate_hz),
+            on_status=None if virtual else status_printer(rig.loop.rate_hz),
             start_at=start_at,
         )
     finally:
@@ -373,7 +347,7 @@ def _run_on_bus(args, parts, bus, run_dir: Path) -> int:
         f"({show.ticks / rig.loop.rate_hz:.2f} s of show in {show.wall_s:.2f} s); "
         f"{show.exit_policy}"
     )
-    _print_stats(summary)
+    print_stats(summary)
     tel = summary.get("telemetry") or {}
     how = (
         ""
@@ -381,8 +355,8 @@ def _run_on_bus(args, parts, bus, run_dir: Path) -> int:
         else f" ({tel['format']}: {tel.get('format_reason')})"
     )
     print(f"  telemetry: {run_dir}{how}", file=sys.stderr)
-    if show.exit_code == ExitCode.OK and (verdict := _verdict(summary, show.ticks)):
-        _say(f"verdict: {verdict}")
+    if show.exit_code == ExitCode.OK and (line := verdict(summary, show.ticks)):
+        _say(f"verdict: {line}")
     if not args.no_plots and "ticks" in summary:  # a summary was written: the run reads back
         try:
             from hilsim.telemetry.plots import plot_run
@@ -411,49 +385,6 @@ def _track_warnings(rig, targets, duration_s: float | None) -> list[str]:
 
     warnings = check_tracks(targets, rig.joints, rig.loop.period_s, duration_s=duration_s)
     return [str(w) for w in warnings]
-
-
-def _print_stats(summary: dict) -> None:
-    from hilsim.telemetry.stats import comm_errors
-
-    lat = summary.get("lateness_us") or {}
-    loop = summary.get("loop") or {}
-
-    def us(key: str) -> str:
-        value = lat.get(key)
-        return "n/a" if value is None else f"{value:.0f} us"
-
-    stalls = loop.get("host_stalls") or {}
-    print(
-        f"  lateness p50 {us('p50')}, p99 {us('p99')}, max {us('max')}; "
-        f"overruns {summary.get('overruns', 0)}; "
-        f"comm errors {comm_errors(summary)}; "
-        f"host stalls {stalls.get('count', 0)} (max {stalls.get('max_ms', 0):.0f} ms)"
-        + (f"; watchdog recoveries {loop['recoveries']}" if loop.get("recoveries") else ""),
-        file=sys.stderr,
-    )
-
-
-def _verdict(summary: dict, ticks_run: int) -> str | None:
-    """One line when a completed show was not healthy (overruns, failed reads, lost rows)."""
-    from hilsim.telemetry.stats import comm_errors
-
-    ticks = max(int(summary.get("ticks") or ticks_run or 0), 1)
-    problems = []
-    overruns = int(summary.get("overruns") or 0)
-    if overruns > VERDICT_OVERRUN_SHARE * ticks:
-        problems.append(f"{overruns / ticks:.0%} of ticks overran (the host is too busy?)")
-    comm = comm_errors(summary)
-    if comm > VERDICT_COMM_SHARE * ticks * max(len(summary.get("stale_reads") or {}), 1):
-        problems.append(f"{comm} failed reads (check wiring, power and Return Delay Time)")
-    tel = summary.get("telemetry") or {}
-    if tel.get("rows_dropped"):
-        problems.append(f"{tel['rows_dropped']} telemetry rows dropped (disk too slow)")
-    if tel.get("error"):
-        problems.append(f"telemetry failed ({tel['error']}): the run is not fully recorded")
-    if not problems:
-        return None
-    return "the show completed, but " + "; ".join(problems)
 
 
 def _remove_if_empty(path: Path) -> None:
