@@ -57,11 +57,13 @@ def osc(address: str, *floats: float) -> bytes:
     )
 
 
-def show(tmp_path: Path, show_text: str | None, *, duration: float, inject=None, live=False):
+def show(
+    tmp_path: Path, show_text: str | None, *, duration: float, inject=None, live=False, rig=RIG
+):
     """Run the rig with the show file (virtual time); ``inject(k, director)`` runs after the
     director's tick k (a message arriving during tick k is seen at tick k + 1)."""
     rig_path = tmp_path / "rig.toml"
-    rig_path.write_text(RIG)
+    rig_path.write_text(rig)
     show_path = None
     if show_text is not None:
         show_path = tmp_path / "show.toml"
@@ -260,3 +262,50 @@ def test_a_show_file_mistake_is_one_line(tmp_path, capsys):
         assert code == 2, text
         assert words in err and "Traceback" not in err, err
         assert len(err.strip().splitlines()) == 1, err
+
+
+# ------------------------------------------------------------------ the show runtime
+SCARE_SHOW = """
+[clips.idle]
+jaw = { type = "hold", value_deg = 10 }
+[clips.scare]
+jaw = { type = "keyframes", keys = [[0, 19], [0.5, 15], [1.0, 5]] }
+[idle]
+clips = ["idle"]
+[cues.scare]
+trigger = ["osc:/trigger/pir", "at:3.0"]
+clip = "scare"
+then = "idle"
+lockout_s = 10
+[inputs.osc]
+port = 9000
+"""
+
+
+def test_a_triggered_scare_is_within_the_limits_and_a_second_trigger_is_locked_out(tmp_path):
+    """The issue's show acceptance: idle holds the jaw at 10 deg; the scare clip starts at
+    19 deg (the jaw's limit is 20) when triggered at 3.0 s; the commanded jaw never steps more
+    than its speed limit x period; a second trigger inside the lockout is ignored and logged."""
+
+    def inject(k, d):
+        if k == 1000:  # 4.0 s: inside the 10 s lockout
+            d.osc.feed(k * PERIOD, osc("/trigger/pir"), ("127.0.0.1", 5000))
+
+    slow = RIG.replace("max_speed_deg_s = 300", "max_speed_deg_s = 100")
+    r = show(tmp_path, SCARE_SHOW, duration=6.0, inject=inject, rig=slow)
+    assert r.result.exit_code == 0
+    target, cmd = deg(r.run, "target", 1), deg(r.run, "cmd", 1)
+    t = np.arange(len(target)) * PERIOD
+    assert np.all(target[(t > 1.0) & (t < 3.0)] == pytest.approx(10.0))
+    assert target[t == 3.0][0] == pytest.approx(19.0)  # the cut, on the tick it was due
+    assert np.all(target[(t > 4.0) & (t < 6.0)] == pytest.approx(10.0))  # idle again
+    steps = np.abs(np.diff(cmd))
+    assert steps.max() <= 100 * PERIOD + 1e-9  # max_speed_deg_s x period
+    assert steps[(t[1:] > 3.0) & (t[1:] < 3.2)].max() > 0.99 * 100 * PERIOD  # the limit acted
+    events = [(e["kind"], round(e["t"], 3)) for e in r.run.events if e.get("source") == "show"]
+    kinds = [k for k, _ in events]
+    assert ("cue_start", 3.0) in events and ("cue_end", 4.0) in events
+    ignored = [e for e in r.run.events if e["kind"] == "cue_ignored"]
+    assert len(ignored) == 1 and ignored[0]["reason"] == "lockout"
+    assert ignored[0]["t"] == pytest.approx(1001 * PERIOD)
+    assert kinds.count("cue_start") == 1
