@@ -131,10 +131,11 @@ def build_parts(rig: Rig, targets: TargetSet | None = None) -> Parts:
     )
 
 
-def with_show(parts: Parts, show_path: str | None, live: bool) -> Parts:
+def with_show(parts: Parts, show_path: str | None, live: bool, *, virtual: bool = False) -> Parts:
     """``parts`` with a :class:`~hilsim.live.director.Director` for the show file (and/or
     ``--live``: OSC on 127.0.0.1 for every joint); its targets replace the rig's, which stay
-    under it. Raises RigError (one line) for a show file that cannot be used."""
+    under it; ``virtual``: sounds are scheduled and logged, not played. Raises RigError (one
+    line) for a show file that cannot be used."""
     from hilsim.live.director import build_director
     from hilsim.live.showfile import OscConfig, live_spec, load_show
 
@@ -165,7 +166,7 @@ def with_show(parts: Parts, show_path: str | None, live: bool) -> Parts:
         if live and spec.osc is None:
             spec.osc = OscConfig(joints=live_spec(rig).osc.joints)
     try:
-        director = build_director(spec, rig.joint_names, parts.targets)
+        director = build_director(spec, rig.joint_names, parts.targets, silent=virtual)
     except (ValueError, OSError) as exc:
         raise RigError(f"{show_path or '--live'}: {exc}") from None
     parts.director, parts.targets = director, director.targets

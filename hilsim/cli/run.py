@@ -163,7 +163,7 @@ def run(args: argparse.Namespace) -> int:
         if args.show is not None or args.live:
             from hilsim.session import with_show
 
-            parts = with_show(parts, args.show, args.live)
+            parts = with_show(parts, args.show, args.live, virtual=args.virtual_time)
     except (RigError, ValueError) as exc:
         _say(str(exc))
         return EXIT_USAGE

@@ -62,7 +62,9 @@ class Director:
     """Built by :func:`build_director`; :meth:`open` starts the inputs (before the show),
     the loop calls :meth:`begin` at tick 0 and :meth:`tick` every tick, :meth:`close` ends it."""
 
-    def __init__(self, spec: ShowSpec, names: Sequence[str], base: TargetSet) -> None:
+    def __init__(
+        self, spec: ShowSpec, names: Sequence[str], base: TargetSet, *, silent: bool = False
+    ) -> None:
         self.spec, self.names = spec, tuple(names)
         self.index = {n: i for i, n in enumerate(self.names)}
         self.offset = 0.0  # t_show - t_sim (MTC chase)
@@ -83,7 +85,7 @@ class Director:
             if end is not None:  # a timeline only: the show ends with it
                 for tr in self.tracks:
                     tr.end = end
-        self._build_inputs(spec)
+        self._build_inputs(spec, silent)
         self._log: Callable[..., None] = lambda *a, **k: None
         self._stop: Any = None
         self._closers: list[Callable[[], None]] = []
@@ -103,8 +105,9 @@ class Director:
             for x in (spec.osc, spec.midi, spec.bottango, spec.gamepad, spec.keyboard, spec.teach)
         )
 
-    def _build_inputs(self, spec: ShowSpec) -> None:
-        """The inputs' state machines (no I/O yet)."""
+    def _build_inputs(self, spec: ShowSpec, silent: bool) -> None:
+        """The inputs' state machines (no I/O yet); ``silent``: sounds scheduled and logged,
+        not played (virtual time: no sound device)."""
         keys = tuple(getattr(self.runtime, "trigger_keys", ()) or ())
         self.osc = self.midi = self.midi_triggers = self.chase = None
         self.bottango = self.gamepad = self.keyboard = self.teach = self.audio = None
@@ -149,9 +152,9 @@ class Director:
             self.teach = Teach(self.names, spec.teach)
         sounds = getattr(spec.runtime, "sounds", None)
         if sounds:
-            from hilsim.live.audio_out import AudioOut
+            from hilsim.live.audio_out import AudioOut, SilentBackend
 
-            self.audio = AudioOut()
+            self.audio = AudioOut(SilentBackend() if silent else None)
             self.audio.preload([s.path for s in sounds.values()])
 
     # ------------------------------------------------------------------ life cycle
@@ -251,11 +254,13 @@ class Director:
                 runtime.trigger(key, t_show)
             for ev in runtime.tick(t_show):
                 events.append(ev)
-                if ev.kind in ("cue_start", "clip_start"):
-                    self._sound(ev, t_show)
+                if self.audio is not None and ev.kind in ("cue_start", "clip_start", "cue_end"):
+                    events += self._sound(ev, t_show)
         elif triggers:
             for key in triggers:
                 events.append(LiveEvent(t, "trigger", "show", {"message": f"{key}: no cues"}))
+        if self.audio is not None:
+            events += self.audio.poll(t)
         for ev in events:
             self._event(k, ev)
 
@@ -291,10 +296,15 @@ class Director:
         if self._stop is not None:
             self._stop.request_command(what)
 
-    def _sound(self, ev: LiveEvent, t_show: float) -> None:
+    def _sound(self, ev: LiveEvent, t_show: float) -> list[LiveEvent]:
+        """A clip in front with a sound starts it, in step with the clip (late: further into
+        the file); a cue without one, or a cue's end, stops the sound playing."""
         path = ev.detail.get("sound")
-        if path and self.audio is not None:
-            self.audio.play(path, float(ev.detail.get("sound_offset_s", 0.0)), ev.t, t_show)
+        if path:
+            return self.audio.play(path, float(ev.detail.get("sound_offset_s", 0.0)), ev.t, t_show)
+        if ev.kind in ("cue_start", "cue_end"):
+            self.audio.stop()
+        return []
 
     def _event(self, k: int, ev: LiveEvent) -> None:
         self.counts["events"] += 1
@@ -331,7 +341,7 @@ class Director:
         out: dict[str, Any] = {"show": self.spec.name, **self.counts}
         if self.osc is not None:
             out["osc_drops"] = self.osc.guard.drops.snapshot()
-        for name in ("midi", "chase", "bottango", "gamepad", "teach"):
+        for name in ("midi", "chase", "bottango", "gamepad", "keyboard", "teach", "audio"):
             part = getattr(self, name)
             summary = getattr(part, "summary", None)
             if callable(summary):
@@ -359,7 +369,9 @@ class Director:
         return written
 
 
-def build_director(spec: ShowSpec, names: Sequence[str], base: TargetSet) -> Director:
-    """The director for ``spec`` over the rig's own targets ``base``. Raises ValueError on a
-    spec the inputs refuse (one line)."""
-    return Director(spec, names, base)
+def build_director(
+    spec: ShowSpec, names: Sequence[str], base: TargetSet, *, silent: bool = False
+) -> Director:
+    """The director for ``spec`` over the rig's own targets ``base``; ``silent``: no sound
+    device (virtual time). Raises ValueError on a spec the inputs refuse (one line)."""
+    return Director(spec, names, base, silent=silent)

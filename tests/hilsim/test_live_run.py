@@ -3,6 +3,7 @@ virtual time, with messages injected at chosen ticks or stamped ahead of time.""
 
 from __future__ import annotations
 
+import math
 import struct
 from pathlib import Path
 from types import SimpleNamespace
@@ -58,7 +59,14 @@ def osc(address: str, *floats: float) -> bytes:
 
 
 def show(
-    tmp_path: Path, show_text: str | None, *, duration: float, inject=None, live=False, rig=RIG
+    tmp_path: Path,
+    show_text: str | None,
+    *,
+    duration: float,
+    inject=None,
+    live=False,
+    rig=RIG,
+    open_inputs=False,
 ):
     """Run the rig with the show file (virtual time); ``inject(k, director)`` runs after the
     director's tick k (a message arriving during tick k is seen at tick k + 1)."""
@@ -69,7 +77,9 @@ def show(
         show_path = tmp_path / "show.toml"
         show_path.write_text(show_text)
     rig = load_rig(rig_path)
-    parts = with_show(build_parts(rig), None if show_path is None else str(show_path), live)
+    parts = with_show(
+        build_parts(rig), None if show_path is None else str(show_path), live, virtual=True
+    )
     director = parts.director
     if inject is not None:
         real_tick = director.tick
@@ -80,6 +90,8 @@ def show(
 
         director.tick = tick
     bus = open_bus(rig, port_for(rig, True))
+    if open_inputs:  # as hilsim run does: sockets, ports, the pty, before anything moves
+        director.open(bus.clock, lambda line: None)
     out = tmp_path / "run"
     tel = open_telemetry(rig, out, True)
     try:
@@ -309,3 +321,88 @@ def test_a_triggered_scare_is_within_the_limits_and_a_second_trigger_is_locked_o
     assert len(ignored) == 1 and ignored[0]["reason"] == "lockout"
     assert ignored[0]["t"] == pytest.approx(1001 * PERIOD)
     assert kinds.count("cue_start") == 1
+
+
+# ------------------------------------------------------------------ Bottango live, over a pty
+SC1 = "sC,0,0,2000,4096,513,0,7110,-763,814"
+
+
+def hashed(cmd: str) -> bytes:
+    return f"{cmd},h{sum(cmd.encode())}\n".encode()
+
+
+def test_bottango_over_a_pty_moves_the_jaw_as_the_export_does(tmp_path):
+    """The issue's Bottango acceptance end to end: the show opens its pty (the link a user
+    points Bottango at); at tick 10 the test, playing the app, sends the handshake, the
+    registration, a time sync and the curve, reading each answer before the next line (as
+    the app waits for OK). The jaw's target then equals the imported export of the same curve
+    at the driver's time; a bad hash moves nothing; STOP ends the show with the stop code."""
+    import os
+    import select
+
+    from hilsim.targets.formats.bottango import read_export
+    from hilsim.targets.formats.common import UnitMap
+
+    link = tmp_path / "bottango"
+    text = f"""
+[inputs.bottango]
+transport = "pty"
+link = "{link}"
+[inputs.bottango.effectors."0"]
+joint = "jaw"
+signal = [1000, 2000]
+degrees = [0, 20]
+"""
+    answers: list[bytes] = []
+
+    def talk(fd: int, line: bytes) -> bytes:
+        os.write(fd, line)
+        got = b""
+        while not got.endswith(b"OK\n") and not got.endswith(b"HASH_FAIL\n"):
+            ready = select.select([fd], [], [], 5.0)[0]  # a safety net, never a timing
+            assert ready, f"no answer to {line!r} (so far {got!r})"
+            got += os.read(fd, 256)
+        answers.append(got)
+        return got
+
+    state = {}
+
+    def inject(k, d):
+        if k == 10:
+            import termios
+            import tty
+
+            fd = os.open(link, os.O_RDWR | os.O_NOCTTY)
+            tty.setraw(fd, termios.TCSANOW)
+            state["fd"] = fd
+            assert talk(fd, hashed("hRQ,144")) == b"btngoHSK,0.8.0c1,144\nOK\n"
+            talk(fd, hashed("rSVPin,0,1000,2000,3000,1500"))
+            talk(fd, hashed("tSYN,0"))
+            talk(fd, hashed(SC1))
+            assert talk(fd, b"xUC,0,h369\n") == b"HASH_FAIL\n"  # would clear the curve
+        if k == 700:
+            os.write(state["fd"], hashed("STOP"))
+            ready = select.select([state["fd"]], [], [], 5.0)[0]
+            assert ready
+            answers.append(os.read(state["fd"], 256))
+
+    r = show(tmp_path, text, duration=5.0, inject=inject, open_inputs=True)
+    os.close(state["fd"])
+    assert r.result.exit_code == ExitCode.STOPPED
+    assert "BOOT" in answers[-1].decode()
+    target = deg(r.run, "target", 1)
+    t = np.arange(len(target)) * PERIOD
+    sync_t = r.director.bottango._sync_t  # the show time the tSYN line arrived
+    assert 10 * PERIOD <= sync_t < 11 * PERIOD
+    export = tmp_path / "GeneratedCodeAnimations.cpp"
+    export.write_text(
+        'const char SETUP_DATA_0[] PROGMEM = "rSVPin,0,1000,2000,3000,1500\\n";\n'
+        f'const char ANIM_0_DATA0[] PROGMEM = "{SC1}\\n";\n'
+    )
+    track = read_export(export).track(0, "0", signal=UnitMap((1000, 2000), (0, 20), "us"))
+    after = (t >= 11 * PERIOD) & (t <= 700 * PERIOD)
+    expected = [math.degrees(track.sample(x - sync_t)[0]) for x in t[after]]
+    np.testing.assert_allclose(target[after], expected, atol=1e-9)
+    assert target[t == 1.0 + 11 * PERIOD][0] == pytest.approx(
+        math.degrees(track.sample(1.0 + 11 * PERIOD - sync_t)[0])
+    )
