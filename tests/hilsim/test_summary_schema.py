@@ -25,7 +25,10 @@ DATA_OBJECTS = {
     "safety_limits",
     "safety_ticks",
     "loop.host_stalls",
+    "live",
 }
+#: sections only some runs have (documented, absent from the demo's summary)
+OPTIONAL = {"live"}
 
 
 def documented_keys() -> list[str]:
@@ -54,7 +57,28 @@ def test_every_key_is_documented_once_and_every_documented_key_is_there(demo_sum
     doc = documented_keys()
     assert len(doc) == len(set(doc)), "a key documented twice"
     parents = {k.rsplit(".", 1)[0] for k in doc if "." in k}
-    assert sorted(summary_keys(demo_summary)) == sorted(set(doc) | parents)
+    assert sorted(summary_keys(demo_summary)) == sorted((set(doc) | parents) - OPTIONAL)
+
+
+def test_a_live_show_has_the_live_section(tmp_path):
+    """A show with OSC: the documented ``live`` section, with the keys its prose names."""
+    import socket
+
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:  # a free port
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    show = tmp_path / "show.toml"
+    show.write_text(f"[inputs.osc]\nport = {port}\n[record]\n")
+    out = tmp_path / "run"
+    demo = str(REPO / "configs" / "demo.toml")
+    argv = ["run", demo, "--show", str(show), "--virtual-time", "--duration", "0.2",
+            "--out", str(out), "--no-plots"]  # fmt: skip
+    assert main(argv) == 0
+    live = json.loads((out / "summary.json").read_text(encoding="utf-8"))["live"]
+    doc = DOC.read_text(encoding="utf-8").split("## A live show")[1]
+    for key in live:
+        assert f"`{key}`" in doc, key
+    assert {"show", "events", "cues", "stops", "live_values", "osc_drops", "takes"} <= set(live)
 
 
 def test_the_version_is_the_documented_one(demo_summary):
