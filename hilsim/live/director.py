@@ -155,7 +155,10 @@ class Director:
             from hilsim.live.audio_out import AudioOut, SilentBackend
 
             self.audio = AudioOut(SilentBackend() if silent else None)
-            self.audio.preload([s.path for s in sounds.values()])
+            self.audio.preload(
+                [s.path for s in sounds.values()],
+                offsets_ms={str(s.path): s.offset_s * 1e3 for s in sounds.values()},
+            )
 
     # ------------------------------------------------------------------ life cycle
     def now(self) -> float:

@@ -31,7 +31,8 @@ Events (:class:`~hilsim.live.inbox.LiveEvent`, source ``"show"``), in time order
     trigger_unmatched  trigger   (once per key)    triggers_dropped  count  (a flood)
 
 ``sound`` is the clip's sound file when its layer is the one in front; ``sound_offset_s`` is
-where in the file to start (the sound's ``offset_ms`` plus how far into the clip it is).
+where in the file to start (how far into the clip it is; the sound's ``offset_ms``, a delay,
+is the player's: :mod:`hilsim.live.audio_out`).
 """
 
 from __future__ import annotations
@@ -264,7 +265,7 @@ class ShowRuntime:
         detail: dict[str, Any] = {"cue": cue.name, "clip": cue.clip, "trigger": why}
         sound = self.spec.sounds.get(cue.clip)
         if sound is not None:
-            detail.update(sound=str(sound.path), sound_offset_s=sound.offset_s)
+            detail.update(sound=str(sound.path), sound_offset_s=0.0)
         self._emit(t, "cue_start", f"cue {cue.name}: clip {cue.clip} ({why})", **detail)
 
     def _fire(self, keys: list[str], t: float) -> None:
@@ -405,7 +406,7 @@ class ShowRuntime:
             ev = mine[-1]
             sound = self.spec.sounds.get(ev.detail["clip"])
             if sound is not None:
-                offset = sound.offset_s + ev.detail["local_s"]
+                offset = ev.detail["local_s"]
                 ev.detail.update(sound=str(sound.path), sound_offset_s=offset)
 
     # ------------------------------------------------------------------ per joint

@@ -11,7 +11,8 @@ it: the idle clip, else the rig's own target)::
     jaw = { type = "keyframes", keys = [[0, 30], [0.5, 5], [4, 10]] }
 
     [sounds]
-    scare = "audio/scream.wav"                      # or { file = "...", offset_ms = 120 }
+    scare = "audio/scream.wav"                      # or { file = "...", offset_ms = 120 }:
+                                                    #   heard 120 ms after its clip starts
 
     [idle]                                          # or, shorter: idle = ["breathe"]
     clips = ["breathe", "look_around"]
@@ -71,8 +72,9 @@ class Clip:
 
 @dataclass(frozen=True)
 class Sound:
-    """A clip's sound: ``path`` (checked to exist at load), ``offset_s``: where in the file
-    the clip's time 0 is (``offset_ms`` / 1000)."""
+    """A clip's sound: ``path`` (checked to exist at load), ``offset_s``: how much later than
+    its clip the sound is heard (``offset_ms`` / 1000; for a servo that lags its target;
+    negative: earlier). The player applies it (:mod:`hilsim.live.audio_out`)."""
 
     path: Path
     offset_s: float = 0.0

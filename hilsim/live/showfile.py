@@ -65,7 +65,9 @@ INPUT_KEYS = ("osc", "midi", "mtc", "bottango", "gamepad", "keyboard")
 class OscConfig:
     port: int = DEFAULT_OSC_PORT
     guard: GuardConfig = field(default_factory=GuardConfig)
-    lost_after_s: float = 0.5
+    #: no value for a joint this long: it holds, one input_lost event (a fader app sends only
+    #: when it moves, so this is "the sender went away", not "the hand is still")
+    lost_after_s: float = 2.0
     max_rx_per_s: float = 2000.0
     #: joint -> (degrees at 0, degrees at 1); default: every joint over its limits
     joints: dict[str, tuple[float, float]] = field(default_factory=dict)
@@ -226,7 +228,7 @@ def _osc(r: Reader, rig: Rig) -> OscConfig:
     out = OscConfig(
         port=port,
         guard=guard,
-        lost_after_s=r.number("lost_after_s", 0.5, positive=True),
+        lost_after_s=r.number("lost_after_s", 2.0, positive=True),
         max_rx_per_s=r.number("max_rx_per_s", 2000.0, positive=True, at_most=1e6),
         joints=joints or ranges,
     )

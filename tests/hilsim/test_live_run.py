@@ -406,3 +406,25 @@ degrees = [0, 20]
     assert target[t == 1.0 + 11 * PERIOD][0] == pytest.approx(
         math.degrees(track.sample(1.0 + 11 * PERIOD - sync_t)[0])
     )
+
+
+def test_a_clips_sound_starts_with_it_in_virtual_time(tmp_path):
+    """A cue's sound is started on the cue's tick at its first sample, 120 ms late as the
+    show asks (silent backend in virtual time: scheduled and logged, not played)."""
+    import wave
+
+    with wave.open(str(tmp_path / "scream.wav"), "wb") as w:
+        w.setnchannels(1)
+        w.setsampwidth(2)
+        w.setframerate(8000)
+        w.writeframes(b"\x00\x10" * 8000)
+    text = SCARE_SHOW.replace("[inputs.osc]\nport = 9000\n", "").replace(
+        "[idle]", '[sounds]\nscare = { file = "scream.wav", offset_ms = 120 }\n[idle]'
+    )
+    r = show(tmp_path, text, duration=4.5, open_inputs=True)
+    assert r.result.exit_code == 0
+    started = [e for e in r.run.events if e["kind"] == "sound_start"]
+    assert len(started) == 1 and started[0]["t"] == pytest.approx(3.0)
+    assert "scream.wav" in started[0]["message"] and started[0]["start_frame"] == 0
+    assert started[0]["heard_at_s"] == pytest.approx(3.12)
+    assert r.result.summary["live"]["audio"]["played"] == 1

@@ -325,7 +325,8 @@ clip = "scare"
     events = rt.tick(0.2) + run_from(rt, 0.2, 1.5)
     start = next(e for e in events if e.kind == "cue_start")
     assert start.detail["sound"] == str(tmp_path / "scream.wav")
-    assert start.detail["sound_offset_s"] == 0.25
+    assert start.detail["sound_offset_s"] == 0.0  # from the file's start ...
+    assert rt.spec.sounds["scare"].offset_s == 0.25  # ... heard 250 ms late (the player's)
     resumed = next(e for e in events if e.kind == "clip_start")
     assert resumed.detail["resumed"] and resumed.t == pytest.approx(1.2)
     assert resumed.detail["sound_offset_s"] == pytest.approx(1.2)  # the hum, 1.2 s in
