@@ -3,6 +3,7 @@ virtual time, with messages injected at chosen ticks or stamped ahead of time.""
 
 from __future__ import annotations
 
+import itertools
 import math
 import struct
 from pathlib import Path
@@ -215,6 +216,8 @@ def test_midi_cc_ramp_drives_the_joint_and_records_a_take(tmp_path):
         )
         <= 0.5
     )
+    held = raw[np.searchsorted(raw[:, 0], ticks + 1e-12, side="right") - 1, 1]  # as it was live
+    assert np.max(np.abs(np.interp(ticks, keys[:, 0], keys[:, 1]) - held)) <= 0.5
     assert (r.out / "take" / "take.toml").read_text().startswith("# a take")
 
 
@@ -428,3 +431,28 @@ def test_a_clips_sound_starts_with_it_in_virtual_time(tmp_path):
     assert "scream.wav" in started[0]["message"] and started[0]["start_frame"] == 0
     assert started[0]["heard_at_s"] == pytest.approx(3.12)
     assert r.result.summary["live"]["audio"]["played"] == 1
+
+
+def test_the_shipped_demo_show_runs(tmp_path):
+    """configs/shows/demo_show.toml on configs/demo.toml in virtual time (inputs not opened):
+    idle clips alternate, the every:45 scare fires at 45 s and idle resumes after it."""
+    repo = Path(__file__).resolve().parents[2]
+    rig = load_rig(repo / "configs" / "demo.toml")
+    parts = with_show(build_parts(rig), str(repo / "configs/shows/demo_show.toml"), False,
+                      virtual=True)  # fmt: skip
+    bus = open_bus(rig, port_for(rig, True))
+    tel = open_telemetry(rig, tmp_path / "run", True)
+    try:
+        result = run_show(parts, bus, tel, duration_s=50.0, stop=StopFlag())
+    finally:
+        bus.close()
+    assert result.exit_code == 0
+    events = read_run(tmp_path / "run").events
+    starts = [
+        (e["kind"], e.get("clip"), round(e["t"], 3)) for e in events if e.get("source") == "show"
+    ]
+    assert ("cue_start", "scare", 45.0) in starts
+    idle = [e["clip"] for e in events if e["kind"] == "clip_start" and not e.get("resumed")]
+    assert set(idle) == {"breathe", "look_around"}
+    assert all(a != b for a, b in itertools.pairwise(idle))  # random, never twice in a row
+    assert any(k == "idle_resume" and t > 45.0 for k, _, t in starts)
