@@ -456,3 +456,29 @@ def test_the_shipped_demo_show_runs(tmp_path):
     assert set(idle) == {"breathe", "look_around"}
     assert all(a != b for a, b in itertools.pairwise(idle))  # random, never twice in a row
     assert any(k == "idle_resume" and t > 45.0 for k, _, t in starts)
+
+
+def test_a_timecode_jump_is_a_limited_move_never_a_step(tmp_path):
+    """Locked at 00:00:05:00, then the timecode jumps back to 00:00:01:00 (a rewind): the
+    target steps back 8 deg at once, the commanded jaw moves back within its speed and
+    acceleration limits, and the jump is an event."""
+    mido = pytest.importorskip("mido")
+
+    def frames(seconds: int) -> list[int]:
+        return [0x00, 0x10, 0x20 | seconds, 0x30, 0x40, 0x50, 0x60, 0x76]
+
+    def inject(k, d):
+        if k == 0:
+            for start, sec in ((1.0, 5), (1.5, 1)):
+                for i, b in enumerate(frames(sec)):
+                    msg = mido.Message("quarter_frame", frame_type=b >> 4, frame_value=b & 15)
+                    d.chase.feed(msg, start + i / 120)
+
+    slow = RIG.replace("max_speed_deg_s = 300", "max_speed_deg_s = 60")
+    r = show(tmp_path, MTC_SHOW, duration=3.0, inject=inject, rig=slow)
+    target, cmd = deg(r.run, "target", 1), deg(r.run, "cmd", 1)
+    assert np.min(np.diff(target)) < -7.0  # the target jumped back ~8 deg
+    steps = np.diff(cmd)
+    assert np.max(np.abs(steps)) <= 60 * PERIOD + 1e-9  # the command never did
+    assert np.max(np.abs(np.diff(steps))) <= 20000 * PERIOD**2 + 1e-9
+    assert any(e["kind"] == "timecode_jump" for e in r.run.events)
