@@ -321,11 +321,14 @@ class ServoBus(ABC):
         return out
 
     # -- state changes ----------------------------------------------------------------
-    def set_torque(self, on: bool) -> None:
-        """Torque on (hold) or off (limp) on every servo; tries all, raises the first
-        failure with the others noted."""
+    def set_torque(self, on: bool, ids: Sequence[int] | None = None) -> None:
+        """Torque on (hold) or off (limp) on every servo or on ``ids`` only (teach-by-hand); tries
+        all, raises the first failure with the others noted; ValueError for an unknown ID."""
         self._check_open()
-        self._set_torque(bool(on))
+        chosen = self._ids if ids is None else tuple(dict.fromkeys(int(i) for i in ids))
+        if not set(chosen) <= set(self._ids):
+            raise ValueError(f"servo(s) {sorted(set(chosen) - set(self._ids))} not in {self._ids}")
+        self._set_torque(bool(on), chosen)
 
     def arm_watchdog(self, period_s: float) -> None:
         """Make every servo stop on its own if the host is silent for ``period_s``."""
@@ -432,7 +435,7 @@ class ServoBus(ABC):
         """Fill every field of ``out``."""
 
     @abstractmethod
-    def _set_torque(self, on: bool) -> None: ...
+    def _set_torque(self, on: bool, ids: tuple[int, ...]) -> None: ...
 
     @abstractmethod
     def _arm_watchdog(self, period_s: float) -> None: ...

@@ -168,6 +168,9 @@ class HilLoop:
         self.safety, self.integrator = parts.safety, parts.integrator
         #: live inputs and the show runtime (hilsim.live.director), or None
         self.director = parts.director
+        #: joints (indices) a person moves by hand, torque off (the show's [teach])
+        teach = getattr(self.director, "teach", None)
+        self._limp: tuple[int, ...] = tuple(teach.limp_indices) if teach is not None else ()
         self.clock = bus.clock
         self.stop = stop or StopFlag()
         self.on_status = on_status
@@ -238,6 +241,9 @@ class HilLoop:
             bus.set_torque(True)
             if self.watch.watchdog_s:
                 bus.arm_watchdog(self.watch.watchdog_s)
+            if self._limp:  # teach-by-hand: these go limp for a person to move them
+                bus.set_torque(False, ids=[self.rig.joints[i].servo_id for i in self._limp])
+                self.watch.set_limp(self._limp)
         except ServoBusError as exc:
             raise LoopFaultError(f"cannot start: {exc}") from exc
         self.map.to_joint(servo_present, self.present)
@@ -255,6 +261,9 @@ class HilLoop:
         rig = self.rig
         policy = rig.safety.exit_policy.value
         try:
+            if self._limp and policy == "hold":  # a taught joint is held where it was left
+                self.watch.set_limp(())
+                self.bus.set_torque(True, ids=[rig.joints[i].servo_id for i in self._limp])
             report = self.bus.apply_exit_policy(policy, retries=rig.safety.exit_retries)
         except Exception as exc:  # the bus may be gone: say so loudly, never hang
             report = getattr(exc, "report", None)
@@ -451,6 +460,11 @@ class HilLoop:
         self._present_view.put(*present)
         if self.director is not None:  # live inputs, cues, timecode: this tick's targets
             self.director.tick(k, t_sim, present)
+            for i in self._limp:  # the spring and the filter sit where the hand put the joint,
+                p = present[i]  # so the next goal is there: torque coming back moves nothing
+                if p == p:  # (a stale read is NaN: the last position holds)
+                    self.x[i], self.v[i] = p, 0.0
+                    self.safety.rejoin(i, p)
         # u(t_k) recorded; u and u' as tuples for the springs (u' needs no array of its own)
         target = self.targets.sample_into(t_sim, self.u)
         c3 = perf()

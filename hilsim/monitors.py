@@ -169,13 +169,15 @@ class FollowingMonitor:
 
     Time is counted in ticks of show time (``period_s`` each) over ticks with a valid reading;
     a tick without one neither adds nor resets. :meth:`reset` forgets a joint (after a
-    recovery it rejoins from where it is).
+    recovery it rejoins from where it is). :meth:`exempt` leaves joints out (a limp joint,
+    moved by hand, follows no command), at no cost per tick: their tolerance is infinite.
     """
 
     def __init__(
         self, tolerance_rad: Sequence[float], time_s: Sequence[float], period_s: float
     ) -> None:
         self.tolerance = [float(t) for t in tolerance_rad]
+        self._given = list(self.tolerance)  # the tolerances asked, whatever is exempt
         self.limit_ticks = [max(1, math.ceil(t / period_s - 1e-9)) for t in time_s]
         self.period_s = float(period_s)
         self._count = [0] * len(self.tolerance)
@@ -201,6 +203,15 @@ class FollowingMonitor:
 
     def reset(self, j: int) -> None:
         self._count[j] = 0
+
+    def exempt(self, joints: frozenset[int]) -> None:
+        """Check every joint but ``joints`` (indices) from now on; a joint that changes side
+        starts counting from zero."""
+        for j, given in enumerate(self._given):
+            tol = math.inf if j in joints else given
+            if tol != self.tolerance[j]:
+                self.tolerance[j] = tol
+                self._count[j] = 0
 
 
 class HealthSchedule:

@@ -14,12 +14,15 @@ naming the servo and the cause, or into a recovery. The rules and their numbers 
   enough for a Bus Watchdog to trip: check every servo before sending goals; a trip that a
   host stall explains is recovered (cleared, goal = present, the joint rejoins through the
   safety filter's limits); one nothing explains is a fault.
+* **limp joints** (:meth:`ServoWatch.set_limp`, teach-by-hand): torque off is expected there
+  and the following error is not checked; an Alert bit, silence, a hardware error, a reset
+  or a tripped watchdog still stop the show.
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 
 import numpy as np
 
@@ -85,6 +88,23 @@ class ServoWatch:
         self.last_bus_t = -math.inf  # clock time of the last packet sent to the servos
         self.last_long_gap_t = -math.inf  # when the bus last went quiet for a watchdog's while
         self._last_health_ok = [-math.inf] * n
+        #: joints (indices, bus order) limp on purpose: see :meth:`set_limp`
+        self.limp: frozenset[int] = frozenset()
+
+    def set_limp(self, joints: Iterable[int]) -> None:
+        """Joints (indices in bus order) whose torque is off on purpose from now on (a person
+        moves them: :mod:`hilsim.live.teach`); the others are held again. For a limp joint
+        torque off is not a fault and present vs commanded is not compared; every other rule
+        holds. Its periodic health read is the Bus Watchdog alone (one short transaction: a
+        torque-off state read would take a second one to name the cause), where a watchdog
+        at 0 although armed is a reset; the Alert bit of every tick's read reports a hardware
+        error. ValueError for an index that is not a joint."""
+        limp = frozenset(int(i) for i in joints)
+        bad = sorted(i for i in limp if not 0 <= i < len(self.joints))
+        if bad:
+            raise ValueError(f"limp joints {bad}: there are {len(self.joints)} joints")
+        self.limp = limp
+        self.following.exempt(limp)
 
     def _who(self, i: int) -> str:
         return f"servo {self.ids[i]} ({self.names[i]})"
@@ -187,6 +207,8 @@ class ServoWatch:
             sched.deferred += 1
             return
         i, part = sched.take(t)
+        if i in self.limp:
+            part = HealthPart.WATCHDOG
         sent = self.clock.now()
         try:
             health = self.bus.read_health(self.ids[i], part)
@@ -217,7 +239,18 @@ class ServoWatch:
     def _handle(
         self, i: int, health: ServoHealth, k: int, *, explained: bool, gap_s: float = 0.0
     ) -> None:
-        if health.ok:
+        limp = i in self.limp
+        if health.ok or (limp and health.problem is HealthProblem.TORQUE_OFF):
+            if (
+                limp
+                and health.torque_on is None
+                and health.watchdog_armed is False
+                and self.watchdog_s
+            ):
+                raise LoopFaultError(  # a limp servo's health read is the watchdog alone
+                    f"{self._who(i)}: {HealthProblem.RESET.value}: Bus Watchdog 0 although it "
+                    "was armed: the servo restarted (brownout or reboot), RAM back to defaults"
+                )
             self._last_health_ok[i] = self.clock.now()
             return
         if health.problem is HealthProblem.WATCHDOG_TRIPPED and explained:

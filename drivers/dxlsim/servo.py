@@ -22,7 +22,9 @@ Choices where the e-Manual is silent or ambiguous (all deliberate, all tested):
   never jumps and Goal Position reads what the servo holds. In Position Control Mode it
   also folds Present Position into one turn (e-Manual Present Position note), as do a
   change to Position Control Mode and Reboot.
-- Torque off stops the horn where it is (no coasting); the trajectory follows it.
+- Torque off stops the horn where it is (no coasting); the trajectory follows it. A hand
+  (:meth:`VirtualServo.hand`, :mod:`drivers.dxlsim.hand`) then moves it; with torque on
+  nothing back-drives the horn.
 - Bus Watchdog trip stops at once (the e-Manual: profile applied as 0): the trajectory
   holds where the horn is.
 - Action with nothing registered -> Instruction Error (protocol2.md error table). Action
@@ -50,6 +52,7 @@ import drivers.protocol2.control_table as ct
 from drivers.protocol2.control_table import OperatingMode, StatusError
 
 from . import registers as rg
+from .hand import Hand, HandFn
 from .models import ServoModel, get_model
 from .motion import Motion, MotionState, torque_on_by_goal
 from .profile import ProfileType
@@ -130,6 +133,8 @@ class VirtualServo:
         self._wd_ref = self._mo.now
         self._wd_deadline = math.inf
         self._pending: tuple[int, bytes] | None = None
+        self._hand: Hand | None = None
+        self._step_s = float(step_s)
         #: the other axis in the same case (2XL430: :func:`pair_axes`), sharing one
         #: communication module
         self.partner: VirtualServo | None = None
@@ -293,6 +298,8 @@ class VirtualServo:
             self._trip()
         mo.now = t
         mo.run_to(t)
+        if self._hand is not None and not self._regs[_TORQUE_ENABLE]:
+            self._hand.move(mo)
 
     def touch(self, t: float) -> None:
         """A valid instruction packet for this servo arrived at ``t``: restart the Bus
@@ -479,6 +486,20 @@ class VirtualServo:
             self.advance(t)
         self._mo.load_nm = float(torque_nm)
         self._mo.update_speed_limit()
+
+    def hand(self, position_fn: HandFn | None, t: float | None = None) -> None:
+        """A person's hand on the horn from ``t`` (s, if given) on: while torque is off the horn
+        is at ``position_fn(t)``, Present Position in pulses (float, multi-turn, Homing Offset
+        included), or stays where it was left where that is None; ``None`` takes the hand
+        away. No effect while torque is on. See :mod:`drivers.dxlsim.hand`."""
+        if t is not None:
+            self.advance(t)
+        hand = self._hand = None if position_fn is None else Hand(position_fn, self._step_s)
+        if not self._regs[_TORQUE_ENABLE]:  # taken away: the horn stays where it was left
+            if hand is None:
+                self._mo.stop_now()
+            else:
+                hand.move(self._mo)
 
     # --- side effects of writes ----------------------------------------------------------
     def _apply(self, updates: Updates) -> None:

@@ -379,8 +379,8 @@ class DynamixelBus(ServoBus):
         )
 
     # -- state changes -------------------------------------------------------------
-    def _set_torque(self, on: bool) -> None:
-        health.write_all(self.link, self.ids, ct.TORQUE_ENABLE, int(on), 1 + self.retries, "torque")
+    def _set_torque(self, on: bool, ids: tuple[int, ...]) -> None:
+        health.write_all(self.link, ids, ct.TORQUE_ENABLE, int(on), 1 + self.retries, "torque")
 
     def _arm_watchdog(self, period_s: float) -> None:
         units = round(period_s / ct.WATCHDOG_UNIT_S)

@@ -152,6 +152,12 @@ def run(args: argparse.Namespace) -> int:
         return EXIT_USAGE
     try:
         rigs = load_rigs(args.config, port=args.port)
+        if len(rigs) > 1 and args.bus is None and (args.show is not None or args.live):
+            _say(
+                "--show/--live drive one bus for now: this rig has several buses; give "
+                "--bus NAME (one process, one show)"
+            )
+            return EXIT_USAGE
         if len(rigs) > 1 and args.bus is None:
             for each in rigs:  # every bus's targets and port, before any child starts
                 port_for(each, args.virtual_time)
