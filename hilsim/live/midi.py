@@ -309,7 +309,8 @@ def open_midi_input(
             f"a MIDI port needs mido's backend ({exc.name or exc}): {EXTRA_HINT}"
         ) from None
     except OSError as exc:
-        raise ValueError(f"cannot open MIDI input port {name!r}: {exc}") from None
+        which = repr(name) if name else "(the first one)"
+        raise ValueError(f"cannot open MIDI input port {which}: {exc}") from None
     return MidiPort(port, port.name)
 
 

@@ -69,6 +69,7 @@ def show(
     rig=RIG,
     open_inputs=False,
     setup=None,
+    prepare=None,
 ):
     """Run the rig with the show file (virtual time); ``inject(k, director)`` runs after the
     director's tick k (a message arriving during tick k is seen at tick k + 1)."""
@@ -83,6 +84,8 @@ def show(
         build_parts(rig), None if show_path is None else str(show_path), live, virtual=True
     )
     director = parts.director
+    if prepare is not None:  # messages stamped ahead of time, before tick 0
+        prepare(director)
     if inject is not None:
         real_tick = director.tick
 
@@ -187,23 +190,23 @@ tolerance_deg = 0.5
 
 
 def test_midi_cc_ramp_drives_the_joint_and_records_a_take(tmp_path):
-    """The issue's MIDI acceptance through the loop: CC 7 ch 1 0->127 at 100 Hz over 1.27 s."""
+    """The issue's MIDI acceptance through the loop: CC 7 ch 1 0->127 at 100 Hz over 1.27 s,
+    stamped ahead of time (v at v/100 s): -30 deg at 0, -0.24 at 0.63 s, +30 from 1.27 s."""
     mido = pytest.importorskip("mido")
 
-    def inject(k, d):
-        if k == 0:
-            for v in range(128):
-                d.midi.feed(mido.Message("control_change", channel=0, control=7, value=v), v / 100)
+    def prepare(d):
+        for v in range(128):
+            d.midi.feed(mido.Message("control_change", channel=0, control=7, value=v), v / 100)
 
-    r = show(tmp_path, MIDI_SHOW, duration=2.0, inject=inject)
+    r = show(tmp_path, MIDI_SHOW, duration=2.0, prepare=prepare)
     target = deg(r.run, "target", 0)
     t = np.arange(len(target)) * PERIOD
-    # tick 0 saw no message yet (fed after its poll); tick 1 at 4 ms sees v = 0
-    assert target[1] == pytest.approx(-30.0)
-    i063 = int(np.searchsorted(t, 0.63 - 1e-9))
+    assert target[0] == pytest.approx(-30.0)
+    i063 = int(np.searchsorted(t, 0.63 - 1e-9))  # the tick at 0.632 s: the last value is v = 63
     assert target[i063] == pytest.approx(-30 + 60 * 63 / 127, abs=1e-9)  # -0.236 deg
     assert target[i063] == pytest.approx(-0.24, abs=0.005)
     assert np.all(target[t >= 1.27] == pytest.approx(30.0))
+    assert np.all(target[t < 1.27] < 30.0)
     takes = r.result.summary["live"]["takes"]["live"]
     assert takes["raw_samples"] == {"head_pan": 128}
     assert takes["keys"]["head_pan"] <= 3
