@@ -188,7 +188,9 @@ def run(args: argparse.Namespace) -> int:
         )
     for note in parts.targets.notes:  # what the animation files say (Bottango's playback
         _say(f"note: {note}")  # settings, frames a Blender export left out)
-    for line in _track_warnings(rig, parts.targets, args.duration):
+    # a show's targets change with its cues and inputs: what is checked at load is the rig's
+    checked = parts.targets if parts.director is None else parts.director.base
+    for line in _track_warnings(rig, checked, args.duration):
         _say(f"warning: {line}")
     try:
         run_dir = make_run_dir(args.out, rig.telemetry.out_dir, rig.name)
@@ -382,7 +384,8 @@ def _open_inputs(director, clock) -> None:
     try:
         director.open(clock, _say)
     except (OSError, ValueError, RuntimeError, ImportError) as exc:
-        raise ShowRefusedError(f"cannot open the show's inputs: {exc}") from None
+        where = director.spec.path or "--live"
+        raise ShowRefusedError(f"{where}: cannot open the show's inputs: {exc}") from None
 
 
 def _track_warnings(rig, targets, duration_s: float | None) -> list[str]:

@@ -31,6 +31,7 @@ from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 from typing import Any
 
+from hilsim.live.inbox import MAX_LIVE_DEG
 from hilsim.live.netguard import GuardConfig, NetGuard, NetGuardError
 from hilsim.targets.formats.common import UnitMap
 
@@ -38,6 +39,8 @@ SERIAL_VERSION = "0.8.0c1"  # BottangoArduinoDriver BasicCommands.h DRIVER_VERSI
 NETWORK_VERSION = "CUSTOM9"  # BottangoNetworkedDriver CallbacksAndConfiguration.py apiVersion
 DEFAULT_PORT = 59225  # the network driver's port (the app listens)
 MAX_LINE = 512
+#: the widest signal an effector map may give (either end): PWM µs, steps, ...
+MAX_SIGNAL = 1e9
 _KEYS = ("transport", "link", "host", "port", "allow", "driver_version", "require_hash",
          "max_line", "max_lines_per_s", "effectors")  # fmt: skip
 
@@ -75,14 +78,14 @@ class BottangoConfig:
     max_lines_per_s: float = 2000.0
 
 
-def _pair(v: Any, key: str) -> tuple[float, float]:
+def _pair(v: Any, key: str, limit: float) -> tuple[float, float]:
     if (
         not isinstance(v, list | tuple)
         or len(v) != 2
         or not all(isinstance(x, int | float) and not isinstance(x, bool) for x in v)
-        or not all(math.isfinite(x) for x in v)
+        or not all(math.isfinite(x) and abs(x) <= limit for x in v)
     ):
-        raise ValueError(f"{key}: two finite numbers [low, high], got {v!r}")
+        raise ValueError(f"{key}: two numbers [low, high] within ±{limit:g}, got {v!r}")
     return float(v[0]), float(v[1])
 
 
@@ -111,10 +114,10 @@ def _effectors(table: Any, where: str, joints: Iterable[str]) -> dict[str, Effec
         used[joint] = eid
         if "degrees" not in spec:
             raise ValueError(f"{k}.degrees: missing (the joint's degrees at the signal's ends)")
-        d = _pair(spec["degrees"], f"{k}.degrees")
+        d = _pair(spec["degrees"], f"{k}.degrees", MAX_LIVE_DEG)
         s: tuple[float | None, float | None] = (None, None)
         if "signal" in spec:
-            s = _pair(spec["signal"], f"{k}.signal")
+            s = _pair(spec["signal"], f"{k}.signal", MAX_SIGNAL)
             if s[0] == s[1]:
                 raise ValueError(f"{k}.signal: the two ends are equal ({s[0]:g})")
         out[eid] = EffectorMap(joint, s[0], s[1], d[0], d[1])

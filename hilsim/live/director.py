@@ -30,7 +30,7 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
-from hilsim.live.inbox import LiveEvent
+from hilsim.live.inbox import MAX_LIVE_DEG, LiveEvent
 from hilsim.live.showfile import ShowSpec
 from hilsim.targets.tracks import TargetSet, Track
 
@@ -67,6 +67,7 @@ class Director:
     ) -> None:
         self.spec, self.names = spec, tuple(names)
         self.index = {n: i for i, n in enumerate(self.names)}
+        self.base = base  # the rig's own targets (under the show)
         self.offset = 0.0  # t_show - t_sim (MTC chase)
         self.t0: float | None = None  # the clock time of tick 0
         self.clock: Any = None
@@ -94,7 +95,7 @@ class Director:
             from hilsim.live.takes import Take
 
             self.take = Take(spec.record.joints)
-        self.counts = {"events": 0, "cues": 0, "stops": 0, "live_values": 0}
+        self.counts = {"events": 0, "cues": 0, "stops": 0, "live_values": 0, "values_refused": 0}
         self.lost: set[str] = set()
         self.status_note = ""
 
@@ -155,10 +156,13 @@ class Director:
             from hilsim.live.audio_out import AudioOut, SilentBackend
 
             self.audio = AudioOut(SilentBackend() if silent else None)
-            self.audio.preload(
-                [s.path for s in sounds.values()],
-                offsets_ms={str(s.path): s.offset_s * 1e3 for s in sounds.values()},
-            )
+            try:
+                self.audio.preload(
+                    [s.path for s in sounds.values()],
+                    offsets_ms={str(s.path): s.offset_s * 1e3 for s in sounds.values()},
+                )
+            except ValueError as exc:
+                raise ValueError(f"sounds: {exc}") from None
 
     # ------------------------------------------------------------------ life cycle
     def now(self) -> float:
@@ -272,6 +276,9 @@ class Director:
         i = self.index.get(joint)
         if i is None:
             return
+        if not -MAX_LIVE_DEG <= deg <= MAX_LIVE_DEG:  # NaN, inf, absurd: never a target
+            self.counts["values_refused"] += 1
+            return
         rad = math.radians(deg)
         track = self.tracks[i]
         if track.live == rad:
@@ -289,9 +296,11 @@ class Director:
         for joint, deg in (getattr(p, "values", None) or {}).items():
             if deg is not None:
                 self._set(joint, deg, t)
-        if getattr(p, "stop", False):
+        if getattr(p, "stop", False):  # the part's own events say it (one line)
             what = getattr(p, "stop_reason", None) or f"{type(part).__name__} stop"
-            self._stop_command(what, LiveEvent(t, "stop", "live", {"message": what}), events)
+            self.counts["stops"] += 1
+            if self._stop is not None:
+                self._stop.request_command(what)
 
     def _stop_command(self, what: str, ev: LiveEvent, events: list) -> None:
         events.append(ev)

@@ -48,7 +48,7 @@ from collections.abc import Callable, Collection, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any, Protocol
 
-from hilsim.live.inbox import DEFAULT_CAPACITY, Inbox, LiveEvent
+from hilsim.live.inbox import DEFAULT_CAPACITY, MAX_LIVE_DEG, Inbox, LiveEvent
 from hilsim.live.midi import LiveExtraError
 from hilsim.live.triggers import INPUT_KINDS, parse_trigger
 
@@ -162,8 +162,14 @@ def _axis(t: Mapping[str, Any], where: str, names: Collection[str] | None) -> Ax
     if names is not None and joint not in names:
         raise ValueError(f"{where}.joint: no joint {joint!r}; the rig has {', '.join(names)}")
     deg = t["degrees"]
-    if not (isinstance(deg, list) and len(deg) == 2 and all(_num(x) for x in deg)):
-        raise ValueError(f"{where}.degrees: must be [min, max] in degrees, got {deg!r}")
+    if not (
+        isinstance(deg, list)
+        and len(deg) == 2
+        and all(_num(x) and abs(x) <= MAX_LIVE_DEG for x in deg)
+    ):
+        raise ValueError(
+            f"{where}.degrees: must be [min, max] in degrees within ±{MAX_LIVE_DEG:g}, got {deg!r}"
+        )
     if deg[0] == deg[1]:
         raise ValueError(f"{where}.degrees: both ends are {deg[0]!r}")
     return AxisMap(_int(t["axis"], f"{where}.axis"), joint, float(deg[0]), float(deg[1]))

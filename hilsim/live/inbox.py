@@ -16,6 +16,9 @@ from collections import deque
 from dataclasses import dataclass, field
 from typing import Any
 
+#: the widest a live input's range may be (deg, either end): 100 turns. Wider ranges (1e308)
+#: would overflow to inf/NaN on the way to a joint: refused at load, never a fault mid-show
+MAX_LIVE_DEG = 36000.0
 #: default inbox capacity: 256 messages (at MIDI's 31.25 kbit/s, ~0.25 s of the densest stream)
 DEFAULT_CAPACITY = 256
 

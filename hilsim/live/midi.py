@@ -28,7 +28,7 @@ from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any, Protocol
 
-from hilsim.live.inbox import DEFAULT_CAPACITY, Inbox, LiveEvent
+from hilsim.live.inbox import DEFAULT_CAPACITY, MAX_LIVE_DEG, Inbox, LiveEvent
 
 #: the line a missing optional package gets
 EXTRA_HINT = "pip install 'hilsim[live]'"
@@ -82,8 +82,15 @@ class CcMapping:
             raise ValueError(f"{where}: control must be 0-{top}{extra}, got {self.control!r}")
         for name in ("min_deg", "max_deg"):
             x = getattr(self, name)
-            if isinstance(x, bool) or not isinstance(x, int | float) or not math.isfinite(x):
-                raise ValueError(f"{where}: {name} must be a finite number of degrees, got {x!r}")
+            if (
+                isinstance(x, bool)
+                or not isinstance(x, int | float)
+                or not (math.isfinite(x) and abs(x) <= MAX_LIVE_DEG)
+            ):
+                raise ValueError(
+                    f"{where}: {name} must be a number of degrees within ±{MAX_LIVE_DEG:g}, "
+                    f"got {x!r}"
+                )
         if self.min_deg == self.max_deg:
             raise ValueError(f"{where}: min_deg and max_deg are both {self.min_deg!r}")
 

@@ -56,6 +56,11 @@ CUE_KEYS = ("trigger", "clip", "then", "lockout_s", "window")
 IDLE_KEYS = ("clips", "order", "seed")
 TIMELINE_KEYS = ("at_s", "clip", "loop")
 ORDERS = ("sequence", "random")
+#: the longest show time a show file may name (s): a week (a timeline entry, a lockout)
+MAX_SHOW_S = 7 * 86400.0
+#: the shortest idle clip, and the shortest clip a cycle of cues (a -> b -> a by `then`) may
+#: play (s): shorter ones would restart every tick and flood the log
+MIN_REPEAT_S = 0.1
 #: the OSC address prefix every cue answers to (``/hilsim/cue/<name>``)
 CUE_ADDRESS = "/hilsim/cue/"
 
@@ -166,14 +171,23 @@ class _Section:
             raise self.fail(key, f"no clip {value!r}; the clips are {have}")
         return value
 
-    def number(self, key: str, value: Any, *, default: float | None = None) -> float:
+    def number(
+        self,
+        key: str,
+        value: Any,
+        *,
+        default: float | None = None,
+        lo: float = 0.0,
+        hi: float = MAX_SHOW_S,
+    ) -> float:
+        """A finite number in lo..hi (by default a show time: 0..MAX_SHOW_S)."""
         if value is None and default is not None:
             return default
         if isinstance(value, bool) or not isinstance(value, int | float):
-            raise self.fail(key, f"must be a finite number >= 0, got {value!r}")
+            raise self.fail(key, f"must be a finite number in {lo:g}..{hi:g}, got {value!r}")
         x = float(value)
-        if not math.isfinite(x) or x < 0:
-            raise self.fail(key, f"must be a finite number >= 0, got {value!r}")
+        if not (math.isfinite(x) and lo <= x <= hi):
+            raise self.fail(key, f"must be a finite number in {lo:g}..{hi:g}, got {value!r}")
         return x
 
 
@@ -206,6 +220,7 @@ def read_runtime(
     idle = _idle(s, doc["idle"], clips) if "idle" in doc else None
     cues = _cues(s, doc.get("cues", {}), clips)
     timeline = _timeline(s, doc.get("timeline", []), clips)
+    _short_cycles(s, cues, clips)
     return RuntimeSpec(clips=clips, sounds=sounds, idle=idle, cues=cues, timeline=timeline)
 
 
@@ -250,7 +265,7 @@ def _sounds(s: _Section, raw: Any, base_dir: Path, clips: dict[str, Clip]) -> di
         path = Path(file) if Path(file).is_absolute() else base_dir / file
         if not path.is_file():
             raise s.fail(fkey, f"no such sound file: {path}")
-        offset = s.number(f"{key}.offset_ms", offset_ms)
+        offset = s.number(f"{key}.offset_ms", offset_ms, lo=-10_000.0, hi=10_000.0)
         sounds[clip] = Sound(path, offset / 1000.0)
     return sounds
 
@@ -265,8 +280,12 @@ def _idle(s: _Section, raw: Any, clips: dict[str, Clip]) -> IdleSpec:
         raise s.fail("idle.clips", f"must be a list of one or more clip names, got {names!r}")
     for i, name in enumerate(names):
         s.clip_ref(f"idle.clips[{i}]", name, clips)
-        if clips[name].duration == 0:
-            raise s.fail(f"idle.clips[{i}]", f"clip {name!r} lasts 0 s; an idle clip must last")
+        dur = clips[name].duration
+        if dur is not None and dur < MIN_REPEAT_S:
+            raise s.fail(
+                f"idle.clips[{i}]",
+                f"clip {name!r} lasts {dur:g} s; an idle clip must last {MIN_REPEAT_S:g} s or more",
+            )
     order = table.get("order", "sequence")
     if order not in ORDERS:
         raise s.fail("idle.order", f"must be one of {', '.join(ORDERS)}, got {order!r}")
@@ -317,6 +336,26 @@ def _cues(s: _Section, raw: Any, clips: dict[str, Clip]) -> dict[str, CueSpec]:
                 raise s.fail(f"{key}.window", str(exc)) from None
         cues[name] = CueSpec(name, tuple(triggers), clip, then, lockout, window)
     return cues
+
+
+def _short_cycles(s: _Section, cues: dict[str, CueSpec], clips: dict[str, Clip]) -> None:
+    """Cues whose ``then`` come back round to themselves through clips that all end within
+    MIN_REPEAT_S would start and end every tick: refused, naming the cycle."""
+    for first in cues:
+        path, name = [first], cues[first].then
+        while name in cues and name not in path:
+            path.append(name)
+            name = cues[name].then
+        if name != first:
+            continue
+        durations = [clips[cues[c].clip].duration for c in path]
+        if all(d is not None and d < MIN_REPEAT_S for d in durations):
+            loop = " -> ".join([*path, first])
+            raise s.fail(
+                f"cues.{first}.then",
+                f"the cues {loop} go round through clips shorter than {MIN_REPEAT_S:g} s: they "
+                "would restart every tick; lengthen a clip or end the round with 'idle'/'hold'",
+            )
 
 
 def _timeline(s: _Section, raw: Any, clips: dict[str, Clip]) -> tuple[TimelineEntry, ...]:

@@ -50,6 +50,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from hilsim.live.inbox import MAX_LIVE_DEG
 from hilsim.live.midi import CcMapping
 from hilsim.live.netguard import GuardConfig
 from hilsim.rig import Rig, RigError
@@ -208,14 +209,13 @@ def _osc(r: Reader, rig: Rig) -> OscConfig:
     if not all(isinstance(a, str) for a in allow):
         raise r.fail("allow", f"a list of addresses or networks as strings, got {allow!r}")
     interface = r.get("interface", str, None)
+    sizes = {
+        "max_packet_bytes": r.integer("max_packet_bytes", 1024, lo=16, hi=65507),
+        "rate_per_s": r.number("rate_per_s", 1000.0, positive=True, at_most=1e6),
+        "burst": r.integer("burst", 200, lo=1, hi=1_000_000),
+    }
     try:
-        guard = GuardConfig(
-            interface=interface,
-            allow=tuple(allow),
-            max_packet_bytes=r.integer("max_packet_bytes", 1024, lo=16, hi=65507),
-            rate_per_s=r.number("rate_per_s", 1000.0, positive=True, at_most=1e6),
-            burst=r.integer("burst", 200, lo=1, hi=1_000_000),
-        )
+        guard = GuardConfig(interface=interface, allow=tuple(allow), **sizes)
     except ValueError as exc:
         raise RigError(f"{r.path}: {r.where}: {exc}") from None
     ranges = _joint_ranges(rig)
@@ -241,12 +241,14 @@ def _pair(r: Reader, key: str, value: Any) -> tuple[float, float]:
         isinstance(value, list)
         and len(value) == 2
         and all(isinstance(v, int | float) and not isinstance(v, bool) for v in value)
-        and all(math.isfinite(v) for v in value)
+        and all(math.isfinite(v) and abs(v) <= MAX_LIVE_DEG for v in value)
         and value[0] != value[1]
     )
     if not ok:
         raise r.fail(
-            key, f"expected [degrees at 0, degrees at 1], two different numbers, got {value!r}"
+            key,
+            f"expected [degrees at 0, degrees at 1], two different numbers within "
+            f"±{MAX_LIVE_DEG:g}, got {value!r}",
         )
     return float(value[0]), float(value[1])
 
@@ -293,7 +295,9 @@ def _midi(r: Reader, names: tuple[str, ...]) -> MidiConfig:
 def _mtc(r: Reader) -> MtcConfig:
     out = MtcConfig(
         freewheel_s=r.number("freewheel_s", 0.5, nonnegative=True, at_most=3600),
-        offset_s=r.number("offset_s", 0.0),
+        offset_s=r.number(
+            "offset_s", 0.0, at_least=-86400.0, at_most=86400.0, why="a timecode is within a day"
+        ),
         jump_s=r.number("jump_s", 0.1, positive=True, at_most=3600),
     )
     r.finish()

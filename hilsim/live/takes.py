@@ -98,10 +98,11 @@ class Take:
         """Samples kept, all joints."""
         return sum(len(ts) for ts in self._t.values())
 
-    def reduce(self, tolerance_deg: float) -> Reduced:
+    def reduce(self, tolerance_deg: float, *, held: bool = False) -> Reduced:
         """Each joint's samples as linear keys within ``tolerance_deg`` (> 0) of the raw take
-        (replayed linearly) at every sample, hence at every instant. A joint with no samples
-        is left out."""
+        at every instant: replayed linearly, or ``held`` (each value until the next sample, as
+        a live target was: a step is kept as a step, 1 µs wide). A joint with no samples is
+        left out."""
         if not (isinstance(tolerance_deg, int | float) and 0 < tolerance_deg < math.inf):
             raise ValueError(
                 f"take tolerance must be a positive number of degrees, got {tolerance_deg!r}"
@@ -112,6 +113,8 @@ class Take:
             t, v = self.raw(joint)
             if not len(t):
                 continue
+            if held:
+                t, v = held_polyline(t, v)
             tol = float(tolerance_deg)
             for _ in range(60):  # halving: the first pass holds but for float rounding
                 idx = rdp_vertical(t, v, tol)
@@ -138,6 +141,20 @@ class Take:
             raw = np.interp(ticks, t, v)
         key = reduced.keys_array(joint)
         return float(np.max(np.abs(np.interp(ticks, key[:, 0], key[:, 1]) - raw), initial=0.0))
+
+
+def held_polyline(t: FloatArray, v: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """Samples held until the next one, as a polyline: before each sample a point at the
+    previous value, a microsecond earlier (half the gap when the gap is shorter)."""
+    if len(t) < 2:
+        return t, v
+    gap = np.diff(t)
+    before = t[1:] - np.minimum(1e-6, gap / 2)
+    tt = np.empty(2 * len(t) - 1)
+    vv = np.empty_like(tt)
+    tt[0::2], vv[0::2] = t, v
+    tt[1::2], vv[1::2] = before, v[:-1]
+    return tt, vv
 
 
 def rdp_vertical(t: FloatArray, v: FloatArray, tolerance: float) -> npt.NDArray[np.intp]:
@@ -236,13 +253,14 @@ def write_csv_track(
 
 
 def write_take(take: Take, directory: str | Path, tolerance_deg: float) -> dict:
-    """Write a take into ``directory`` (created): ``raw.csv`` (every sample), ``keys.csv`` (the
-    keys within ``tolerance_deg``) and ``take.toml``, a ``[clips.take]`` table to paste into a
-    rig or show file (``type = "keyframes"``, linear). Each file is whole or absent. Returns
+    """Write a live take into ``directory`` (created): ``raw.csv`` (every sample), ``keys.csv``
+    (linear keys within ``tolerance_deg`` of the take *as it was live*: each value held until
+    the next, so a jump stays a jump) and ``take.toml``, a ``[clips.take]`` table to paste into
+    a rig or show file (``type = "keyframes"``, linear). Each file is whole or absent. Returns
     what was written: paths, keys and raw samples per joint, the largest error found."""
     directory = Path(directory)
     directory.mkdir(parents=True, exist_ok=True)
-    reduced = take.reduce(tolerance_deg)
+    reduced = take.reduce(tolerance_deg, held=True)
     raw = take.write_raw_csv(directory / "raw.csv", overwrite=True)
     keys = reduced.write_csv(directory / "keys.csv", overwrite=True)
     lines = [f"# a take reduced within {tolerance_deg:g} deg; linear keys [[t_s, deg], ...]",

@@ -174,7 +174,8 @@ def test_inbox_refuses_time_going_backwards_in_the_producer() -> None:
         ({"control": 128}, "control must be 0-127, got 128"),
         ({"control": 32, "fine": True}, "control must be 0-31 (a 14-bit pair's MSB"),
         ({"min_deg": 10.0, "max_deg": 10.0}, "min_deg and max_deg are both 10.0"),
-        ({"max_deg": math.inf}, "max_deg must be a finite number"),
+        ({"max_deg": math.inf}, "max_deg must be a number of degrees within ±36000"),
+        ({"min_deg": -1e308, "max_deg": 1e308}, "min_deg must be a number of degrees within"),
         ({"joint": ""}, "joint must be a non-empty name"),
     ],
 )

@@ -399,6 +399,8 @@ degrees = [0, 20]
     os.close(state["fd"])
     assert r.result.exit_code == ExitCode.STOPPED
     assert "BOOT" in answers[-1].decode()
+    stops = [e for e in r.run.events if e["kind"] == "stop"]
+    assert [e.get("source") for e in stops] == ["bottango", None]  # said once, then the loop's
     target = deg(r.run, "target", 1)
     t = np.arange(len(target)) * PERIOD
     sync_t = r.director.bottango._sync_t  # the show time the tSYN line arrived
@@ -521,3 +523,43 @@ def test_teach_by_hand_records_what_the_hand_did(tmp_path):
     replay = np.interp(ticks - origin, keys[:, 0], keys[:, 1])
     assert np.max(np.abs(replay - (10 + 9 * np.sin(np.pi * (t0 + ticks))))) <= 0.2
     assert servos["jaw"].torque_enabled  # held again by the exit policy
+
+
+@pytest.mark.parametrize(
+    ("text", "words"),
+    [
+        ("[inputs.osc]\njoints = { jaw = [-1e308, 1e308] }\n", "inputs.osc.joints.jaw"),
+        ("[inputs.mtc]\noffset_s = 1e300\n", "inputs.mtc.offset_s"),
+        ("[clips.a]\njaw = { type = 'hold', value_deg = 1 }\n[[timeline]]\nat_s = 1e308\n"
+         "clip = 'a'\n", "timeline[0].at_s"),
+        ("[clips.z]\njaw = { type = 'keyframes', keys = [[0, 1]] }\n[cues.a]\nclip = 'z'\n"
+         "then = 'b'\ntrigger = 'at:0.1'\n[cues.b]\nclip = 'z'\nthen = 'a'\n", "cues.a.then"),
+    ],
+)  # fmt: skip
+def test_the_reviews_hostile_show_files_are_refused_in_one_line(tmp_path, capsys, text, words):
+    """A range that overflows to inf, an offset or a time far out, a round of cues through
+    clips that end at once: refused at load (exit 2, one line naming the key), never a fault
+    or a flood mid-show."""
+    from hilsim.cli import main
+
+    (tmp_path / "rig.toml").write_text(RIG)
+    (tmp_path / "show.toml").write_text(text)
+    code = main(["run", str(tmp_path / "rig.toml"), "--show", str(tmp_path / "show.toml"),
+                 "--virtual-time", "--duration", "1", "--no-plots", "--out", str(tmp_path / "r")])  # fmt: skip
+    err = capsys.readouterr().err
+    assert code == 2 and words in err and "Traceback" not in err, err
+    assert len(err.strip().splitlines()) == 1, err
+
+
+def test_a_live_value_out_of_range_is_never_a_target(tmp_path):
+    """Belt and braces: a value an input lets through that is not finite never becomes a
+    target (counted), so it can never stop the show with a safety fault."""
+
+    def inject(k, d):
+        if k == 10:
+            d._set("jaw", math.nan, k * PERIOD)
+            d._set("jaw", math.inf, k * PERIOD)
+
+    r = show(tmp_path, OSC_SHOW, duration=0.2, inject=inject)
+    assert r.result.exit_code == 0
+    assert r.result.summary["live"]["values_refused"] == 2

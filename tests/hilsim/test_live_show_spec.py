@@ -42,6 +42,8 @@ head_pan = { type = "sine", amplitude_deg = 5, frequency_hz = 1 }
 jaw = { type = "hold", value_deg = 4 }
 [clips.zero]
 jaw = { type = "keyframes", keys = [[0, 1]] }
+[clips.tiny]
+jaw = { type = "keyframes", keys = [[0, 1], [0.01, 2]] }
 """
 
 
@@ -123,6 +125,12 @@ CUE = '[cues.x]\ntrigger = "key:x"\nclip = "a"\n'
         ("[idle]\nclips = ['nope']", "idle.clips[0]", "no clip 'nope'"),
         ("[idle]\nclips = []", "idle.clips", "one or more"),
         ("[idle]\nclips = ['zero']", "idle.clips[0]", "lasts 0 s"),
+        ("[idle]\nclips = ['tiny']", "idle.clips[0]", "0.1 s or more"),
+        (
+            "[cues.x]\nclip = 'zero'\nthen = 'y'\n[cues.y]\nclip = 'tiny'\nthen = 'x'",
+            "cues.x.then",
+            "x -> y -> x go round",
+        ),
         ("[idle]\nclips = ['a']\norder = 'shuffle'", "idle.order", "sequence, random"),
         ("[idle]\nclips = ['a']\nseed = -1", "idle.seed", "integer"),
         ("[idle]\nclips = ['a']\nloop = true", "idle.loop", "unknown key"),
@@ -131,7 +139,8 @@ CUE = '[cues.x]\ntrigger = "key:x"\nclip = "a"\n'
         ('[cues.x]\ntrigger = "key:x"', "cues.x.clip", "missing"),
         ('[cues.x]\nclip = "nope"', "cues.x.clip", "no clip 'nope'"),
         (CUE + 'then = "nope"', "cues.x.then", "'idle', 'hold' or a cue"),
-        (CUE + "lockout_s = -1", "cues.x.lockout_s", ">= 0"),
+        (CUE + "lockout_s = -1", "cues.x.lockout_s", "in 0..604800"),
+        (CUE + "lockout_s = 1e300", "cues.x.lockout_s", "in 0..604800"),
         (CUE + "lockout_s = nan", "cues.x.lockout_s", "finite"),
         (CUE + "lockout_s = inf", "cues.x.lockout_s", "finite"),
         (CUE + "lockout_s = true", "cues.x.lockout_s", "number"),
@@ -156,7 +165,8 @@ CUE = '[cues.x]\ntrigger = "key:x"\nclip = "a"\n'
         ("[[timeline]]\nat_s = 0\nclip = 'nope'", "timeline[0].clip", "no clip 'nope'"),
         ("[[timeline]]\nclip = 'a'", "timeline[0].at_s", "missing"),
         ("[[timeline]]\nat_s = 0", "timeline[0].clip", "missing"),
-        ("[[timeline]]\nat_s = -1\nclip = 'a'", "timeline[0].at_s", ">= 0"),
+        ("[[timeline]]\nat_s = -1\nclip = 'a'", "timeline[0].at_s", "in 0..604800"),
+        ("[[timeline]]\nat_s = 1e9\nclip = 'a'", "timeline[0].at_s", "in 0..604800"),
         ("[[timeline]]\nat_s = 0\nclip = 'a'\nloop = 'yes'", "timeline[0].loop", "true or"),
         ("[[timeline]]\nat_s = 0\nclip = 'a'\nspeed = 2", "timeline[0].speed", "unknown key"),
         (

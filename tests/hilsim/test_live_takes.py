@@ -104,3 +104,24 @@ def test_replay_error_held_sees_the_steps_the_live_target_made() -> None:
     assert reduced.keys("jaw") == [[0.0, 0.0], [1.0, 10.0]]
     assert take.replay_error("jaw", reduced, 100) == 0.0
     assert take.replay_error("jaw", reduced, 100, held=True) == pytest.approx(9.9)
+
+
+def test_a_live_take_replays_as_it_was_live_a_jump_stays_a_jump(tmp_path):
+    """Two OSC values 1.3 s apart: the live target held 36 deg, then jumped to -36. The keys
+    replay that (36 until the jump), not a 1.3 s ramp; the error is against the held take."""
+    from hilsim.live.takes import write_take
+
+    take = Take(["head_pan"])
+    take.record(1.0, "head_pan", 36.0)
+    take.record(2.3, "head_pan", -36.0)
+    take.record(3.0, "head_pan", -30.0)
+    out = write_take(take, tmp_path / "take", 0.5)
+    keys = np.loadtxt(out["keys_csv"], delimiter=",", skiprows=1, ndmin=2)
+    ticks = np.arange(1.0, 3.0, 0.004)
+    replay = np.interp(ticks, keys[:, 0], keys[:, 1])
+    held = np.where(ticks < 2.3 - 1e-9, 36.0, -36.0)
+    held[ticks >= 3.0] = -30.0
+    assert np.max(np.abs(replay - held)) <= 0.5
+    assert out["max_error_deg"]["head_pan"] <= 0.5
+    raw = np.loadtxt(out["raw_csv"], delimiter=",", skiprows=1, ndmin=2)
+    assert len(raw) == 3  # the raw file is the samples as they came

@@ -44,6 +44,7 @@ Phase 2 (the rig) is one call::
 from __future__ import annotations
 
 import math
+import re
 import struct
 from dataclasses import dataclass
 from pathlib import Path
@@ -289,6 +290,7 @@ def _read_other(path: Path, data: bytes, at: str, what: str) -> tuple[np.ndarray
         info = soundfile.info(io.BytesIO(data))
     except Exception as exc:
         text = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        text = re.sub(r"Error opening <_io\.BytesIO object at 0x[0-9a-f]+>: ", "", text)
         raise FormatError(path, "", f"{what}, and not readable as audio ({text})") from None
     if frames.size == 0:
         raise FormatError(path, "", "no audio samples")
