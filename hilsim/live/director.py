@@ -97,7 +97,6 @@ class Director:
             self.take = Take(spec.record.joints)
         self.counts = {"events": 0, "cues": 0, "stops": 0, "live_values": 0, "values_refused": 0}
         self.lost: set[str] = set()
-        self.status_note = ""
 
     @staticmethod
     def _live_inputs(spec: ShowSpec) -> bool:

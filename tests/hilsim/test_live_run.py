@@ -563,3 +563,22 @@ def test_a_live_value_out_of_range_is_never_a_target(tmp_path):
     r = show(tmp_path, OSC_SHOW, duration=0.2, inject=inject)
     assert r.result.exit_code == 0
     assert r.result.summary["live"]["values_refused"] == 2
+
+
+def test_a_midi_note_fires_a_cue(tmp_path):
+    """A cue's "midi:note:60" trigger through the MIDI input: the note-on at 1.0 s starts the
+    cue on the 1.0 s tick; a note-off and another note move nothing."""
+    mido = pytest.importorskip("mido")
+    text = SCARE_SHOW.replace('["osc:/trigger/pir", "at:3.0"]', '"midi:note:60"').replace(
+        "[inputs.osc]\nport = 9000\n", "[inputs.midi]\n"
+    )
+
+    def prepare(d):
+        d.midi_triggers.feed(mido.Message("note_on", note=61, velocity=90), 0.5)
+        d.midi_triggers.feed(mido.Message("note_on", note=60, velocity=0), 0.6)  # an "off"
+        d.midi_triggers.feed(mido.Message("note_on", note=60, velocity=100), 1.0)
+
+    r = show(tmp_path, text, duration=1.5, prepare=prepare)
+    starts = [e for e in r.run.events if e["kind"] == "cue_start"]
+    assert len(starts) == 1 and starts[0]["t"] == pytest.approx(1.0)
+    assert starts[0]["trigger"] == "midi:note:60:ch1"
