@@ -109,6 +109,16 @@ class Director:
         """The inputs' state machines (no I/O yet); ``silent``: sounds scheduled and logged,
         not played (virtual time: no sound device)."""
         keys = tuple(getattr(self.runtime, "trigger_keys", ()) or ())
+        heard = {"osc": spec.osc, "midi": spec.midi, "key": spec.keyboard}
+        section = {"osc": "osc", "midi": "midi", "key": "keyboard"}
+        for key in keys:  # a trigger nothing in this show can send: said at load
+            kind = key.split(":", 1)[0]
+            cue_address = key.startswith("osc:/hilsim/cue/")  # every cue's own, always listed
+            if heard.get(kind, True) is None and spec.gamepad is None and not cue_address:
+                spec.notes.append(
+                    f"trigger {key!r}: the show has no [inputs.{section[kind]}], so nothing "
+                    "can send it"
+                )
         self.osc = self.midi = self.midi_triggers = self.chase = None
         self.bottango = self.gamepad = self.keyboard = self.teach = self.audio = None
         if spec.osc is not None:
