@@ -104,10 +104,6 @@ class StopFlag:
         if self.signum is None and self.command is None:
             self.command = what
 
-    @property
-    def requested(self) -> bool:
-        return self.signum is not None or self.command is not None
-
 
 @dataclass
 class RunResult:

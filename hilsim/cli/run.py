@@ -3,8 +3,9 @@
 Exit codes (:mod:`hilsim.exit_codes`): 0 the show completed, exit policy confirmed;
 2 the rig file, a command-line value or the servos on the bus do not fit (nothing moved);
 3 a fault stopped the show (the servo, bus, host or telemetry cause printed); 4 the exit
-policy could not be confirmed on some servo; 130/143 stopped by SIGINT/SIGTERM (exit policy
-applied); 1 an unexpected error outside the show.
+policy could not be confirmed on some servo; 5 stopped by a stop command of a show (``--show``,
+``--live``: OSC ``/hilsim/stop``, Bottango ``STOP``); 130/143 stopped by SIGINT/SIGTERM (exit
+policy applied); 1 an unexpected error outside the show.
 
 A rig with several ``[buses.<name>]`` runs one child process per bus (``hilsim.show_group``:
 one start instant, one stop, each bus's record in ``RUN/<bus>/``); the exit code is the worst
