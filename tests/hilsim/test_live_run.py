@@ -290,7 +290,7 @@ SCARE_SHOW = """
 [clips.idle]
 jaw = { type = "hold", value_deg = 10 }
 [clips.scare]
-jaw = { type = "keyframes", keys = [[0, 19], [0.5, 15], [1.0, 5]] }
+jaw = { type = "keyframes", keys = [[0, 30], [0.5, 25], [1.0, 5]] }
 [idle]
 clips = ["idle"]
 [cues.scare]
@@ -305,7 +305,7 @@ port = 9000
 
 def test_a_triggered_scare_is_within_the_limits_and_a_second_trigger_is_locked_out(tmp_path):
     """The issue's show acceptance: idle holds the jaw at 10 deg; the scare clip starts at
-    19 deg (the jaw's limit is 20) when triggered at 3.0 s; the commanded jaw never steps more
+    30 deg (the jaw opened to 40 deg for this) when triggered at 3.0 s; the commanded jaw never steps more
     than its speed limit x period; a second trigger inside the lockout is ignored and logged."""
 
     def inject(k, d):
@@ -313,12 +313,13 @@ def test_a_triggered_scare_is_within_the_limits_and_a_second_trigger_is_locked_o
             d.osc.feed(k * PERIOD, osc("/trigger/pir"), ("127.0.0.1", 5000))
 
     slow = RIG.replace("max_speed_deg_s = 300", "max_speed_deg_s = 100")
+    slow = slow.replace("min_deg = 0\nmax_deg = 20", "min_deg = 0\nmax_deg = 40")
     r = show(tmp_path, SCARE_SHOW, duration=6.0, inject=inject, rig=slow)
     assert r.result.exit_code == 0
     target, cmd = deg(r.run, "target", 1), deg(r.run, "cmd", 1)
     t = np.arange(len(target)) * PERIOD
     assert np.all(target[(t > 1.0) & (t < 3.0)] == pytest.approx(10.0))
-    assert target[t == 3.0][0] == pytest.approx(19.0)  # the cut, on the tick it was due
+    assert target[t == 3.0][0] == pytest.approx(30.0)  # the cut, on the tick it was due
     assert np.all(target[(t > 4.0) & (t < 6.0)] == pytest.approx(10.0))  # idle again
     steps = np.abs(np.diff(cmd))
     assert steps.max() <= 100 * PERIOD + 1e-9  # max_speed_deg_s x period
