@@ -377,5 +377,11 @@ def _timeline(s: _Section, raw: Any, clips: dict[str, Clip]) -> tuple[TimelineEn
         loop = table.get("loop", False)
         if not isinstance(loop, bool):
             raise s.fail(f"{key}.loop", f"must be true or false, got {loop!r}")
+        dur = clips[clip].duration
+        if loop and dur is not None and dur < MIN_REPEAT_S:
+            raise s.fail(
+                f"{key}.loop",
+                f"clip {clip!r} lasts {dur:g} s; a looped clip must last {MIN_REPEAT_S:g} s or more",
+            )
         entries.append(TimelineEntry(at, clip, loop))
     return tuple(entries)

@@ -126,6 +126,7 @@ CUE = '[cues.x]\ntrigger = "key:x"\nclip = "a"\n'
         ("[idle]\nclips = []", "idle.clips", "one or more"),
         ("[idle]\nclips = ['zero']", "idle.clips[0]", "lasts 0 s"),
         ("[idle]\nclips = ['tiny']", "idle.clips[0]", "0.1 s or more"),
+        ("[[timeline]]\nat_s = 0\nclip = 'tiny'\nloop = true", "timeline[0].loop", "0.1 s or more"),
         (
             "[cues.x]\nclip = 'zero'\nthen = 'y'\n[cues.y]\nclip = 'tiny'\nthen = 'x'",
             "cues.x.then",
