@@ -381,7 +381,8 @@ def _timeline(s: _Section, raw: Any, clips: dict[str, Clip]) -> tuple[TimelineEn
         if loop and dur is not None and dur < MIN_REPEAT_S:
             raise s.fail(
                 f"{key}.loop",
-                f"clip {clip!r} lasts {dur:g} s; a looped clip must last {MIN_REPEAT_S:g} s or more",
+                f"clip {clip!r} lasts {dur:g} s; a looped clip must last "
+                f"{MIN_REPEAT_S:g} s or more",
             )
         entries.append(TimelineEntry(at, clip, loop))
     return tuple(entries)
