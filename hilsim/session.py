@@ -260,6 +260,32 @@ def check_bus(rig: Rig, bus: DynamixelBus, say: Callable[[str], None]) -> list[s
     return notes
 
 
+def check_teach(rig: Rig, bus: DynamixelBus, director: Any) -> None:
+    """A show's teach-by-hand joints go limp; a servo whose Drive Mode has bit 3 set (Torque
+    On by Goal Update) would turn its torque back on at the next goal, under a person's hand:
+    refused before anything moves (ShowRefusedError naming the servo)."""
+    from drivers.dynamixel.errors import DynamixelError
+    from drivers.protocol2.control_table import DRIVE_MODE
+
+    teach = getattr(director, "teach", None)
+    if teach is None:
+        return
+    for i in teach.limp_indices:
+        joint = rig.joints[i]
+        try:
+            mode = bus.link.read_item(joint.servo_id, DRIVE_MODE)
+        except DynamixelError as exc:
+            raise ShowRefusedError(
+                f"teach: cannot read servo {joint.servo_id}'s Drive Mode: {exc}"
+            ) from None
+        if mode & 0x08:
+            raise ShowRefusedError(
+                f"teach: servo {joint.servo_id} ({joint.name}) has Drive Mode bit 3 set (Torque "
+                "On by Goal Update): it would turn its torque back on under the hand. Clear it "
+                f"(Drive Mode, address 10, now {mode}) or do not teach {joint.name}"
+            )
+
+
 def return_delay_budget_us(rig: Rig, latency_timer_ms: float = 0.0) -> float:
     """The largest Return Delay Time with which the bus traffic still fits in a tick."""
     n = len(rig.joints)

@@ -290,7 +290,7 @@ def _open_and_run(args, parts, port: str, run_dir: Path) -> int:
 
 def _run_on_bus(args, parts, bus, run_dir: Path) -> int:
     from hilsim.loop import StopFlag
-    from hilsim.session import ShowRefusedError, check_bus, open_telemetry, run_show
+    from hilsim.session import ShowRefusedError, check_bus, check_teach, open_telemetry, run_show
 
     rig = parts.rig
     virtual = bus.clock.virtual
@@ -314,6 +314,7 @@ def _run_on_bus(args, parts, bus, run_dir: Path) -> int:
                 _remove_if_empty(run_dir)
                 return for_signal(stop.signum)
             if parts.director is not None:  # its ports, before anything moves
+                check_teach(rig, bus, parts.director)
                 _open_inputs(parts.director, bus.clock)
             telemetry = open_telemetry(rig, run_dir, virtual)
         except ShowRefusedError as exc:

@@ -583,3 +583,23 @@ def test_a_midi_note_fires_a_cue(tmp_path):
     starts = [e for e in r.run.events if e["kind"] == "cue_start"]
     assert len(starts) == 1 and starts[0]["t"] == pytest.approx(1.0)
     assert starts[0]["trigger"] == "midi:note:60:ch1"
+
+
+def test_teach_refuses_a_servo_that_turns_its_torque_on_by_goal(tmp_path):
+    """Drive Mode bit 3 (Torque On by Goal Update) on a teach joint's servo: the goals the loop
+    writes would stiffen it under the hand. Refused before anything moves, naming the servo."""
+    from hilsim.session import ShowRefusedError, check_teach
+
+    rig_path = tmp_path / "rig.toml"
+    rig_path.write_text(RIG)
+    (tmp_path / "show.toml").write_text('[teach]\njoints = ["jaw"]\n')
+    rig = load_rig(rig_path)
+    parts = with_show(build_parts(rig), str(tmp_path / "show.toml"), False, virtual=True)
+    bus = open_bus(rig, port_for(rig, True))
+    try:
+        check_teach(rig, bus, parts.director)  # factory Drive Mode 0: fine
+        bus.link.write(2, 10, bytes([0x08]))
+        with pytest.raises(ShowRefusedError, match=r"servo 2 \(jaw\) has Drive Mode bit 3"):
+            check_teach(rig, bus, parts.director)
+    finally:
+        bus.close()
