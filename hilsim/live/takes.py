@@ -252,29 +252,37 @@ def write_csv_track(
     return path
 
 
-def write_take(take: Take, directory: str | Path, tolerance_deg: float) -> dict:
-    """Write a live take into ``directory`` (created): ``raw.csv`` (every sample), ``keys.csv``
-    (linear keys within ``tolerance_deg`` of the take *as it was live*: each value held until
-    the next, so a jump stays a jump) and ``take.toml``, a ``[clips.take]`` table to paste into
-    a rig or show file (``type = "keyframes"``, linear). Each file is whole or absent. Returns
-    what was written: paths, keys and raw samples per joint, the largest error found."""
+def write_take(
+    take: Take,
+    directory: str | Path,
+    tolerance_deg: float,
+    *,
+    held: bool = True,
+    reduce_deg: float | None = None,
+    origin_s: float = 0.0,
+    comment: Sequence[str] = (),
+) -> dict:
+    """Write a take into ``directory`` (created): ``raw.csv`` (every sample), ``keys.csv``
+    (linear keys within ``tolerance_deg`` of the take; ``held``: of the take *as it was live*,
+    each value held until the next, so a jump stays a jump) and ``take.toml``, a
+    ``[clips.take]`` table to paste into a rig or show file (``type = "keyframes"``, linear).
+    ``reduce_deg``: the tolerance the reduction uses (default ``tolerance_deg``; teach-by-hand
+    keeps room for the encoder's rounding); ``origin_s``: the show time the files' 0 is;
+    ``comment``: the TOML's first lines (default: the tolerance). Each file is whole or absent.
+    Returns what was written: paths, keys and raw samples per joint, the largest error found."""
     directory = Path(directory)
     directory.mkdir(parents=True, exist_ok=True)
-    reduced = take.reduce(tolerance_deg, held=True)
-    raw = take.write_raw_csv(directory / "raw.csv", overwrite=True)
-    keys = reduced.write_csv(directory / "keys.csv", overwrite=True)
-    lines = [f"# a take reduced within {tolerance_deg:g} deg; linear keys [[t_s, deg], ...]",
-             "[clips.take]"]  # fmt: skip
+    reduced = take.reduce(tolerance_deg if reduce_deg is None else reduce_deg, held=held)
+    raw = take.write_raw_csv(directory / "raw.csv", origin_s=origin_s, overwrite=True)
+    keys = reduced.write_csv(directory / "keys.csv", origin_s=origin_s, overwrite=True)
+    lines = list(comment) or [
+        f"# a take reduced within {tolerance_deg:g} deg; linear keys [[t_s, deg], ...]"
+    ]
+    lines.append("[clips.take]")
     for joint in reduced.keys_deg:
-        pairs = ", ".join(f"[{t!r}, {d!r}]" for t, d in reduced.keys(joint))
+        pairs = ", ".join(f"[{t!r}, {d!r}]" for t, d in reduced.keys(joint, origin_s))
         lines.append(f'{joint} = {{ type = "keyframes", easing = "linear", keys = [{pairs}] }}')
-    toml = directory / "take.toml"
-    tmp = toml.with_name(toml.name + ".tmp")
-    with open(tmp, "w", encoding="utf-8") as f:
-        f.write("\n".join(lines) + "\n")
-        f.flush()
-        os.fsync(f.fileno())
-    os.replace(tmp, toml)
+    toml = write_text(directory / "take.toml", "\n".join(lines) + "\n")
     return {
         "raw_csv": str(raw),
         "keys_csv": str(keys),
@@ -283,3 +291,18 @@ def write_take(take: Take, directory: str | Path, tolerance_deg: float) -> dict:
         "keys": {j: len(k) for j, k in reduced.keys_deg.items()},
         "max_error_deg": dict(reduced.max_error_deg),
     }
+
+
+def write_text(path: Path, text: str) -> Path:
+    """``text`` into ``path`` through ``<path>.tmp`` and a rename: whole or absent."""
+    tmp = path.with_name(path.name + ".tmp")
+    try:
+        with open(tmp, "w", encoding="utf-8") as f:
+            f.write(text)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+    return path

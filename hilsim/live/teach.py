@@ -38,13 +38,12 @@ started. A tick without a valid reading of a joint (NaN) is no sample; its live 
 from __future__ import annotations
 
 import math
-import os
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from hilsim.live.takes import Take, write_csv_track
+from hilsim.live.takes import Take, write_take
 
 #: the default tolerance of the reduced keys (deg): about two encoder counts of an X-series
 #: servo (0.088° each), so the keys keep what a hand did and drop the encoder's last digit
@@ -174,48 +173,18 @@ class Teach:
         sampled = [j for j in self.joints if len(self.take.raw(j)[0])]
         if not sampled or self.origin_s is None:
             return {"written": False, "message": "teach-by-hand: no sample was recorded"}
-        run_dir = Path(run_dir)
-        run_dir.mkdir(parents=True, exist_ok=True)
         origin = self.origin_s
-        reduced = self.take.reduce(self.reduce_deg)
-        raw_path = write_csv_track(
-            run_dir / "raw.csv",
-            {j: self.take.raw(j) for j in sampled},
+        written = write_take(
+            self.take,
+            run_dir,
+            self.tolerance_deg,
+            held=False,  # a hand moves continuously: the readings are a polyline
+            reduce_deg=self.reduce_deg,
             origin_s=origin,
-            overwrite=True,
+            comment=(
+                f"# taught by hand, reduced within {self.tolerance_deg:g} deg; times from the "
+                "first",
+                f"# sample (show time {origin:g} s); linear keys [[t_s, deg], ...]",
+            ),
         )
-        keys_path = reduced.write_csv(run_dir / "keys.csv", origin_s=origin, overwrite=True)
-        lines = [
-            f"# taught by hand, reduced within {self.tolerance_deg:g} deg; times from the first",
-            f"# sample (show time {origin:g} s); linear keys [[t_s, deg], ...]",
-            "[clips.take]",
-        ]
-        for joint in sampled:
-            pairs = ", ".join(f"[{t!r}, {d!r}]" for t, d in reduced.keys(joint, origin))
-            lines.append(f'{joint} = {{ type = "keyframes", easing = "linear", keys = [{pairs}] }}')
-        toml_path = _write_text(run_dir / "take.toml", "\n".join(lines) + "\n")
-        return {
-            "written": True,
-            "raw_csv": str(raw_path),
-            "keys_csv": str(keys_path),
-            "take_toml": str(toml_path),
-            "origin_s": origin,
-            "raw_samples": {j: len(self.take.raw(j)[0]) for j in sampled},
-            "keys": {j: len(reduced.keys_deg[j]) for j in sampled},
-            "max_error_deg": {j: reduced.max_error_deg[j] for j in sampled},
-        }
-
-
-def _write_text(path: Path, text: str) -> Path:
-    """``text`` into ``path`` through ``<path>.tmp`` and a rename: whole or absent."""
-    tmp = path.with_name(path.name + ".tmp")
-    try:
-        with open(tmp, "w", encoding="utf-8") as f:
-            f.write(text)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise
-    return path
+        return {"written": True, **written, "origin_s": origin}
