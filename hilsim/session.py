@@ -70,24 +70,34 @@ class Parts:
     director: Any = None
 
 
-def build_targets(rig: Rig) -> TargetSet:
-    """One track per joint from the rig's ``target`` tables, through its ``[[play]]`` of
-    ``[clips]`` if it has them (:mod:`hilsim.targets.clips`); errors name file and key."""
-    cache: dict = {}  # each file read once, whichever joints and clips use it
-    notes: list[str] = []  # what the files say the user should read (TargetSet.notes)
+def track_maker(rig: Rig, base_dir: Path, source: Path | str, notes: list[str]):
+    """``make(spec, joint, where)``: one of ``rig``'s joints' track from a target table in the
+    file ``source`` (a rig or a show file; relative paths from ``base_dir``), each animation
+    file read once whichever joints use it; what the files say goes into ``notes``; an error
+    is a RigError naming ``source`` and ``where``."""
+    cache: dict = {}
 
-    def track(spec: dict, joint, where: str):
+    def make(spec: dict, joint, where: str):
         try:
             return track_from_spec(
                 spec,
-                base_dir=rig.base_dir,
+                base_dir=base_dir,
                 joint_name=joint.name,
                 csv_cache=cache,
                 notes=notes,
                 spring=joint.spring,
             )
         except (ValueError, OSError) as exc:
-            raise RigError(f"{rig.path}: {where}: {exc}") from None
+            raise RigError(f"{source}: {where}: {exc}") from None
+
+    return make
+
+
+def build_targets(rig: Rig) -> TargetSet:
+    """One track per joint from the rig's ``target`` tables, through its ``[[play]]`` of
+    ``[clips]`` if it has them (:mod:`hilsim.targets.clips`); errors name file and key."""
+    notes: list[str] = []  # what the files say the user should read (TargetSet.notes)
+    track = track_maker(rig, rig.base_dir, rig.path, notes)
 
     tracks = [
         track(j.target, j, f"joints[{i}].target ({j.name})") for i, j in enumerate(rig.joints)
@@ -137,34 +147,19 @@ def with_show(parts: Parts, show_path: str | None, live: bool, *, virtual: bool 
     under it; ``virtual``: sounds are scheduled and logged, not played. Raises RigError (one
     line) for a show file that cannot be used."""
     from hilsim.live.director import build_director
-    from hilsim.live.showfile import OscConfig, live_spec, load_show
+    from hilsim.live.showfile import OscConfig, joint_ranges, live_spec, load_show
 
     rig = parts.rig
     if show_path is None:
         spec = live_spec(rig)
     else:
-        base_dir = Path(show_path).parent
-        cache: dict = {}
         notes: list[str] = []
-
-        def make_track(spec: dict, joint: str, where: str):
-            jt = rig.joints[rig.joint_names.index(joint)]
-            try:
-                return track_from_spec(
-                    spec,
-                    base_dir=base_dir,
-                    joint_name=joint,
-                    csv_cache=cache,
-                    notes=notes,
-                    spring=jt.spring,
-                )
-            except (ValueError, OSError) as exc:
-                raise RigError(f"{show_path}: {where}: {exc}") from None  # fmt: skip
-
-        spec = load_show(show_path, rig, make_track)
+        make = track_maker(rig, Path(show_path).parent, show_path, notes)
+        joints = dict(zip(rig.joint_names, rig.joints, strict=True))
+        spec = load_show(show_path, rig, lambda s, name, where: make(s, joints[name], where))
         spec.notes += notes
         if live and spec.osc is None:
-            spec.osc = OscConfig(joints=live_spec(rig).osc.joints)
+            spec.osc = OscConfig(joints=joint_ranges(rig))
     try:
         director = build_director(spec, rig.joint_names, parts.targets, silent=virtual)
     except (ValueError, OSError) as exc:

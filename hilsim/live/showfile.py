@@ -120,12 +120,13 @@ def live_spec(rig: Rig, port: int = DEFAULT_OSC_PORT) -> ShowSpec:
     return ShowSpec(
         path=None,
         name=f"{rig.name} live",
-        osc=OscConfig(port=port, joints=_joint_ranges(rig)),
+        osc=OscConfig(port=port, joints=joint_ranges(rig)),
         record=RecordConfig(),
     )
 
 
-def _joint_ranges(rig: Rig) -> dict[str, tuple[float, float]]:
+def joint_ranges(rig: Rig) -> dict[str, tuple[float, float]]:
+    """Each joint's limits in degrees: what OSC's 0..1 spans unless the show says otherwise."""
     return {j.name: (math.degrees(j.min_rad), math.degrees(j.max_rad)) for j in rig.joints}
 
 
@@ -218,7 +219,7 @@ def _osc(r: Reader, rig: Rig) -> OscConfig:
         guard = GuardConfig(interface=interface, allow=tuple(allow), **sizes)
     except ValueError as exc:
         raise RigError(f"{r.path}: {r.where}: {exc}") from None
-    ranges = _joint_ranges(rig)
+    ranges = joint_ranges(rig)
     table = r.get("joints", dict, {})
     joints: dict[str, tuple[float, float]] = {}
     for name, rng in table.items():
