@@ -243,7 +243,8 @@ class Director:
                     self._stop_command(ev.detail.get("message", "OSC /hilsim/stop"), ev, events)
                 else:
                     events.append(ev)
-            for joint, cur in osc.targets.items():
+            for joint in osc.updated:  # only what arrived: a held value is set already
+                cur = osc.targets.get(joint)
                 self._set(joint, cur.deg, cur.t)
         midi = self.midi
         if midi is not None:

@@ -278,6 +278,8 @@ class OscInput:
         self._drops_seen = -1
         self._fresh = False  # something handed over since the last poll
         self.stop_requested = False
+        #: the joints the last poll set (a value arrived), in arrival order
+        self.updated: tuple[str, ...] = ()
 
     # -- the receiver's side ------------------------------------------------------------
     def feed(self, t: float, data: bytes, sender) -> None:
@@ -367,6 +369,7 @@ class OscInput:
         work; never blocks longer than the receiver's hand-over of one packet."""
         out: list[LiveEvent] = []
         stop = None
+        self.updated = ()
         if self._fresh:  # read without the lock: a hand-over it misses is taken next tick
             with self._lock:
                 latest, self._latest = self._latest, {}
@@ -376,6 +379,7 @@ class OscInput:
                 self._fresh = False
             for joint, (deg, t_msg) in latest.items():
                 self.targets.set(joint, deg, t_msg, out)
+            self.updated = tuple(latest)
             out.extend(events)
         self.targets.check(t, out)
         drops = self.guard.drops
