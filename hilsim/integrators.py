@@ -15,7 +15,8 @@ buffers are allocated when the integrator is built, none in :meth:`Integrator.st
 (n ≤ ``small_bank_limit``, 16) steps in pure Python on floats, because numpy spends ~1 µs per
 ufunc call and a step is a few dozen calls; a large bank steps with ``out=`` ufuncs. Both paths
 perform the same floating-point operations in the same order, so they give bit-identical results.
-RK4 with a held target (the loop's case) steps through :func:`hilsim.rk_lists.rk4_held`.
+With a held target (the loop's case) each method's step is a linear map, worked out once per step
+size from the method (:meth:`Integrator.held_matrix`; applied by :class:`~.rk_lists.HeldStep`).
 """
 
 from __future__ import annotations
@@ -31,9 +32,9 @@ import numpy.typing as npt
 from drivers.fill import Packed
 from hilsim._types import FloatArray
 from hilsim.rk_lists import Combo as _Combo
+from hilsim.rk_lists import HeldStep, kick_drift_matrix, solve_tableau, tableau_matrix
 from hilsim.rk_lists import as_list as _as_list
 from hilsim.rk_lists import combo as _combo
-from hilsim.rk_lists import rk4_held
 from hilsim.rk_lists import scale as _scale
 from hilsim.springs import Spring
 
@@ -82,6 +83,7 @@ class Integrator(ABC):
         self._acc = np.empty(n)
         self._tmp = np.empty(n)
         self._xv = self._vv = Packed()  # x, v as the list path reads and writes them
+        self._held: HeldStep | None = None  # the held-target step at the last h
 
     # -- public -----------------------------------------------------------------------------------
 
@@ -100,7 +102,10 @@ class Integrator(ABC):
                 loop's case: targets sampled once per tick), or a callable ``t -> (u, du)`` sampled
                 at each evaluation's time t + c·h. u in rad, du in rad/s; floats or ``(n,)`` arrays.
         """
-        if self.vectorized:
+        if type(target) is tuple:  # held over the step (the loop's case): the linear map
+            held = self._held
+            (held if held is not None and held.h == h else self._held_step(h)).step(x, v, *target)
+        elif self.vectorized:
             self._step_arrays(x, v, h, t, target)
         else:
             # a numpy-scalar h would turn every float operation below into a slower numpy one
@@ -130,7 +135,7 @@ class Integrator(ABC):
         n, h, t0 = self.n, float(h), float(t0)
         x = np.array(np.broadcast_to(np.asarray(x0, dtype=np.float64), (n,)))
         v = np.array(np.broadcast_to(np.asarray(v0, dtype=np.float64), (n,)))
-        if not self.vectorized:
+        if not self.vectorized and type(target) is not tuple:  # (held: through step)
             xl, vl = x.tolist(), v.tolist()
             xs, vs = [xl], [vl]
             for i in range(n_steps):
@@ -142,11 +147,29 @@ class Integrator(ABC):
         vs_a = np.empty((n_steps + 1, n))
         xs_a[0], vs_a[0] = x, v
         for i in range(n_steps):
-            self._step_arrays(x, v, h, t0 + i * h, target)
+            self.step(x, v, h, t0 + i * h, target)
             xs_a[i + 1], vs_a[i + 1] = x, v
         return xs_a, vs_a
 
+    def held_matrix(self, h: float) -> FloatArray:
+        """One step of each spring with the target held, as a matrix: shaped ``(n, 3, 3)``,
+        mapping (x, v, g) to (x', v', g), g = w2·u + bm·u' the forcing (the last row is
+        (0, 0, 1)). The method's own step on a linear system is linear, so this is exactly
+        what it computes (:class:`hilsim.rk_lists.HeldStep`)."""
+        M = np.zeros((self.n, 3, 3))  # d/dt (x, v, g) = M·(x, v, g)
+        M[:, 0, 1], M[:, 1, 0], M[:, 1, 1], M[:, 1, 2] = 1.0, self._neg_w2, self._neg_cm, 1.0
+        return self._step_matrix(M, float(h))
+
+    def _held_step(self, h: float) -> HeldStep:
+        bm = self._bm if self._has_b else None
+        self._held = HeldStep(self.held_matrix(h), h, self._w2, bm, self.vectorized)
+        return self._held
+
     # -- hooks ------------------------------------------------------------------------------------
+
+    @abstractmethod
+    def _step_matrix(self, M: FloatArray, h: float) -> FloatArray:
+        """The step's matrix for d/dt y = M·y (``M`` shaped ``(n, 3, 3)``)."""
 
     @abstractmethod
     def _step_lists(
@@ -280,6 +303,9 @@ class RungeKutta(Integrator):
             x[j], v[j] = xj + dx, vj + dv
         return x, v
 
+    def _step_matrix(self, M: FloatArray, h: float) -> FloatArray:
+        return tableau_matrix(self.A, self.B, M, h)
+
     def _step_arrays(
         self, x: FloatArray, v: FloatArray, h: float, t: float, target: TargetLike
     ) -> None:
@@ -344,19 +370,6 @@ class RK4(RungeKutta):
     B = np.array([1.0 / 6.0, 1.0 / 3.0, 1.0 / 3.0, 1.0 / 6.0])
     C = np.array([0.0, 0.5, 0.5, 1.0])
 
-    def _step_lists(
-        self, x: list[float], v: list[float], h: float, t: float, target: TargetLike
-    ) -> tuple[list[float], list[float]]:
-        if type(target) is not tuple:  # held (the loop's case): the unrolled kernel
-            return super()._step_lists(x, v, h, t, target)
-        if h != self._scaled_h:
-            self._scaled(h)
-        (u, du), bm = target, self._bm_l if self._has_b else None
-        rk4_held(
-            x, v, self._hrows, self._hweights, self._neg_w2_l, self._neg_cm_l, self._w2_l, u, bm, du
-        )
-        return x, v
-
 
 class SemiImplicitEuler(Integrator):
     """Semi-implicit (symplectic) Euler: v ← v + h·a(t, x, v), then x ← x + h·v with the new v.
@@ -387,6 +400,9 @@ class SemiImplicitEuler(Integrator):
             vj = vj + h * acc
             x[j], v[j] = xj + h * vj, vj
         return x, v
+
+    def _step_matrix(self, M: FloatArray, h: float) -> FloatArray:
+        return kick_drift_matrix(M, h)
 
     def _step_arrays(
         self, x: FloatArray, v: FloatArray, h: float, t: float, target: TargetLike
@@ -436,25 +452,9 @@ def rk_solve(
     n_steps: int,
     t0: float = 0.0,
 ) -> tuple[FloatArray, FloatArray]:
-    """Integrate a general first-order system y' = f(t, y) with an explicit RK method's tableau.
-
-    A plain, allocating reference implementation (the paper's dy/dt = y example, cross-checks of the
-    spring steps); not for the real-time loop.
-
-    Returns:
-        (t, y): t shaped ``(n_steps + 1,)``, y shaped ``(n_steps + 1,) + shape(y0)``.
-    """
+    """y' = f(t, y) integrated with a Runge–Kutta method's tableau: a plain reference
+    (:func:`hilsim.rk_lists.solve_tableau`), not for the real-time loop. Returns (t, y)."""
     cls = get_method(method)
     if not issubclass(cls, RungeKutta):
         raise ValueError(f"method must be a Runge–Kutta method, got {cls.name!r}")
-    y = np.array(y0, dtype=np.float64)
-    ys = [y.copy()]
-    s = len(cls.B)
-    for n in range(n_steps):
-        t = t0 + n * h
-        k = np.zeros((s, *y.shape))
-        for i in range(s):
-            k[i] = f(t + cls.C[i] * h, y + h * np.tensordot(cls.A[i, :i], k[:i], axes=1))
-        y = y + h * np.tensordot(cls.B, k, axes=1)
-        ys.append(y.copy())
-    return t0 + h * np.arange(n_steps + 1), np.array(ys)
+    return solve_tableau(cls.A, cls.B, cls.C, f, y0, h, n_steps, t0)

@@ -1,20 +1,29 @@
-"""A Runge–Kutta tableau as the list path steps it, and RK4's step unrolled for the loop.
+"""A Runge–Kutta tableau as the list path steps it, and every method's step with a held target.
 
 :class:`hilsim.integrators.RungeKutta` keeps each row of its tableau (and its weights) as a
 :data:`Combo`: the non-zero terms of Σ a_j·K_j, scaled by the step with :func:`scale` once
-per step size. :func:`rk4_held` is the classical RK4 step over a bank of springs with the
-target held over the step (the real-time loop's case), unrolled: the operations and their
-order are exactly those of the generic step (:meth:`RungeKutta._step_lists`) for RK4's
-tableau, so the results are the same bits (``tests/hilsim/test_integrators.py``), in about
-a third of the time.
+per step size.
+
+:class:`HeldStep` is the real-time loop's step. With the target held over the step (the
+loop samples it once per tick), a damped spring is a linear system in (x, v, g), g = w2·u +
+bm·u' the forcing, and so is any of the methods' steps on it: one step *is* a 3×3 matrix
+per spring, the method's own (for RK4 the degree-4 Taylor polynomial of h·M, its stability
+function; ``docs/numerics.md``). :meth:`Integrator.held_matrix
+<hilsim.integrators.Integrator.held_matrix>` works it out once per step size from the
+method's tableau; a step is then two dot products of three per spring instead of RK4's four
+stages. Exact arithmetic gives the same numbers as the staged step; floating point differs
+from it in the last bits (``tests/hilsim/test_tick_paths.py`` holds them within 1e-13).
+The list path and the array path do the same operations in the same order: the same bits.
 """
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 
 import numpy as np
 import numpy.typing as npt
+
+from drivers.fill import Packed
 
 #: a linear combination Σ a_j·K_j of stage slopes with its zero terms dropped, as
 #: (first j, first a, ((j, a), …) for the rest); None when every coefficient is zero
@@ -48,37 +57,124 @@ def as_list(value: npt.ArrayLike, n: int) -> Sequence[float]:
     return (arr if arr.shape == (n,) else np.broadcast_to(arr, (n,))).tolist()
 
 
-def rk4_held(
-    x: list[float],
-    v: list[float],
-    rows: tuple[Combo | None, ...],
-    weights: Combo,
-    neg_w2: list[float],
-    neg_cm: list[float],
-    w2: list[float],
-    u: npt.ArrayLike,
-    bm: list[float] | None = None,
-    du: npt.ArrayLike = None,
-) -> None:
-    """One RK4 step of every spring, in place: ``rows``/``weights`` are RK4's tableau
-    scaled by h (:func:`scale`); the held target's forcing is w2·u + bm·u' (bm None: w2·u),
-    computed as ``Integrator._forcing_lists`` does."""
-    (_, a1, _), (_, a2, _), (_, a3, _) = rows[1:]  # type: ignore[misc]
-    _, b0, ((_, b1), (_, b2), (_, b3)) = weights
-    n = len(x)
-    if type(u) is not tuple or len(u) != n:  # the loop's samples are tuples: as they are
-        u = as_list(u, n)
-    if bm is not None and (type(du) is not tuple or len(du) != n):
-        du = as_list(du, n)
-    for j in range(len(x)):  # indexing, not zip: no tuple per joint, no keyword argument
-        xj, vj, a, c = x[j], v[j], neg_w2[j], neg_cm[j]
-        gj = w2[j] * u[j] if bm is None else w2[j] * u[j] + bm[j] * du[j]  # type: ignore[index]
-        k0 = a * xj + c * vj + gj
-        x1, v1 = xj + a1 * vj, vj + a1 * k0
-        k1 = a * x1 + c * v1 + gj
-        x2, v2 = xj + a2 * v1, vj + a2 * k1
-        k2 = a * x2 + c * v2 + gj
-        x3, v3 = xj + a3 * v2, vj + a3 * k2
-        k3 = a * x3 + c * v3 + gj
-        x[j] = xj + (b0 * vj + b1 * v1 + b2 * v2 + b3 * v3)
-        v[j] = vj + (b0 * k0 + b1 * k1 + b2 * k2 + b3 * k3)
+def tableau_matrix(A: np.ndarray, B: np.ndarray, M: np.ndarray, h: float) -> np.ndarray:
+    """The step of the explicit Runge–Kutta method (A, B) on d/dt y = M·y, as a matrix per
+    system (``M`` shaped ``(n, k, k)``): slope K_i = M·(I + h·Σ_j a_ij·K_j), step
+    I + h·Σ_i b_i·K_i."""
+    eye = np.broadcast_to(np.eye(M.shape[-1]), M.shape)
+    K: list[np.ndarray] = []
+    for i in range(len(B)):
+        K.append(M @ (eye + h * sum((a * K[j] for j, a in enumerate(A[i, :i])), np.zeros(M.shape))))
+    return eye + h * sum((b * k for b, k in zip(B, K, strict=True)), np.zeros(M.shape))
+
+
+def solve_tableau(
+    A: np.ndarray,
+    B: np.ndarray,
+    C: np.ndarray,
+    f: Callable[[float, np.ndarray], npt.ArrayLike],
+    y0: npt.ArrayLike,
+    h: float,
+    n_steps: int,
+    t0: float = 0.0,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Integrate a general first-order system y' = f(t, y) with the explicit Runge–Kutta
+    tableau (A, B, C). A plain, allocating reference implementation (the paper's dy/dt = y
+    example, cross-checks of the spring steps); not for the real-time loop.
+
+    Returns:
+        (t, y): t shaped ``(n_steps + 1,)``, y shaped ``(n_steps + 1,) + shape(y0)``.
+    """
+    y = np.array(y0, dtype=np.float64)
+    ys = [y.copy()]
+    s = len(B)
+    for n in range(n_steps):
+        t = t0 + n * h
+        k = np.zeros((s, *y.shape))
+        for i in range(s):
+            k[i] = f(t + C[i] * h, y + h * np.tensordot(A[i, :i], k[:i], axes=1))
+        y = y + h * np.tensordot(B, k, axes=1)
+        ys.append(y.copy())
+    return t0 + h * np.arange(n_steps + 1), np.array(ys)
+
+
+def kick_drift_matrix(M: np.ndarray, h: float) -> np.ndarray:
+    """Semi-implicit Euler's step on d/dt (x, v, g) = M·(x, v, g) as a matrix per spring:
+    v += h·a(x, v, g), then x += h·v with the new v."""
+    eye = np.broadcast_to(np.eye(3), M.shape)
+    kick = eye + h * (M * np.array([0.0, 1.0, 0.0])[:, None])
+    return (eye + h * (M * np.array([1.0, 0.0, 0.0])[:, None])) @ kick
+
+
+class HeldStep:
+    """One step with a held target, for springs whose step matrices are ``S`` (shaped
+    ``(n, 3, 3)``, rows x, v, g) at step ``h``; ``w2``, ``bm`` as the integrator's (bm None
+    when every b is 0). :meth:`step` steps float64 arrays in place, through :meth:`lists`
+    (Python floats in place) or, ``vectorized``, :meth:`arrays` (buffers allocated here,
+    none per step)."""
+
+    __slots__ = ("_cols", "_rows", "_tmp", "_vv", "_xv", "bm", "h", "n", "vectorized", "w2")
+
+    def __init__(
+        self, S: np.ndarray, h: float, w2: np.ndarray, bm: np.ndarray | None, vectorized: bool
+    ) -> None:
+        self.h, self.n, self.vectorized = h, len(w2), vectorized
+        self.w2, self.bm = w2, bm
+        self._xv = self._vv = Packed()  # the caller's x, v as the list path reads and writes them
+        x_row, v_row = S[:, 0, :], S[:, 1, :]
+        # per spring: (sxx, sxv, sxg, svx, svv, svg, w2, bm) as floats for the list path
+        bml = [0.0] * self.n if bm is None else bm.tolist()
+        self._rows = tuple(
+            (*xr, *vr, w, b)
+            for xr, vr, w, b in zip(x_row.tolist(), v_row.tolist(), w2.tolist(), bml, strict=True)
+        )
+        self._cols = tuple(np.ascontiguousarray(S[:, r, c]) for r in (0, 1) for c in (0, 1, 2))
+        self._tmp = np.empty((4, self.n))
+
+    def step(self, x: np.ndarray, v: np.ndarray, u: npt.ArrayLike, du: npt.ArrayLike) -> None:
+        if self.vectorized:
+            self.arrays(x, v, u, du)
+            return
+        xv, vv = self._xv, self._vv
+        if xv.arr is not x or vv.arr is not v:  # the caller's arrays, viewed once
+            xv, vv = self._xv, self._vv = Packed(x, self.n), Packed(v, self.n)
+        xl, vl = xv.tolist(), vv.tolist()
+        self.lists(xl, vl, u, du)
+        xv.put(*xl)
+        vv.put(*vl)
+
+    def lists(self, x: list[float], v: list[float], u: npt.ArrayLike, du: npt.ArrayLike) -> None:
+        n = self.n
+        if type(u) is not tuple or len(u) != n:  # the loop's samples are tuples: as they are
+            u = as_list(u, n)
+        rows = self._rows
+        if self.bm is None:
+            for j in range(n):  # indexing, not zip: no tuple per joint
+                sxx, sxv, sxg, svx, svv, svg, w, _ = rows[j]
+                xj, vj, g = x[j], v[j], w * u[j]
+                x[j] = sxx * xj + sxv * vj + sxg * g
+                v[j] = svx * xj + svv * vj + svg * g
+            return
+        if type(du) is not tuple or len(du) != n:
+            du = as_list(du, n)
+        for j in range(n):
+            sxx, sxv, sxg, svx, svv, svg, w, b = rows[j]
+            xj, vj, g = x[j], v[j], w * u[j] + b * du[j]  # type: ignore[index]
+            x[j] = sxx * xj + sxv * vj + sxg * g
+            v[j] = svx * xj + svv * vj + svg * g
+
+    def arrays(self, x: np.ndarray, v: np.ndarray, u: npt.ArrayLike, du: npt.ArrayLike) -> None:
+        g, tmp, xn, vn = self._tmp
+        np.multiply(self.w2, u, out=g)
+        if self.bm is not None:
+            np.multiply(self.bm, du, out=tmp)
+            np.add(g, tmp, out=g)
+        sxx, sxv, sxg, svx, svv, svg = self._cols
+        for out, cx, cv, cg in ((xn, sxx, sxv, sxg), (vn, svx, svv, svg)):
+            np.multiply(cx, x, out=out)  # (cx·x + cv·v) + cg·g, in the list path's order
+            np.multiply(cv, v, out=tmp)
+            np.add(out, tmp, out=out)
+            np.multiply(cg, g, out=tmp)
+            np.add(out, tmp, out=out)
+        np.copyto(x, xn)
+        np.copyto(v, vn)

@@ -1,4 +1,5 @@
-"""The tick's faster paths against the ways they replaced: the same numbers, bit for bit.
+"""The tick's faster paths against the ways they replaced: the same numbers, bit for bit (the
+springs' held step: to rounding, as it is the staged step's map, computed once).
 
 Each test holds a per-tick path (Python floats instead of numpy calls, packed writes, lazy
 books) against the plain computation it stands for."""
@@ -13,7 +14,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from hilsim.integrators import RK4, RungeKutta, make_integrator
+from hilsim.integrators import INTEGRATORS, make_integrator
 from hilsim.joint_map import JointMap
 from hilsim.monitors import STALL_ALLOWANCE_S, HostStalls, SilenceBudget
 from hilsim.springs import Spring
@@ -27,22 +28,42 @@ floats = st.floats(-1e3, 1e3, allow_nan=False)
 
 # ------------------------------------------------------------------ springs
 @settings(max_examples=60)
-@given(n=st.integers(1, 17), seed=st.integers(0, 2**32 - 1), kind=st.sampled_from(["t", "l", "a"]))
-def test_rk4s_unrolled_step_is_the_generic_steps_bits(n, seed, kind):
+@given(
+    n=st.integers(1, 17),
+    seed=st.integers(0, 2**32 - 1),
+    kind=st.sampled_from(["t", "l", "a"]),
+    method=st.sampled_from(list(INTEGRATORS)),
+)
+def test_the_held_step_is_each_methods_staged_step(n, seed, kind, method):
+    # the loop's step (the method's step as a matrix, hilsim.rk_lists.HeldStep) against the
+    # method's own stages: the same map, so the same numbers to rounding (not the same bits)
     rng = np.random.default_rng(seed)
     b = rng.uniform(-1, 1, n) if rng.random() < 0.7 else 0.0
     spring = Spring(
         m=rng.uniform(0.1, 3, n), c=rng.uniform(0, 2, n), k=rng.uniform(0.5, 50, n), b=b
     )
-    fast, generic = make_integrator("rk4", spring, vectorized=False), RK4(spring, vectorized=False)
-    x, v = rng.uniform(-1, 1, n).tolist(), rng.uniform(-1, 1, n).tolist()
-    xg, vg = list(x), list(v)
+    held, staged = (make_integrator(method, spring, vectorized=False) for _ in range(2))
+    x0, v0 = rng.uniform(-1, 1, n), rng.uniform(-1, 1, n)
+    x, v = x0.copy(), v0.copy()
+    xg, vg = x0.tolist(), v0.tolist()
     for step in range(20):
         u, du = rng.uniform(-1, 1, n), rng.uniform(-1, 1, n)
         target = {"t": (tuple(u.tolist()), tuple(du.tolist())), "l": (u.tolist(), du), "a": (u, du)}
-        fast._step_lists(x, v, 0.004, 0.004 * step, target[kind])
-        RungeKutta._step_lists(generic, xg, vg, 0.004, 0.004 * step, (u, du))
-        assert x == xg and v == vg
+        held.step(x, v, 0.004, 0.004 * step, target[kind])
+        xg, vg = staged._step_lists(xg, vg, 0.004, 0.004 * step, (u, du))
+    np.testing.assert_allclose(x, xg, rtol=1e-13, atol=1e-14)
+    np.testing.assert_allclose(v, vg, rtol=1e-13, atol=1e-13)
+
+
+def test_rk4s_step_matrix_is_its_stability_polynomial():
+    spring = Spring(m=[1.0, 0.5], c=[0.3, 2.0], k=[40.0, 9.0])
+    h = 0.004
+    S = make_integrator("rk4", spring).held_matrix(h)
+    for j in range(2):
+        hM = h * np.array([[0.0, 1.0], [-spring.k[j] / spring.m[j], -spring.c[j] / spring.m[j]]])
+        taylor = sum(np.linalg.matrix_power(hM, p) / math.factorial(p) for p in range(5))
+        np.testing.assert_allclose(S[j, :2, :2], taylor, rtol=0, atol=1e-15)
+        np.testing.assert_array_equal(S[j, 2], [0.0, 0.0, 1.0])
 
 
 def test_the_loops_step_on_arrays_writes_the_lists_result():
@@ -53,8 +74,13 @@ def test_the_loops_step_on_arrays_writes_the_lists_result():
     target = ((0.1, 0.2, 0.3, 0.4), (1.0, 0.0, -1.0, 0.5))
     for _ in range(5):
         integ.step(x, v, 0.002, 0.0, target)
-        xl, vl = RungeKutta._step_lists(integ, xl, vl, 0.002, 0.0, target)
+        integ._held_step(0.002).lists(xl, vl, *target)
     assert x.tolist() == xl and v.tolist() == vl
+    vec = make_integrator("rk4", spring, vectorized=True)  # the array path: the same bits
+    xa, va = np.linspace(-0.5, 0.5, 4), np.zeros(4)
+    for _ in range(5):
+        vec.step(xa, va, 0.002, 0.0, target)
+    assert xa.tolist() == xl and va.tolist() == vl
     other = np.zeros(4)  # another array: viewed anew
     integ.step(other, v.copy(), 0.002, 0.0, target)
     assert other.any()
