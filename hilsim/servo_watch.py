@@ -38,10 +38,17 @@ from drivers.servo_bus import (
 from hilsim.joint_map import JointMap
 from hilsim.monitors import FollowingMonitor, HealthSchedule, SilenceBudget
 
-#: a health read runs only when the tick has its expected bus time, times this, plus
-#: HEALTH_SPARE_S (the SDK's own time) to spare: it must never make the tick late
+#: a health read runs only when the tick has its expected time, times this, plus
+#: HEALTH_SPARE_S (the SDK's own time) to spare: it must never make the tick late. Its
+#: expected time is the longer of its bus time (the wire model) and the median of the last
+#: HEALTH_COST_READS reads of the last HEALTH_COST_MEMORY_S as the clock measured them (the
+#: host's work in them, an in-process emulator's included; a median, so one read stretched
+#: by a host stall does not stop the reads; forgotten, so a slow spell does not stop them
+#: for the rest of the show)
 HEALTH_MARGIN = 1.1
 HEALTH_SPARE_S = 150e-6
+HEALTH_COST_READS = 5
+HEALTH_COST_MEMORY_S = 2.0
 
 
 class LoopFaultError(RuntimeError):
@@ -83,6 +90,8 @@ class ServoWatch:
             period_s,
         )
         self.health = HealthSchedule(n)
+        self._health_took: list[tuple[float, float]] = []  # the last reads: (when, took)
+        self._health_cost_s = 0.0  # their median time
         self.comm_errors = 0  # reads that were not OK, cumulative
         self.recoveries = 0
         self.last_bus_t = -math.inf  # clock time of the last packet sent to the servos
@@ -203,7 +212,11 @@ class ServoWatch:
         sched = self.health
         if not sched.due(t):
             return
-        if spare_s < HEALTH_MARGIN * self.bus.health_read_s + HEALTH_SPARE_S:
+        took = self._health_took
+        if took and t - took[0][0] > HEALTH_COST_MEMORY_S:
+            self._health_cost_s = self._forget(t)
+        need = max(self.bus.health_read_s, self._health_cost_s)
+        if spare_s < HEALTH_MARGIN * need + HEALTH_SPARE_S:
             sched.deferred += 1
             return
         i, part = sched.take(t)
@@ -214,8 +227,20 @@ class ServoWatch:
             health = self.bus.read_health(self.ids[i], part)
         except ServoBusError:
             return  # a failed read says nothing new: the per-tick reads keep the budget
+        finally:
+            took.append((t, self.clock.now() - sent))
+            if len(took) > HEALTH_COST_READS:
+                del took[0]
+            self._health_cost_s = self._forget(t)
         self.last_bus_t = max(self.last_bus_t, sent)
         self._handle(i, health, k, explained=self.last_long_gap_t > self._last_health_ok[i])
+
+    def _forget(self, t: float) -> float:
+        """Drop the health reads older than HEALTH_COST_MEMORY_S; the median time of the rest."""
+        took = self._health_took
+        while took and t - took[0][0] > HEALTH_COST_MEMORY_S:
+            del took[0]
+        return sorted(d for _, d in took)[len(took) // 2] if took else 0.0
 
     def after_bus_silence(self, gap_s: float, k: int) -> None:
         """The bus was quiet for a good part of the Bus Watchdog period (a host stall): check
