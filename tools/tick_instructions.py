@@ -7,14 +7,19 @@ with ``--cycles`` cycles after the same warm-up, and divides the difference by t
 start-up, imports and warm-up cancel out. Both sides run on the instant in-process fake
 port of :mod:`hilsim.bench.tick`.
 
-    python tools/tick_instructions.py [--servos 4,16] [--cycles 2000]
+    python tools/tick_instructions.py [--servos 4,16] [--cycles 2000] [--cache]
 
 (about a minute per servo count and side; needs valgrind: apt-get install valgrind)
+
+``--cache`` adds cachegrind's simulated first-level instruction and data cache misses and
+branch mispredictions per cycle (twice as slow): why a tick of fewer instructions than the
+bare cycle can still take longer on the clock.
 """
 
 from __future__ import annotations
 
 import argparse
+import math
 import os
 import re
 import subprocess
@@ -39,17 +44,27 @@ def _child(which: str, n: int, cycles: int) -> None:
             drain()  # telemetry rows out of the ring, as between a bench's rounds
 
 
-def _instructions(which: str, n: int, cycles: int) -> int:
+#: cachegrind's summary lines: what each column counts
+COUNTS = {"I": r"I\s+refs", "I1 miss": r"I1\s+misses", "D1 miss": r"D1\s+misses",
+          "mispredict": r"Mispredicts"}  # fmt: skip
+
+
+def _counts(which: str, n: int, cycles: int, cache: bool) -> dict[str, int]:
     env = {**os.environ, "PYTHONHASHSEED": "0"}  # the same dict and set orders in every run
+    sim = ["--cache-sim=yes", "--branch-sim=yes"] if cache else ["--cache-sim=no"]
     out = subprocess.run(
-        ["valgrind", "--tool=cachegrind", "--cache-sim=no", "--cachegrind-out-file=/dev/null",
+        ["valgrind", "--tool=cachegrind", *sim, "--cachegrind-out-file=/dev/null",
          sys.executable, __file__, "--child", which, str(n), str(cycles)],
         capture_output=True, text=True, check=True, env=env,
     )  # fmt: skip
-    found = re.search(r"I\s+refs:\s+([\d,]+)", out.stderr)
-    if found is None:
+    found = {}
+    for name, pattern in COUNTS.items():
+        m = re.search(pattern + r":\s+([\d,]+)", out.stderr)
+        if m is not None:
+            found[name] = int(m.group(1).replace(",", ""))
+    if "I" not in found:
         raise RuntimeError(f"no instruction count in valgrind's output:\n{out.stderr[-500:]}")
-    return int(found.group(1).replace(",", ""))
+    return found
 
 
 def main() -> int:
@@ -59,14 +74,18 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--servos", default="4,16", help="servo counts, e.g. 4,8,16")
     ap.add_argument("--cycles", type=int, default=2000)
+    ap.add_argument("--cache", action="store_true", help="also cache misses, mispredictions")
     args = ap.parse_args()
-    print(f"{'servos':>6} {'bare SDK':>12} {'hilsim tick':>12} {'ratio':>6}   (instructions/cycle)")
+    head = f"{'servos':>6} {'count':>11} {'bare SDK':>12} {'hilsim tick':>12} {'ratio':>6}"
+    print(head + "   (per cycle)")
     for n in (int(x) for x in args.servos.split(",")):
-        per = {}
+        per: dict[str, dict[str, float]] = {}
         for which in ("sdk", "tick"):
-            full, base = (_instructions(which, n, c) for c in (args.cycles, 0))
-            per[which] = (full - base) / args.cycles
-        print(f"{n:>6} {per['sdk']:>12,.0f} {per['tick']:>12,.0f} {per['tick'] / per['sdk']:>6.2f}")
+            full, base = (_counts(which, n, c, args.cache) for c in (args.cycles, 0))
+            per[which] = {k: (full[k] - base[k]) / args.cycles for k in full}
+        for k in per["sdk"]:
+            a, b = per["sdk"][k], per["tick"][k]
+            print(f"{n:>6} {k:>11} {a:>12,.0f} {b:>12,.0f} {b / a if a else math.nan:>6.2f}")
     return 0
 
 

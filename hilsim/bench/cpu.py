@@ -14,9 +14,9 @@ another process, as a USB adapter is):
   a show opens it), alternating, best of ``repeats``: process CPU (``time.process_time``)
   and wall time per cycle;
 * :func:`measure_demo` - ``hilsim run configs/demo.toml --port PTY`` in a child process:
-  its CPU (``/proc/PID/stat``: every thread) per tick over a window of the show after the
-  soft start, the loop's thread apart (``/proc/PID/task``), its wake-ups (voluntary context
-  switches) per tick and the show's lateness;
+  its CPU (``/proc/PID/task/*/schedstat``: every thread) per tick over a window of the show
+  after the soft start, the loop's thread apart, its wake-ups (voluntary context switches)
+  per tick and the show's lateness;
 * :func:`compare_waits` - the real clock alone: CPU per wait and lateness at 250 Hz with
   the former spin window and timer slack (200 µs, 50 µs), the present ones, and 50 µs.
 
@@ -264,8 +264,17 @@ def measure_cycles(path: str, *, cycles: int = 500, repeats: int = 7) -> tuple[C
 
 # ----------------------------------------------------------------------- the demo
 def _cpu_s(pid: int, tid: int | None = None) -> float:
-    """utime + stime of process ``pid`` (every thread: ``/proc/PID/stat``), or of its
-    thread ``tid`` (``/proc/PID/task/TID/stat``), seconds."""
+    """Time on a CPU of process ``pid`` (every thread) or of its thread ``tid``, seconds:
+    the scheduler's own count in nanoseconds (``schedstat``); a kernel that samples
+    utime/stime at its tick (often 250 Hz, the demo's rate) may charge a periodic loop
+    for more or less than it ran. utime + stime (``stat``) where schedstat is absent."""
+    tasks = [str(tid)] if tid is not None else os.listdir(f"/proc/{pid}/task")
+    if Path(f"/proc/{pid}/task/{pid}/schedstat").exists():
+        ns = 0
+        for task in tasks:
+            with contextlib.suppress(OSError, ValueError, IndexError):  # a thread that ended
+                ns += int(Path(f"/proc/{pid}/task/{task}/schedstat").read_text().split()[0])
+        return ns * 1e-9
     where = f"/proc/{pid}" if tid is None else f"/proc/{pid}/task/{tid}"
     stat = Path(f"{where}/stat").read_text()
     fields = stat[stat.rindex(")") + 2 :].split()
