@@ -70,7 +70,10 @@ def verdict(summary: dict, ticks_run: int) -> str | None:
         problems.append(f"{comm} failed reads (check wiring, power and Return Delay Time)")
     tel = summary.get("telemetry") or {}
     if tel.get("rows_dropped"):
-        problems.append(f"{tel['rows_dropped']} telemetry rows dropped (disk too slow)")
+        problems.append(
+            f"{tel['rows_dropped']} telemetry rows dropped "
+            "(the writer fell behind: a stalled disk or no CPU for it)"
+        )
     if tel.get("error"):
         problems.append(f"telemetry failed ({tel['error']}): the run is not fully recorded")
     if not problems:

@@ -323,7 +323,10 @@ def read_run(run_dir: str | os.PathLike[str]) -> Run:
     tel = summary.get("telemetry") if summary else None
     if isinstance(tel, dict):
         if tel.get("rows_dropped"):
-            warnings.append(f"{tel['rows_dropped']} row(s) dropped while recording (disk stalled)")
+            warnings.append(
+                f"{tel['rows_dropped']} row(s) dropped while recording "
+                "(the writer fell behind: a stalled disk or no CPU for it)"
+            )
         if tel.get("rows_lost"):
             warnings.append(
                 f"{tel['rows_lost']} recorded row(s) never written ({tel.get('error')})"

@@ -88,6 +88,9 @@ FSYNC_KINDS: frozenset[str] = frozenset({"start", "fault", "signal", "stop", "ex
 _yield_gil = getattr(os, "sched_yield", lambda: time.sleep(0))
 #: a chunk is started only with at least this much of the loop's free time left
 _CHUNK_BUDGET_S = 150e-6
+#: how long the writer formats without waiting for the loop's free time once it has had none
+#: long enough for a chunk for a while (see _drain_rows)
+_BURST_S = 5e-3
 _monotonic = time.monotonic
 
 
@@ -466,14 +469,28 @@ class TelemetryWriter:
         assert self._sink is not None
         ring, sink = self._ring, self._sink
         slack = self.slack
+        napping_since = None  # the first of the naps since the last chunk
+        burst_until = -1.0  # chunks without waiting for free time until then
         while ring.pending() > 0:
             # Format only in the loop's free time (see ``slack``), and never start a chunk that
-            # could still be running when the loop wakes: nap past its deadline instead.
-            if not slack.wait(self._poll_s):
-                pass  # the loop has not slept for a while (overrunning?): do a chunk anyway
+            # could still be running when the loop wakes: nap past its deadline instead. But
+            # not for ever: when the loop has had no free time long enough for a chunk for
+            # _poll_s (a fast rig whose bus takes most of each tick, an overrunning loop), a
+            # burst of chunks (_BURST_S, the GIL yielded between them) keeps the ring from
+            # filling and losing rows; the loop then waits at most a switch interval for it.
+            if _monotonic() < burst_until:
+                pass
+            elif not slack.wait(self._poll_s):
+                burst_until = _monotonic() + _BURST_S  # no free time for a while
             elif (left := slack.remaining()) < _CHUNK_BUDGET_S:
-                time.sleep(max(left, 0.0) + _CHUNK_BUDGET_S)
-                continue
+                now = _monotonic()
+                if napping_since is None:
+                    napping_since = now
+                if now - napping_since < self._poll_s:
+                    time.sleep(max(left, 0.0) + _CHUNK_BUDGET_S)
+                    continue
+                burst_until = now + _BURST_S  # only short free times for a while
+            napping_since = None
             rows = sink.take(ring, self._chunk_rows)  # slots are free once copied out
             if self.overflow == "block":
                 self._space.set()
@@ -493,7 +510,7 @@ class TelemetryWriter:
                 "t": None,
                 "wall": time.time(),
                 "kind": "telemetry_dropped",
-                "message": f"telemetry queue full (disk stalled?): "
+                "message": f"telemetry queue full (a stalled disk? no CPU for the writer?): "
                 f"{dropped - self._dropped_reported} rows dropped, {dropped} in total",
                 "rows": dropped - self._dropped_reported,
                 "total": dropped,

@@ -459,6 +459,28 @@ def test_periodic_flush_reaches_the_file(tmp_path: Path) -> None:
     w.close()
 
 
+def test_the_writer_drains_when_the_loops_free_time_is_always_short(tmp_path: Path) -> None:
+    # a fast rig whose bus takes most of each tick: the loop sleeps every tick, but never
+    # long enough for a chunk. The writer must not nap for ever (the ring would fill and
+    # rows be lost): after a while without a long enough free time it formats anyway.
+    drained = threading.Event()
+
+    class _Watched(TelemetryWriter):
+        def _drain_rows(self) -> None:
+            super()._drain_rows()
+            if self.rows_written:
+                drained.set()
+
+    w = _Watched(tmp_path, JOINTS, flush_interval_s=0.01)
+    w.slack.until = -math.inf  # a free time that has always just ended
+    w.slack.set()
+    for i in range(3):
+        _record_row(w, i, np.full(3, float(i)))
+    assert drained.wait(WAIT_S), "the writer waited for a free time that never came"
+    w.close()
+    assert read_run(tmp_path).n_ticks == 3
+
+
 # ----------------------------------------------------------------------------- reading damaged runs
 
 
