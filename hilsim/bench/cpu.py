@@ -11,8 +11,7 @@ another process, as a USB adapter is):
 * :func:`measure_cycles` - back-to-back cycles of one Sync Write of Goal Position and one
   Fast Sync Read of Present Position through the SDK's group objects, once on the bare
   SDK's port and once on hilsim's (opened by :meth:`~drivers.dynamixel.link.Link.open`, as
-  a show opens it), alternating, best of ``repeats``: process CPU (``time.process_time``)
-  and wall time per cycle;
+  a show opens it), alternating, best of ``repeats``: CPU (``time.process_time``) and wall;
 * :func:`measure_demo` - ``hilsim run configs/demo.toml --port PTY`` in a child process:
   its CPU (``/proc/PID/task/*/schedstat``: every thread) per tick over a window of the show
   after the soft start, the loop's thread apart, its wake-ups (voluntary context switches)
@@ -23,8 +22,7 @@ another process, as a USB adapter is):
 ``hilsim bench`` on the built-in emulator and the real clock (no rig, no ``--port``: the
 figures are this host's and hilsim's, not the bus's) runs it after its other measurements
 (:func:`for_bench`), prints :meth:`CpuResult.text` and puts :meth:`CpuResult.as_dict` in its
-JSON under ``cpu``. ``python -m hilsim.bench.cpu`` runs it alone. Give the load
-(``os.getloadavg``, in the result) beside the figures.
+JSON under ``cpu`` (with the load average). ``python -m hilsim.bench.cpu`` runs it alone.
 """
 
 from __future__ import annotations
@@ -264,21 +262,16 @@ def measure_cycles(path: str, *, cycles: int = 500, repeats: int = 7) -> tuple[C
 
 # ----------------------------------------------------------------------- the demo
 def _cpu_s(pid: int, tid: int | None = None) -> float:
-    """Time on a CPU of process ``pid`` (every thread) or of its thread ``tid``, seconds:
-    the scheduler's own count in nanoseconds (``schedstat``); a kernel that samples
-    utime/stime at its tick (often 250 Hz, the demo's rate) may charge a periodic loop
-    for more or less than it ran. utime + stime (``stat``) where schedstat is absent."""
-    tasks = [str(tid)] if tid is not None else os.listdir(f"/proc/{pid}/task")
-    if Path(f"/proc/{pid}/task/{pid}/schedstat").exists():
-        ns = 0
-        for task in tasks:
-            with contextlib.suppress(OSError, ValueError, IndexError):  # a thread that ended
-                ns += int(Path(f"/proc/{pid}/task/{task}/schedstat").read_text().split()[0])
-        return ns * 1e-9
-    where = f"/proc/{pid}" if tid is None else f"/proc/{pid}/task/{tid}"
-    stat = Path(f"{where}/stat").read_text()
-    fields = stat[stat.rindex(")") + 2 :].split()
-    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+    """Time on a CPU of process ``pid`` (every thread) or of its thread ``tid`` (s): the
+    scheduler's own count (``schedstat``, ns), not utime/stime, which a kernel may sample
+    at its tick, often 250 Hz: the demo's own rate."""
+    if not Path(f"/proc/{pid}/task/{pid}/schedstat").exists():
+        raise RuntimeError("this kernel has no /proc/PID/schedstat: CPU time is not measured")
+    ns = 0
+    for task in [str(tid)] if tid is not None else os.listdir(f"/proc/{pid}/task"):
+        with contextlib.suppress(OSError, ValueError, IndexError):  # a thread that ended
+            ns += int(Path(f"/proc/{pid}/task/{task}/schedstat").read_text().split()[0])
+    return ns * 1e-9
 
 
 def _wakeups(pid: int) -> int:
