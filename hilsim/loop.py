@@ -357,6 +357,8 @@ class HilLoop:
             recoveries=self.watch.recoveries,
             host_stalls=self.stalls.as_dict(),
             health_reads=self.watch.health.reads,
+            health_deferred=self.watch.health.deferred,
+            health_forced=self.watch.health.forced,
         )
         if interrupted is not None:
             raise interrupted

@@ -230,7 +230,8 @@ class HealthSchedule:
         self._round = 0
         self._due = -math.inf
         self.reads = 0
-        self.deferred = 0
+        self.deferred = 0  # due reads put off: the tick had not the time to spare
+        self.forced = 0  # reads taken without the time to spare (servo_watch.HEALTH_FLOOR_S)
 
     def due(self, t: float) -> bool:
         return t >= self._due

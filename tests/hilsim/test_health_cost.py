@@ -10,7 +10,13 @@ import pytest
 
 from drivers.dynamixel import DynamixelBus
 from hilsim.joint_map import JointMap
-from hilsim.servo_watch import HEALTH_COST_MEMORY_S, HEALTH_MARGIN, HEALTH_SPARE_S, ServoWatch
+from hilsim.servo_watch import (
+    HEALTH_COST_MEMORY_S,
+    HEALTH_FLOOR_S,
+    HEALTH_MARGIN,
+    HEALTH_SPARE_S,
+    ServoWatch,
+)
 
 EXTRA_S = 0.003  # what each health read costs beyond its bus time (virtual clock)
 
@@ -36,14 +42,15 @@ def slow_health():
     )
     bus.set_torque(True)  # a healthy figure: the reads find nothing wrong
     read = bus.read_health
+    extra = [EXTRA_S]
 
     def slow(*args, **kwargs):
         out = read(*args, **kwargs)
-        bus.clock.advance(EXTRA_S)
+        bus.clock.advance(extra[0])
         return out
 
     bus.read_health = slow
-    yield SimpleNamespace(bus=bus, watch=watch)
+    yield SimpleNamespace(bus=bus, watch=watch, extra=extra)
     bus.close()
 
 
@@ -61,7 +68,7 @@ def test_a_read_that_cost_more_than_its_bus_time_sizes_the_next(slow_health):
     enough_for_the_model = HEALTH_MARGIN * model + HEALTH_SPARE_S + 1e-6
     assert _reads(slow_health, enough_for_the_model, 1) == 1  # nothing known yet: the model
     # it took EXTRA_S more: ticks with only the model's time to spare take no more reads
-    assert _reads(slow_health, enough_for_the_model, 1000) == 0
+    assert _reads(slow_health, enough_for_the_model, 500) == 0
     assert slow_health.watch.health.deferred > 0
     # a tick with the measured time to spare does
     measured = model + EXTRA_S
@@ -71,7 +78,18 @@ def test_a_read_that_cost_more_than_its_bus_time_sizes_the_next(slow_health):
 def test_a_slow_spell_is_forgotten(slow_health):
     model = slow_health.bus.health_read_s
     enough_for_the_model = HEALTH_MARGIN * model + HEALTH_SPARE_S + 1e-6
-    assert _reads(slow_health, enough_for_the_model, 1) == 1
-    # no read for HEALTH_COST_MEMORY_S: the slow read is forgotten and the model rules again
-    ticks = int(HEALTH_COST_MEMORY_S / 0.001) + 50
-    assert _reads(slow_health, enough_for_the_model, ticks) == 1
+    assert _reads(slow_health, enough_for_the_model, 1) == 1  # slow: the next ones wait
+    slow_health.extra[0] = 0.0  # the reads are quick again
+    # the floor's reads measure them quick; once the slow one is forgotten
+    # (HEALTH_COST_MEMORY_S), every due read fits again: a round of 2 every 40 ms
+    ticks = int((HEALTH_COST_MEMORY_S + 3.0) / 0.001)
+    assert _reads(slow_health, enough_for_the_model, ticks) > 100
+    assert slow_health.watch.health.forced <= HEALTH_COST_MEMORY_S / HEALTH_FLOOR_S + 1
+
+
+def test_a_bus_with_no_time_to_spare_still_gets_a_read_a_second(slow_health):
+    watch = slow_health.watch
+    # 10 s of ticks that never have the time: one read a HEALTH_FLOOR_S, each counted forced
+    reads = _reads(slow_health, 0.0, 10_000)
+    assert reads == watch.health.forced == pytest.approx(10.0 / HEALTH_FLOOR_S, abs=1)
+    assert watch.health.deferred > 9_000
