@@ -9,8 +9,9 @@ The emulated bus runs at 4 Mbit/s with Return Delay 0 and no USB latency timer (
 UART or a high-speed adapter): at 1 Mbit/s, or with an FTDI adapter's 1 ms timer, 8 servos
 cannot be read at 1 kHz at all, and ``hilsim run`` refuses such a rig before it starts.
 The "bus" stage is wall time inside write_goals + read_present: the bytes' wire time (the
-SDK busy-polls while they are on the wire) plus the SDK's packet code plus the emulator,
-which runs in the same process. On hardware the emulator's share disappears.
+port sleeps on the emulator's clock while they are on the wire, spinning its last 100 µs)
+plus the driver's packet code plus the emulator, which runs in the same process. On
+hardware the emulator's share disappears.
 
     python tools/bench_loop.py [--seconds 20] [--fifo] [--json FILE]
 """

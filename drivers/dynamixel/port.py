@@ -206,8 +206,10 @@ class PortHandler(dynamixel_sdk.PortHandler):
         self._poll_ms: float | None = None  # when the last poll of this transaction began
         self._mark_s: float | None = None  # stall measurement: the previous poll (s)
         self._quiet_at: float | None = None  # replies may still arrive until then (s)
-        # how readPort waits for bytes (setupPort): "poll" (timeout 0, the SDK's way),
-        # "virtual" (the bus's read jumps its clock), "select" (a real port: the OS waits)
+        # how readPort waits for bytes (setupPort): "poll" (timeout 0, the SDK's way: before
+        # setupPort), "virtual" (the emulator's read jumps its clock), "clock" (the emulator
+        # in this process on the real clock: its read sleeps until the bytes are due, as the
+        # clock waits for a tick), "select" (a real port: the OS waits)
         self._wait = "poll"
         # the device's descriptor is non-blocking (pyserial's POSIX port keeps it so): only
         # then is it read and written directly (_read_fd, _write_fd)
@@ -260,7 +262,7 @@ class PortHandler(dynamixel_sdk.PortHandler):
             self._direct = _non_blocking(self.ser)
             self.clock  # noqa: B018 - the monotonic clock, made now: the hot paths use _clock
         else:
-            self._wait = "virtual" if port_clock.virtual else "poll"
+            self._wait = "virtual" if port_clock.virtual else "clock"
         self.is_open = True
         self.ser.reset_input_buffer()
         self.tx_time_per_byte = (1000.0 / self.baudrate) * 10.0
@@ -328,7 +330,8 @@ class PortHandler(dynamixel_sdk.PortHandler):
     def readPort(self, length):
         """Up to ``length`` bytes: all of them as soon as they are readable, or what is
         there at the packet deadline (at once for a poll that begins after it, or while
-        no transaction is timed). A ``dxlsim://`` bus on the real clock is polled."""
+        no transaction is timed). Nothing spins for the wire: a device is waited on in the
+        OS, an emulated bus on its clock."""
         clock = self._clock
         now = clock.now()
         now_ms = now * 1000.0
@@ -355,7 +358,7 @@ class PortHandler(dynamixel_sdk.PortHandler):
             self.is_using = False
             raise
         finally:
-            self._watch(now, clock.now(), timeout if mode == "select" else 0.0)
+            self._watch(now, clock.now(), timeout)  # (a virtual clock's: not watched)
 
     def _read_fd(self, ser, length: int, timeout: float) -> bytes:
         """pyserial's POSIX ``read(length)`` with ``timeout`` (s), without its per-call

@@ -94,9 +94,11 @@ class StepClock:
 
     def __init__(self, step: float = 1e-6) -> None:
         self.t, self.step = 0.0, step
+        self.reads = 0
 
     def now(self) -> float:
         self.t += self.step
+        self.reads += 1
         return self.t
 
     def wait_until(self, t: float, idle=None) -> float:
@@ -110,6 +112,14 @@ class StepClock:
 def stepped_bus(clock: StepClock, *, latency_ms: float = 1.0, faults=None) -> DxlBus:
     servos = [VirtualServo("XM430-W350", i, baud=BAUD, return_delay_us=0, t=clock.t) for i in IDS]
     return DxlBus(servos, baud=BAUD, clock=clock, latency_timer_ms=latency_ms, faults=faults)
+
+
+def busy_polling(bus: DynamixelBus) -> DynamixelBus:
+    """The port polls with timeout 0 and no wait, as the SDK's own ``PortHandler`` does
+    (hilsim's waits on the emulator's clock): between two polls is where a preemption
+    hurts, and what the drain after a stall is for."""
+    bus.link.port._wait = "poll"
+    return bus
 
 
 def preempt(port, clock: StepClock, when: str, seconds: float = 0.060) -> list[int]:
@@ -136,7 +146,7 @@ def preempt(port, clock: StepClock, when: str, seconds: float = 0.060) -> list[i
 def test_a_host_stall_inside_the_poll_is_drained_not_a_timeout(opened, read_mode, latency_ms, when):
     clock = StepClock()
     dx = stepped_bus(clock, latency_ms=latency_ms)
-    bus = opened(dx, read_mode=read_mode)
+    bus = busy_polling(opened(dx, read_mode=read_mode))
     port = bus.link.port
     assert not bus.clock.virtual and port.host_stall_s == 0.0 and port.host_stalls == 0
     polls = preempt(port, clock, when)
@@ -155,7 +165,7 @@ def test_the_sdks_own_timeout_check_calls_the_same_stall_a_silent_servo(opened):
     a timeout while the whole reply sits in the buffer."""
     clock = StepClock()
     dx = stepped_bus(clock)
-    bus = opened(dx, read_mode="fast")
+    bus = busy_polling(opened(dx, read_mode="fast"))
     port = bus.link.port
     port.isPacketTimeout = types.MethodType(sdk.PortHandler.isPacketTimeout, port)
     preempt(port, clock, "first")
@@ -168,7 +178,7 @@ def test_the_sdks_own_timeout_check_calls_the_same_stall_a_silent_servo(opened):
 def test_a_silent_servo_still_times_out_on_the_busy_poll(opened, read_mode):
     clock = StepClock()
     dx = stepped_bus(clock)
-    bus = opened(dx, read_mode=read_mode)
+    bus = busy_polling(opened(dx, read_mode=read_mode))
     dx.faults = parse_fault_plan("drop:id=1,count=1")  # the chain's first servo: all silent
     r = bus.read_present()
     assert r.status.tolist() == [STALE] * 4
@@ -180,7 +190,7 @@ def test_a_silent_servo_still_times_out_on_the_busy_poll(opened, read_mode):
 def test_unicast_and_broadcast_ping_drain_after_a_stall(opened):
     clock = StepClock()
     dx = stepped_bus(clock)
-    bus = opened(dx, read_mode="plain")
+    bus = busy_polling(opened(dx, read_mode="plain"))
     link, port = bus.link, bus.link.port
     model = ct.model_number("XM430-W350")
     preempt(port, clock, "first")
@@ -195,6 +205,27 @@ def test_unicast_and_broadcast_ping_drain_after_a_stall(opened):
     preempt(port, clock, "first")
     with pytest.raises(CommTimeout):
         link.ping(3)
+
+
+@pytest.mark.parametrize("read_mode", ["fast", "plain"])
+def test_hilsims_port_waits_on_the_emulators_clock_instead_of_polling(opened, read_mode):
+    # the emulator in this process on the real clock: a read sleeps until its bytes are due
+    # (the clock's wait), so a tick does not spin for the wire time; the same reading
+    clock = StepClock()
+    dx = stepped_bus(clock)
+    reads = {}
+    for mode in ("clock", "poll"):
+        bus = opened(dx, read_mode=read_mode)
+        assert bus.link.port._wait == "clock"
+        if mode == "poll":
+            busy_polling(bus)
+        before = clock.reads
+        r = bus.read_present()
+        assert r.all_ok, r.problems()
+        assert [reading_ticks(r, k) for k in range(4)] == list(device_ticks(dx).values())
+        reads[mode] = clock.reads - before  # a poll reads the clock; a wait jumps it
+        assert bus.link.port.host_stalls == 0
+    assert reads["poll"] > 10 * reads["clock"]
 
 
 def test_no_host_stall_is_counted_on_a_virtual_clock(opened):
