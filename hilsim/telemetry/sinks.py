@@ -187,6 +187,9 @@ class ParquetSink:
         self._rows = 0
         self.parts = 0
         path.mkdir()  # FileExistsError: a run directory holds one run
+        # encode and write a throw-away part now, before the show: pyarrow's first calls
+        # (lazy imports, zstd set up) cost milliseconds that would otherwise land mid-show
+        self._write_table([self._batch(np.zeros((2, len(cols))))], 2)
 
     def take(self, ring: TickRing, n: int) -> np.ndarray:
         return ring.take_array(n)
@@ -212,18 +215,7 @@ class ParquetSink:
         if not fsync or not self._rows:
             return 0
         self._encode_raw()
-        pa = self._pa
-        sink = pa.BufferOutputStream()
-        self._pq.write_table(  # C++, without the GIL
-            pa.Table.from_batches(self._batches, schema=self._schema),
-            sink,
-            row_group_size=self._rows,
-            compression="zstd",
-            compression_level=1,
-            use_dictionary=False,
-            column_encoding=self._encoding,
-        )
-        blob = sink.getvalue()
+        blob = self._write_table(self._batches, self._rows)
         final = self.path / f"part-{self.parts:05d}.parquet"
         tmp = self.path / f".part-{self.parts:05d}.tmp"  # ignored by readers of the directory
         try:
@@ -245,6 +237,20 @@ class ParquetSink:
         while self._batches:  # freed a batch at a time: one clear() held the GIL ~0.4 ms
             self._batches.pop()
         return written
+
+    def _write_table(self, batches: list, rows: int) -> Any:
+        pa = self._pa
+        sink = pa.BufferOutputStream()
+        self._pq.write_table(  # C++, without the GIL
+            pa.Table.from_batches(batches, schema=self._schema),
+            sink,
+            row_group_size=rows,
+            compression="zstd",
+            compression_level=1,
+            use_dictionary=False,
+            column_encoding=self._encoding,
+        )
+        return sink.getvalue()
 
     def _batch(self, rows: np.ndarray) -> Any:
         """Rows (float64, CSV units) -> a record batch of fixed-point integers: numpy on one
