@@ -368,20 +368,28 @@ class HilLoop:
         """Tick until the show ends, a stop is requested or a fault is raised; returns ticks run."""
         clock, period = self.clock, self.period
         n_ticks = None if self.duration_s is None else round(self.duration_s / period) + 1
-        # the telemetry writer formats rows only while we sleep (never during a tick)
+        # the telemetry writer formats rows only while we sleep (never during a tick's work):
+        # between ticks, and in the clock's waits inside one (an in-process emulator's wire)
         slack = getattr(self.telemetry, "slack", None) if not clock.virtual else None
-        t0 = self._begin()
-        k = 0
-        while n_ticks is None or k < n_ticks:
-            if self._stopping():
-                break
-            t_sched = t0 + k * period
-            t_top = clock.now()
-            t_actual = clock.wait_until(t_sched, slack)
-            self._k = k
-            self._tick(k, t_sched, t_top, t_actual)
-            k = self._after_tick(k + 1, t_sched, t_actual, n_ticks)
-        return k
+        shared = slack is not None and getattr(clock, "idle", False) is None
+        if shared:
+            clock.idle = slack  # type: ignore[attr-defined]
+        try:
+            t0 = self._begin()
+            k = 0
+            while n_ticks is None or k < n_ticks:
+                if self._stopping():
+                    break
+                t_sched = t0 + k * period
+                t_top = clock.now()
+                t_actual = clock.wait_until(t_sched, slack)
+                self._k = k
+                self._tick(k, t_sched, t_top, t_actual)
+                k = self._after_tick(k + 1, t_sched, t_actual, n_ticks)
+            return k
+        finally:
+            if shared:
+                clock.idle = None  # type: ignore[attr-defined]
 
     def _begin(self) -> float:
         """The books the ticks keep, started at tick 0 (``hilsim bench`` starts them too, to

@@ -63,6 +63,22 @@ def test_slack_is_offered_only_while_sleeping_with_its_end(fake):
     assert len(fake.sleeps) == 1 and not slack.is_set()
 
 
+def test_the_clocks_own_slack_serves_every_wait_that_names_none(fake):
+    # a loop sets its writer's Slack on the clock: an emulator's wait inside a tick (which
+    # names no slack) is then free time too, with its end
+    c = MonotonicClock(spin_s=100e-6)
+    slack = Slack()
+    fake.slack = c.idle = slack
+    t = c.now() + 0.0006
+    c.wait_until(t)
+    ((_, was_set, until),) = fake.sleeps
+    assert was_set and until == pytest.approx(t - 100e-6)
+    assert not slack.is_set()
+    c.idle = None
+    c.wait_until(c.now() + 0.001)
+    assert fake.sleeps[-1][1] is False  # none set: no free time offered
+
+
 def test_slack_remaining():
     s = Slack()
     assert s.remaining() == float("inf")
