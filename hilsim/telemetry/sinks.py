@@ -11,8 +11,11 @@ TelemetryFormat`), all run on the writer thread.
 =================  ==============================================================================
 
 A sink has ``chunk_rows`` (rows the writer takes from the ring between two GIL yields),
-``take(ring, n)``, ``put(rows) -> rows now written``, ``flush(fsync) -> rows now written`` and
-``close()``. Errors (a full disk) propagate to the writer thread, whose failure path handles them.
+``bursts`` (whether the writer may work in bursts outside the loop's free time when that
+never comes long enough: cheap per row, as Parquet; CSV formats every float under the
+interpreter lock, and a burst of it would make a fast loop late), ``take(ring, n)``,
+``put(rows) -> rows now written``, ``flush(fsync) -> rows now written`` and ``close()``.
+Errors (a full disk) propagate to the writer thread, whose failure path handles them.
 """
 
 from __future__ import annotations
@@ -97,6 +100,7 @@ class CsvSink:
         columns = csv_columns(joint_names)
         self.path = path
         self.chunk_rows = max(1, _CHUNK_FLOATS // len(columns))
+        self.bursts = False
         self._fmt = row_format(len(joint_names))
         header = ",".join(columns) + "\n"
         self._gz: gzip.GzipFile | None = None
@@ -166,6 +170,7 @@ class ParquetSink:
     """Parquet part files of fixed-point integer columns (module docstring)."""
 
     chunk_rows = _PARQUET_TAKE_ROWS
+    bursts = True
 
     def __init__(self, path: Path, joint_names: Sequence[str], opener: Opener) -> None:
         import pyarrow as pa  # the optional extra: only a Parquet run imports it

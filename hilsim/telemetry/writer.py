@@ -469,24 +469,27 @@ class TelemetryWriter:
         assert self._sink is not None
         ring, sink = self._ring, self._sink
         slack = self.slack
+        bursts = sink.bursts
         napping_since = None  # the first of the naps since the last chunk
         burst_until = -1.0  # chunks without waiting for free time until then
         while ring.pending() > 0:
             # Format only in the loop's free time (see ``slack``), and never start a chunk that
             # could still be running when the loop wakes: nap past its deadline instead. But
-            # not for ever: when the loop has had no free time long enough for a chunk for
-            # _poll_s (a fast rig whose bus takes most of each tick, an overrunning loop), a
-            # burst of chunks (_BURST_S, the GIL yielded between them) keeps the ring from
-            # filling and losing rows; the loop then waits at most a switch interval for it.
+            # for a sink whose work is cheap (``bursts``: Parquet), not for ever: when the loop
+            # has had no free time long enough for a chunk for _poll_s (a fast rig whose bus
+            # takes most of each tick), a burst of chunks (_BURST_S, the GIL yielded between
+            # them) keeps the ring from filling and losing rows. A CSV sink waits, and drops
+            # rows (counted and reported) rather than make the loop late.
             if _monotonic() < burst_until:
                 pass
             elif not slack.wait(self._poll_s):
-                burst_until = _monotonic() + _BURST_S  # no free time for a while
+                if bursts:  # no free time for a while (else one chunk anyway, as ever)
+                    burst_until = _monotonic() + _BURST_S
             elif (left := slack.remaining()) < _CHUNK_BUDGET_S:
                 now = _monotonic()
                 if napping_since is None:
                     napping_since = now
-                if now - napping_since < self._poll_s:
+                if not bursts or now - napping_since < self._poll_s:
                     time.sleep(max(left, 0.0) + _CHUNK_BUDGET_S)
                     continue
                 burst_until = now + _BURST_S  # only short free times for a while
