@@ -472,7 +472,7 @@ class TelemetryWriter:
         bursts = sink.bursts
         napping_since = None  # the first of the naps since the last chunk
         burst_until = -1.0  # chunks without waiting for free time until then
-        while ring.pending() > 0:
+        while ring.pending() > 0 or sink.busy():
             # Format only in the loop's free time (see ``slack``), and never start a chunk that
             # could still be running when the loop wakes: nap past its deadline instead. But
             # for a sink whose work is cheap (``bursts``: Parquet), not for ever: when the loop
@@ -494,10 +494,13 @@ class TelemetryWriter:
                     continue
                 burst_until = now + _BURST_S  # only short free times for a while
             napping_since = None
-            rows = sink.take(ring, self._chunk_rows)  # slots are free once copied out
-            if self.overflow == "block":
-                self._space.set()
-            self.rows_written += sink.put(rows)
+            if sink.busy():  # a step of the work on rows already taken (Parquet's encoding)
+                sink.work()
+            else:
+                rows = sink.take(ring, self._chunk_rows)  # slots are free once copied out
+                if self.overflow == "block":
+                    self._space.set()
+                self.rows_written += sink.put(rows)
             _yield_gil()  # let the loop thread have the GIL between chunks
 
     def _write_event(self, ev: dict[str, Any]) -> None:

@@ -351,3 +351,36 @@ def test_parquet_without_pyarrow_refuses_the_show_in_one_line(tmp_path, monkeypa
     w = session.open_telemetry(rig, tmp_path / "run2", True)
     reason = w.close({})["telemetry"]["format_reason"]
     assert w.format is TelemetryFormat.CSV_GZ and "pyarrow is not installed" in reason
+
+
+def test_parquet_encodes_in_steps_the_same_batch(tmp_path: Path) -> None:
+    # the writer encodes a step (~0.1 ms) at a time in the loop's free time: the same
+    # integers as the whole block at once, NaN and overflow included, over several slices
+    import pyarrow as pa
+
+    from hilsim.telemetry.format import csv_columns
+    from hilsim.telemetry.sinks import INT_INF, ParquetSink
+
+    names = ["a", "b"]
+    sink = ParquetSink(tmp_path / "p", names, lambda p, m: open(p, m))  # noqa: SIM115
+    rng = np.random.default_rng(3)
+    rows = rng.uniform(-4.0, 4.0, (300, len(csv_columns(names))))
+    rows[5, 7], rows[70, 8], rows[199, 3] = math.nan, 1e300, -1e300  # slices 1, 2 and 4
+    sink.put(rows[:150])
+    sink.put(rows[150:])
+    steps = 0
+    while sink.busy():
+        sink.work()
+        steps += 1
+    assert steps > 5  # several slices of rows and of columns
+    (stepped,) = sink._batches
+    # the whole block at once (the encoding before it was stepped)
+    scaled = rows * sink._scale
+    whole = np.rint(np.where(np.isnan(scaled) | (np.abs(scaled) > 2.0**62), 0.0, scaled))
+    whole = whole.astype(np.int64)
+    whole[70, 8], whole[199, 3] = INT_INF, -INT_INF
+    for k in range(rows.shape[1]):
+        column = stepped.column(k)
+        expect = pa.array(whole[:, k], mask=np.isnan(scaled[:, k])).cast(column.type)
+        assert column.equals(expect), k
+    assert stepped.column(7)[5].as_py() is None
