@@ -42,7 +42,7 @@ from hilsim.monitors import FollowingMonitor, HealthSchedule, SilenceBudget
 #: HEALTH_SPARE_S (the SDK's own time) to spare: it must never make the tick late. Its
 #: expected time is the longer of its bus time (the wire model) and the median of the last
 #: HEALTH_COST_READS reads of the last HEALTH_COST_MEMORY_S as the clock measured them (the
-#: host's work in them, an in-process emulator's included; a median, so one read stretched
+#: host's work in them, an in-process emulator's included; the lower median, so one read stretched
 #: by a host stall does not stop the reads; forgotten, so a slow spell does not stop them
 #: for the rest of the show)
 HEALTH_MARGIN = 1.1
@@ -247,11 +247,12 @@ class ServoWatch:
         self._handle(i, health, k, explained=self.last_long_gap_t > self._last_health_ok[i])
 
     def _forget(self, t: float) -> float:
-        """Drop the health reads older than HEALTH_COST_MEMORY_S; the median time of the rest."""
+        """Drop the health reads older than HEALTH_COST_MEMORY_S; the lower median time of
+        the rest (of two, the quicker: one slow read among few does not stop the reads)."""
         took = self._health_took
         while took and t - took[0][0] > HEALTH_COST_MEMORY_S:
             del took[0]
-        return sorted(d for _, d in took)[len(took) // 2] if took else 0.0
+        return sorted(d for _, d in took)[(len(took) - 1) // 2] if took else 0.0
 
     def after_bus_silence(self, gap_s: float, k: int) -> None:
         """The bus was quiet for a good part of the Bus Watchdog period (a host stall): check

@@ -87,6 +87,19 @@ def test_a_slow_spell_is_forgotten(slow_health):
     assert slow_health.watch.health.forced <= HEALTH_COST_MEMORY_S / HEALTH_FLOOR_S + 1
 
 
+def test_one_slow_read_among_quick_ones_does_not_stop_the_reads(slow_health):
+    # the first read of a show is the likely slow one (cold caches); the floor's next read
+    # is quick, and from then on each due read that fits is taken, not one a second
+    model = slow_health.bus.health_read_s
+    enough = HEALTH_MARGIN * model + HEALTH_SPARE_S + 1e-6
+    assert _reads(slow_health, enough, 1) == 1  # slow
+    slow_health.extra[0] = 0.0
+    forced = slow_health.watch.health.forced
+    ticks = int(1.5 * HEALTH_FLOOR_S / 0.001)
+    assert _reads(slow_health, enough, ticks) > 10  # a round of 2 every 40 ms after the floor
+    assert slow_health.watch.health.forced == forced + 1
+
+
 def test_a_bus_with_no_time_to_spare_still_gets_a_read_a_second(slow_health):
     watch = slow_health.watch
     # 10 s of ticks that never have the time: one read a HEALTH_FLOOR_S, each counted forced
