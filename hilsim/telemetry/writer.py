@@ -317,11 +317,21 @@ class TelemetryWriter:
             return True
         self._publish_pending()
         done = threading.Event()
+        slack, was_set, until = self.slack, self.slack.is_set(), self.slack.until
+        slack.until = float("inf")  # the loop waits here: free time for all of it
+        slack.set()
         self._inbox.put(done)
         deadline = None if timeout_s is None else _monotonic() + timeout_s
-        while not done.wait(0.05):
-            if not self._thread.is_alive() or (deadline is not None and _monotonic() > deadline):
-                break
+        try:
+            while not done.wait(0.05):
+                if not self._thread.is_alive() or (
+                    deadline is not None and _monotonic() > deadline
+                ):
+                    break
+        finally:
+            slack.until = until
+            if not was_set:
+                slack.clear()
         if self._failed:
             self._raise_not_open()
         return done.is_set()
@@ -417,16 +427,17 @@ class TelemetryWriter:
     def _run(self) -> None:
         try:
             last_flush = last_fsync = _monotonic()
+            left_behind = False
             while True:
-                try:
-                    items = [self._inbox.get(timeout=self._poll_s)]
+                try:  # rows left behind for want of free time: straight back after the events
+                    items = [self._inbox.get(timeout=0.0 if left_behind else self._poll_s)]
                 except queue.Empty:
                     items = []
                 with contextlib.suppress(queue.Empty):
                     while True:
                         items.append(self._inbox.get_nowait())
                 stop = _STOP in items
-                self._drain_rows()
+                left_behind = self._drain_rows()
                 sync = stop
                 waiters = []
                 for item in items:
@@ -439,7 +450,7 @@ class TelemetryWriter:
                         sync = True
                 self._report_drops()
                 if sync:
-                    self._drain_rows()  # rows handed over while events were written
+                    left_behind = self._drain_rows()  # rows handed over during the events
                 now = _monotonic()
                 if now - last_fsync >= self.fsync_interval_s:
                     sync = True  # a power cut loses at most this much
@@ -465,7 +476,8 @@ class TelemetryWriter:
                     if isinstance(item, threading.Event):
                         item.set()
 
-    def _drain_rows(self) -> None:
+    def _drain_rows(self) -> bool:
+        """Hand the ring's rows to the sink; True if some were left waiting for free time."""
         assert self._sink is not None
         ring, sink = self._ring, self._sink
         slack = self.slack
@@ -489,9 +501,11 @@ class TelemetryWriter:
                 now = _monotonic()
                 if napping_since is None:
                     napping_since = now
-                if not bursts or now - napping_since < self._poll_s:
+                if now - napping_since < self._poll_s:
                     time.sleep(max(left, 0.0) + _CHUNK_BUDGET_S)
                     continue
+                if not bursts:  # back to _run for events, flushes and drop reports
+                    return True
                 burst_until = now + _BURST_S  # only short free times for a while
             napping_since = None
             if sink.busy():  # a step of the work on rows already taken (Parquet's encoding)
@@ -502,6 +516,7 @@ class TelemetryWriter:
                     self._space.set()
                 self.rows_written += sink.put(rows)
             _yield_gil()  # let the loop thread have the GIL between chunks
+        return False
 
     def _write_event(self, ev: dict[str, Any]) -> None:
         assert self._events is not None

@@ -483,6 +483,33 @@ def test_the_writer_drains_when_the_loops_free_time_is_always_short(tmp_path: Pa
     assert read_run(tmp_path).n_ticks == 3
 
 
+def test_a_csv_writer_short_of_free_time_still_writes_events_and_flushes(tmp_path: Path) -> None:
+    # A CSV sink waits for free time and drops rows rather than make the loop late; while
+    # it waits, a fault must still reach the disk at once and flush() must still answer
+    synced = threading.Event()
+
+    class _Watched(TelemetryWriter):
+        def _flush_files(self, *, fsync: bool) -> None:
+            super()._flush_files(fsync=fsync)
+            if fsync:
+                synced.set()
+
+    w = _Watched(tmp_path, JOINTS, flush_interval_s=0.01)
+    w.slack.until = -math.inf  # a free time that has always just ended
+    w.slack.set()
+    for i in range(50):
+        _record_row(w, i, np.full(3, float(i)))
+    w.event("fault", "joint 2 out of range", 49, 0.049, joint="jaw")
+    assert synced.wait(WAIT_S), "the fault waited behind the rows"
+    assert "out of range" in (tmp_path / EVENTS_JSONL).read_text()
+    assert read_run(tmp_path).n_ticks < 49  # the rows still wait for free time
+    assert w.flush(timeout_s=WAIT_S)  # the loop waits in flush(): its rows are written
+    assert read_run(tmp_path).n_ticks == 50  # the pending row handed over too
+    assert w.slack.until == -math.inf and w.slack.is_set()  # flush() left the slack as it was
+    w.close()
+    assert read_run(tmp_path).n_ticks == 50 and w.rows_dropped == 0
+
+
 # ----------------------------------------------------------------------------- reading damaged runs
 
 
