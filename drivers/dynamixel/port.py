@@ -25,8 +25,9 @@ packet code:
   names), so a read that blocks until they are all there never takes a byte of what
   follows and hands the SDK the same bytes polling would, in fewer calls; a read that
   reaches the deadline returns what it has. An in-process ``dxlsim://`` bus on the real
-  clock is still polled (its reads would wait in the emulator's own clock, spin window
-  included);
+  clock is waited on on its clock: a read sleeps until the bytes are due (spinning the
+  clock's last spin window, as the loop does for a tick), and that wait is the telemetry
+  writer's free time (``MonotonicClock.idle``);
 * **a timeout is declared only by a poll that began after the deadline.** The SDK's
   ``rxPacket`` calls ``readPort()`` then ``isPacketTimeout()``; if the process is
   descheduled between the two, a wall-clock check on wake-up would call the servo silent

@@ -200,6 +200,7 @@ class ParquetSink:
         self._raw_rows = 0
         self._batches: list[Any] = []  # encoded, waiting for the next part
         self._job: Generator[None, None, Any] | None = None  # a batch being encoded
+        self._job_rows = 0  # of that many rows
         self._rows = 0
         self.parts = 0
         path.mkdir()  # FileExistsError: a run directory holds one run
@@ -223,12 +224,17 @@ class ParquetSink:
         """One step of encoding the rows put (a slice of rows, or of columns: ~0.1 ms),
         so that the writer fits it into the loop's free time."""
         if self._job is None:
-            self._job = self._batch_steps(self._take_raw())
+            raw = self._take_raw()
+            self._job, self._job_rows = self._batch_steps(raw), len(raw)
         try:
             next(self._job)
         except StopIteration as done:
             self._batches.append(done.value)
             self._job = None
+        except BaseException:
+            # its rows are lost (not written, so counted lost), not left to flush as a dead job
+            self._job, self._rows = None, self._rows - self._job_rows
+            raise
 
     def _take_raw(self) -> np.ndarray:
         data = np.concatenate(self._raw) if len(self._raw) > 1 else self._raw[0]

@@ -384,3 +384,33 @@ def test_parquet_encodes_in_steps_the_same_batch(tmp_path: Path) -> None:
         expect = pa.array(whole[:, k], mask=np.isnan(scaled[:, k])).cast(column.type)
         assert column.equals(expect), k
     assert stepped.column(7)[5].as_py() is None
+
+
+def test_a_failed_encoding_step_loses_its_rows_only_and_says_so(tmp_path: Path) -> None:
+    # an exception inside a step (memory, say) kills the writer; the failure path then
+    # flushes what it can: the batches encoded before are written, the failed one's rows are
+    # not counted as written (the writer reports them lost), and no dead step is run again
+    pq = pytest.importorskip("pyarrow.parquet")
+    from hilsim.telemetry.format import csv_columns
+    from hilsim.telemetry.sinks import ParquetSink
+
+    names = ["a"]
+    sink = ParquetSink(tmp_path / "p", names, lambda p, m: open(p, m))  # noqa: SIM115
+    width = len(csv_columns(names))
+    sink.put(np.zeros((300, width)))
+    while sink.busy():
+        sink.work()  # 300 rows encoded
+    sink.put(np.ones((300, width)))
+    real = sink._batch_steps
+
+    def failing(rows):
+        yield from real(rows[:10])
+        raise MemoryError("encoding")
+
+    sink._batch_steps = failing
+    with pytest.raises(MemoryError):
+        while sink.busy():
+            sink.work()
+    assert not sink.busy()
+    assert sink.flush(True) == 300  # the 300 encoded before; not the 300 that failed
+    assert sink.parts == 1 and pq.read_table(tmp_path / "p").num_rows == 300
