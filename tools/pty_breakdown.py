@@ -15,7 +15,7 @@ each part wrapped in a thread-CPU counter (``time.thread_time_ns``, this thread 
 and, for scale, what one bare ``time.sleep`` and its wake-up cost this thread on this
 host (nothing else running in it). The wrappers cost ~1 µs a call.
 
-    python tools/pty_breakdown.py [--seconds 6] [--latency-ms 0]
+    python tools/pty_breakdown.py [--seconds 6]
 """
 
 from __future__ import annotations
@@ -24,8 +24,6 @@ import argparse
 import contextlib
 import io
 import os
-import signal
-import subprocess
 import sys
 import time
 from pathlib import Path
@@ -77,7 +75,6 @@ def sleep_cost(n: int = 1000, sleep_s: float = 0.0035) -> tuple[float, float]:
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--seconds", type=float, default=6.0, help="show length (s)")
-    ap.add_argument("--latency-ms", type=float, default=0.0, help="hilsim emulate's USB model")
     args = ap.parse_args(argv)
     import importlib
 
@@ -86,28 +83,15 @@ def main(argv=None) -> int:
         mod = importlib.import_module(module)
         books[label] = [0, 0, 0]
         _wrap(mod if owner is None else getattr(mod, owner), attr, books[label])
+    from hilsim.bench.cpu import emulator
     from hilsim.cli import main as hilsim_main
 
-    emu = subprocess.Popen(
-        [sys.executable, "-m", "hilsim", "emulate", "--latency-ms", str(args.latency_ms)],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.DEVNULL,
-        text=True,
-        cwd=REPO,
-    )
-    try:
-        path = emu.stdout.readline().strip()
-        if not path.startswith("/dev/"):
-            raise SystemExit(f"hilsim emulate printed {path!r}, not a pty path")
+    with emulator() as path:
         load = os.getloadavg()
         out = io.StringIO()
         with contextlib.redirect_stderr(out), contextlib.suppress(SystemExit):
             show = ["--duration", f"{args.seconds:g}", "--no-plots"]
-            hilsim_main(["run", "configs/demo.toml", "--port", path, *show])
-    finally:
-        emu.send_signal(signal.SIGTERM)
-        emu.wait(timeout=10)
-        emu.stdout.close()
+            hilsim_main(["run", str(REPO / "configs" / "demo.toml"), "--port", path, *show])
     ended = [line for line in out.getvalue().splitlines() if "end of show" in line]
     print(ended[0] if ended else out.getvalue()[-600:])
     ticks = books["tick"][0]
