@@ -352,10 +352,11 @@ def _run_on_bus(args, parts, bus, run_dir: Path) -> int:
     if sys.stderr.isatty() and not virtual:
         sys.stderr.write("\n")
     summary = show.summary
+    show_s = show.ticks / rig.loop.rate_hz
+    pace = f": {show_s / show.wall_s:.0f}× real time" if virtual and show.wall_s > 0 else ""
     _say(
         f"{show.reason} after {show.ticks} ticks "
-        f"({show.ticks / rig.loop.rate_hz:.2f} s of show in {show.wall_s:.2f} s); "
-        f"{show.exit_policy}"
+        f"({show_s:.2f} s of show in {show.wall_s:.2f} s{pace}); {show.exit_policy}"
     )
     print_stats(summary)
     tel = summary.get("telemetry") or {}
