@@ -195,6 +195,9 @@ def run_once(
                 "host_stalls": stalls.get("count", 0),
                 "host_stall_max_ms": stalls.get("max_ms", 0.0),
                 "comm_errors": comm_errors(s),
+                # telemetry rows not written: dropped (no room) and lost (the writer failed)
+                "rows_dropped": (s.get("telemetry") or {}).get("rows_dropped"),
+                "rows_lost": (s.get("telemetry") or {}).get("rows_lost"),
                 # every process of the run (start-up, check, exit policy included) over the
                 # show's ticks: with several buses, all of them together
                 "cpu_us_per_tick": 1e6 * cpu / max(most_ticks, 1),
@@ -238,7 +241,8 @@ def line(r: dict) -> str:
         f"{r['exit_code']}: overruns {r['overruns']}/"
         f"{r['ticks']} (skipped {r['skipped_ticks']}); lateness p50 {lat['p50']:.1f} p99 "
         f"{lat['p99']:.1f} max {lat['max']:.0f} us; host stalls {r['host_stalls']} (max "
-        f"{r['host_stall_max_ms']:.1f} ms); comm errors {r['comm_errors']}; CPU "
+        f"{r['host_stall_max_ms']:.1f} ms); comm errors {r['comm_errors']}; telemetry rows "
+        f"dropped {r['rows_dropped']}, lost {r['rows_lost']}; CPU "
         f"{r['cpu_us_per_tick']:.0f} us/tick = "
         f"{r['cpu_percent']:.0f} % of a core{emu}; stage p50 us "
         + ", ".join(f"{k} {v:.0f}" for k, v in st.items() if v is not None)
