@@ -10,20 +10,21 @@ built, sent and received by :mod:`drivers.dynamixel.tick_packets`: the SDK's byt
 calls on the port, without its per-call costs. Read timeouts count bytes with
 :mod:`drivers.protocol2.wire_time`.
 
-Per-servo status on every read. The SDK's ``GroupSyncRead`` drops each servo's ERR byte
-and ``getData`` returns 0 for missing data, and its Fast Sync Read reports one result for
-the whole packet, so the bus parses the replies itself: plain Sync Read takes the status
-packets in chain order (a corrupt one costs only its own place; a reply from an unexpected
-ID ends the read); Fast Sync Read takes the one packet and keeps each block only while
-every earlier block was kept, the block carries the ID asked at its position, and the
-running CRC over it matches (:func:`~drivers.dynamixel.fast_reply.parse_blocks`): a late
-reply spliced into this one can never give a previous transaction's value as this tick's.
-After a read with a silent servo the next request waits until the rest of that chain
-would be over, and discards it.
-
-In a Sync Read chain a silent servo silences those after it (each waits for the previous
-status packet). So after a read with a STALE servo, the first STALE servo moves to the
-back of the read order: one dead servo costs one tick of collateral STALE, not all ticks.
+Per-servo status on every read. The SDK's ``GroupSyncRead`` drops each servo's ERR byte and
+``getData`` returns 0 for missing data, and its Fast Sync Read reports one result for the
+whole packet, so the bus parses the replies itself: plain Sync Read takes the status packets
+in chain order (a corrupt one costs only its own place; a reply from an unexpected ID ends
+the read); Fast Sync Read takes the one packet and keeps each block only while every earlier
+block was kept, the block carries the ID asked at its position, and the running CRC over it
+matches (:func:`~drivers.dynamixel.fast_reply.parse_blocks`). After a silent servo the next
+request waits out the rest of that chain and discards it. A silent servo silences those
+after it (each waits for the one before), so it goes to the back of the read order: a dead
+one costs a tick or two of collateral STALE. A Fast reply's block later than that wait still
+comes, headerless, and could fill the same servo's place in a later reply that misses it
+(the running CRC keeps 8 bits across a block's CRC: 1 in 256 would pass); so a servo that
+answered the read before is asked first: its block then comes with the header, which no late
+block has (missing there too, it goes last). A late plain status packet is a whole packet:
+only the wait protects against it.
 """
 
 from __future__ import annotations
@@ -256,14 +257,13 @@ class DynamixelBus(ServoBus):
             raise_for(result, 0, None, "Sync Read of Present Position")
         out.t_done = clock.now()
         if STALE in status:
-            order = self._order
-            for i, k in enumerate(order):
+            for i, k in enumerate(order := self._order):
                 if status[k] == STALE:
-                    # The rest of the chain may still be on its way (a slow servo): the
-                    # next transmit waits it out and discards it, so it is never read as
-                    # the next transaction's reply.
+                    # the rest of the chain may still come: the next transmit waits it out
                     port.hold_until_quiet(out.t_done + self._chain_rest_s(i))
-                    if i + 1 < len(order):  # the chain broke here: ask it last next time
+                    if fast and i:  # ask it first: its block then comes with the header
+                        self._set_order([k, *order[:i], *order[i + 1 :]])
+                    elif i + 1 < len(order):  # the chain broke here: ask it last next time
                         self._set_order(order[:i] + order[i + 1 :] + [k])
                     break
 
