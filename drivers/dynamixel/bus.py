@@ -18,13 +18,14 @@ the read); Fast Sync Read takes the one packet and keeps each block only while e
 block was kept, the block carries the ID asked at its position, and the running CRC over it
 matches (:func:`~drivers.dynamixel.fast_reply.parse_blocks`). After a silent servo the next
 request waits out the rest of that chain and discards it. A silent servo silences those
-after it (each waits for the one before), so it goes to the back of the read order: a dead
-one costs a tick or two of collateral STALE. A Fast reply's block later than that wait still
+after it (each waits for the one before). A Fast reply's block later than that wait still
 comes, headerless, and could fill the same servo's place in a later reply that misses it
-(the running CRC keeps 8 bits across a block's CRC: 1 in 256 would pass); so a servo that
-answered the read before is asked first: its block then comes with the header, which no late
-block has (missing there too, it goes last). A late plain status packet is a whole packet:
-only the wait protects against it.
+(the running CRC keeps 8 bits across a block's CRC: 1 in 256 would pass); so a servo missing
+at a later place is asked first next: its block then comes with the header, which no late
+block of its own has. Missing first (or in a plain chain), it goes last: a dead servo costs
+the others every other Fast read until its budget ends the show. A plain status packet, or a
+Fast reply late by a whole read, is a whole packet: only the wait and a changed order
+protect against it.
 """
 
 from __future__ import annotations
