@@ -17,15 +17,9 @@ in chain order (a corrupt one costs only its own place; a reply from an unexpect
 the read); Fast Sync Read takes the one packet and keeps each block only while every earlier
 block was kept, the block carries the ID asked at its position, and the running CRC over it
 matches (:func:`~drivers.dynamixel.fast_reply.parse_blocks`). After a silent servo the next
-request waits out the rest of that chain and discards it. A silent servo silences those
-after it (each waits for the one before). A Fast reply's block later than that wait still
-comes, headerless, and could fill the same servo's place in a later reply that misses it
-(the running CRC keeps 8 bits across a block's CRC: 1 in 256 would pass); so a servo missing
-at a later place is asked first next: its block then comes with the header, which no late
-block of its own has. Missing first (or in a plain chain), it goes last: a dead servo costs
-the others every other Fast read until its budget ends the show. A plain status packet, or a
-Fast reply late by a whole read, is a whole packet: only the wait and a changed order
-protect against it.
+request waits out the rest of that chain and discards it, and the order of the next read
+changes (:mod:`drivers.dynamixel.read_order`: a silent servo silences those after it, and a
+Fast block later than the wait could fill its own servo's place in a later reply).
 """
 
 from __future__ import annotations
@@ -48,6 +42,7 @@ from drivers.dynamixel.errors import (
 )
 from drivers.dynamixel.fast_reply import STALE
 from drivers.dynamixel.link import Link
+from drivers.dynamixel.read_order import ReadOrder
 from drivers.dynamixel.sdk_result import OK, SERIAL_ERRORS, port_gone, raise_for
 from drivers.dynamixel.startup import (
     Expectation,
@@ -112,7 +107,8 @@ class DynamixelBus(ServoBus):
         self._ph, self._port = link.ph, link.port
         n = self.n
         self._index = {sid: k for k, sid in enumerate(self.ids)}
-        self._set_order(list(range(n)))
+        self._orders = ReadOrder(n)
+        self._set_order()
         self._goal_frame = GoalFrame(self.ids, ct.GOAL_POSITION.addr)  # the tick's Sync Write
         self._lo = np.zeros(n)  # accepted Goal Position ticks (Position mode until check)
         self._hi = np.full(n, 4095.0)
@@ -237,6 +233,8 @@ class DynamixelBus(ServoBus):
                 if fast:
                     port.setPacketTimeoutMillis(self._fast_timeout_ms)
                     receive_fast_reply(port, want, order, pos, status, errors, sample)
+                    if self._orders.suspect:  # a late block may be in flight (read_order)
+                        self._orders.distrust(clock.now(), pos, status, errors)
                 else:
                     port.setPacketTimeoutMillis(self._plain_timeout_ms)
                     receive_plain_replies(ph, port, want, order, pos, status, errors, sample)
@@ -257,24 +255,19 @@ class DynamixelBus(ServoBus):
         if result != OK:
             raise_for(result, 0, None, "Sync Read of Present Position")
         out.t_done = clock.now()
-        if STALE in status:
-            for i, k in enumerate(order := self._order):
-                if status[k] == STALE:
-                    # the rest of the chain may still come: the next transmit waits it out
-                    port.hold_until_quiet(out.t_done + self._chain_rest_s(i))
-                    if fast and i:  # ask it first: its block then comes with the header
-                        self._set_order([k, *order[:i], *order[i + 1 :]])
-                    elif i + 1 < len(order):  # the chain broke here: ask it last next time
-                        self._set_order(order[:i] + order[i + 1 :] + [k])
-                    break
+        if STALE in status:  # the next order; the rest of the chain may still come:
+            order = self._order  # the next transmit waits it out and discards it
+            i = self._orders.after(status, out.t_done + self.link.latency_timer_ms * 1e-3, fast)
+            port.hold_until_quiet(out.t_done + self._chain_rest_s(i, order))
+            self._set_order()
 
-    def _chain_rest_s(self, i: int) -> float:
+    def _chain_rest_s(self, i: int, order: list[int]) -> float:
         """Longest the replies of this Sync Read's servos from chain position ``i`` on can
         still take from now, if the one at ``i`` started late: their wire time, Return
         Delay Times and turnaround (one of each in a Fast Sync Read, every one in a plain
         chain), and the adapter's latency. 1.5 ms for four fast servos at 1 Mbps, 1 ms
         latency. Not the device margin: only a failed read pays this, every time."""
-        order, byte_s = self._order, self._port.tx_time_per_byte * 1e-3
+        byte_s = self._port.tx_time_per_byte * 1e-3
         rest = len(order) - i
         delays = self._rdt_s + TURNAROUND_ALLOWANCE_S
         if self._fast:  # (header if it is still to come) + ERR ID pos(4) CRC(2) each
@@ -286,8 +279,10 @@ class DynamixelBus(ServoBus):
             wait = float(sum(delays[k] for k in order[i:]))
         return wire + wait + self.link.latency_timer_ms * 1e-3
 
-    def _set_order(self, order: list[int]) -> None:
-        self._order = order
+    def _set_order(self, order: Sequence[int] | None = None) -> None:
+        if order is not None:  # (tests set one)
+            self._orders.order = list(order)
+        self._order = order = self._orders.order
         self._read_param = [self.ids[k] for k in order]
         addr = ct.PRESENT_POSITION.addr
         self._requests = {

@@ -264,17 +264,23 @@ def test_silent_servo_is_stale_and_moves_to_the_back(open_bus, mode):
         assert r.status.tolist() == [OK, STALE, OK, OK] and bus.read_order == (1, 3, 4, 2)
         return
     # Fast: missing at a later place it is asked first (a late block of its own, without
-    # the header, could otherwise fill its place), missing there it goes last: the others
-    # are read every other time, and never 3 times in a row missed, until its budget ends
-    # the show
-    assert bus.read_order == (2, 1, 3, 4)
-    for _ in range(3):
+    # the header, could otherwise fill its place), missing first it may not be first again
+    # for a while (its late reply would start with its header), and where a late block of
+    # it could be taken for its reading nothing from it on is: the others miss some reads,
+    # never 3 in a row, and never get a wrong value, until its budget ends the show
+    assert bus.read_order[0] == 2
+    run, read_all = [0, 0, 0], 0
+    for _ in range(40):
+        bus.clock.advance(0.002)
         bus.read_present(r)
-        assert r.status.tolist() == [STALE] * 4 and bus.read_order == (1, 3, 4, 2)
-        bus.read_present(r)
-        assert r.status.tolist() == [OK, STALE, OK, OK] and bus.read_order == (2, 1, 3, 4)
-        assert r.problems() == ["servo 2: STALE, no position"]
-        assert bus.stats.consecutive_bad.tolist()[::2] == [0, 0]
+        assert r.status[1] == STALE and np.isnan(r.positions[1])
+        for j in (0, 2, 3):
+            assert r.status[j] in (OK, STALE)
+        run = [n + 1 if r.status[j] == STALE else 0 for n, j in zip(run, (0, 2, 3), strict=True)]
+        assert max(run) < 3
+        read_all += r.status[[0, 2, 3]].tolist() == [OK, OK, OK]
+    assert "servo 2: STALE, no position" in r.problems()
+    assert read_all >= 20  # of 40
 
 
 @pytest.mark.parametrize("mode", MODES)

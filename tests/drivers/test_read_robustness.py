@@ -296,9 +296,9 @@ def transaction(draw, fast: bool):
     sent = {i: draw(int32) for i in IDS}
     if fast:
         reply = encode_fast_status([(0, i, pos(sent[i])) for i in order])
-        # An earlier transaction's reply: other values, and another order (a failed read
-        # moves its first silent servo to the back, so a whole late packet starts with a
-        # servo that is no longer asked first).
+        # An earlier transaction's reply: other values, and another first servo (one
+        # missing first is not asked first while its whole late reply may come:
+        # drivers/dynamixel/read_order.py).
         old = {i: (sent[i] + draw(st.integers(1, 2**20)) + 2**31) % 2**32 - 2**31 for i in IDS}
         old_order = draw(st.permutations(IDS).filter(lambda o: o[0] != order[0]))
         stale = encode_fast_status([(0, i, pos(old[i])) for i in old_order])

@@ -583,10 +583,13 @@ def test_row_07_garbage_before_the_header_is_skipped(emulated):
     assert len(junk) > 50
     assert_wire_is_telemetry(emu, run, wire)
     # junk before a reply's header: the parser resynchronises and reads every servo (junk
-    # in the middle of a Fast Sync Read reply breaks the blocks after it: those are STALE)
+    # in the middle of a Fast Sync Read reply breaks the blocks after it: those are STALE,
+    # and for 10 ms their servos are read only from the first place: read_order.py)
     status = run.joint("status")
     resynced = [r for r in range(run.n_ticks) if _only_junk_before_the_header(wire.reads[r + 1])]
-    assert len(resynced) > 10 and np.all(status[resynced] == OK)
+    every = np.all(status[resynced] == OK, axis=1)
+    assert len(resynced) > 10 and every.mean() > 0.75
+    assert np.all((status[resynced] == OK) | (status[resynced] == STALE))
     assert_rows_complete(run)
 
 
@@ -633,6 +636,18 @@ def test_row_08_a_late_reply_is_never_taken_for_a_later_tick_or_another_servo(em
     # every OK reading is the value that servo sent for that very tick's read
     assert_wire_is_telemetry(emu, run, wire)
     assert_rows_complete(run)
+
+
+@pytest.mark.parametrize("seed", range(12))
+def test_row_08_many_late_replies_never_a_later_ticks_value(emulated, seed):
+    # row 8 harder: 15 % of replies 4-9.5 ms late, over 3 s: late blocks and late whole
+    # replies outlive the read after their own and meet reads that miss their own reply
+    # (the front-only rule of 6dd01be took a value from an earlier read in 2 of these 12)
+    delay = 0.004 + 0.0005 * seed
+    emu = emulated(faults=f"late:rate=0.15,delay={delay},at=0.2", seed=seed)  # after start-up
+    emu.run(duration=3.0)
+    run, wire = emu.read(), Wire.of(emu.bus)
+    assert_wire_is_telemetry(emu, run, wire)
 
 
 def test_row_09_two_servos_on_one_id_at_start_up_is_a_clear_error(emulated, capsys):
