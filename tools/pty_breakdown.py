@@ -10,7 +10,8 @@ each part wrapped in a thread-CPU counter (``time.thread_time_ns``, this thread 
   blocks in ``select`` until its bytes are there: its wall time is the wire's);
 * ``after tick``: the end of a tick (overrun books, a health read in the spare time,
   status line);
-* ``clock wait``: the sleep to the next tick and the spin window before it.
+* ``clock wait``: the sleep to the next tick and the spin window before it (the clock's
+  waits inside a tick are the tick's, those before the show are left out).
 
 and, for scale, what one bare ``time.sleep`` and its wake-up cost this thread on this
 host (nothing else running in it). The wrappers cost ~1 µs a call.
@@ -40,11 +41,22 @@ PARTS = (  # (label, module, owner, attribute)
 )
 
 
-def _wrap(owner, name: str, books: list[int]) -> None:
+#: [ticks begun, inside a tick or its end]: the clock's waits count only between ticks (its
+#: waits inside one, after a failed read, are the tick's; those before the show, no part)
+_STATE = [0, False]
+
+
+def _wrap(owner, name: str, books: list[int], label: str) -> None:
     inner = getattr(owner, name)
     cpu, wall = time.thread_time_ns, time.perf_counter_ns
+    part = label != "clock wait" and not label.startswith(" ")  # the tick or its end
 
     def counted(*args, **kwargs):
+        if label == "clock wait" and (not _STATE[0] or _STATE[1]):
+            return inner(*args, **kwargs)
+        if part:
+            _STATE[0] += label == "tick"
+            _STATE[1] = True
         c, w = cpu(), wall()
         try:
             return inner(*args, **kwargs)
@@ -52,6 +64,8 @@ def _wrap(owner, name: str, books: list[int]) -> None:
             books[0] += 1
             books[1] += cpu() - c
             books[2] += wall() - w
+            if part:
+                _STATE[1] = False
 
     setattr(owner, name, counted)
 
@@ -82,7 +96,7 @@ def main(argv=None) -> int:
     for label, module, owner, attr in PARTS:
         mod = importlib.import_module(module)
         books[label] = [0, 0, 0]
-        _wrap(mod if owner is None else getattr(mod, owner), attr, books[label])
+        _wrap(mod if owner is None else getattr(mod, owner), attr, books[label], label)
     from hilsim.bench.cpu import emulator
     from hilsim.cli import main as hilsim_main
 

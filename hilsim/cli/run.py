@@ -353,7 +353,8 @@ def _run_on_bus(args, parts, bus, run_dir: Path) -> int:
         sys.stderr.write("\n")
     summary = show.summary
     show_s = show.ticks / rig.loop.rate_hz
-    pace = f": {show_s / show.wall_s:.0f}× real time" if virtual and show.wall_s > 0 else ""
+    x = show_s / show.wall_s if virtual and show.wall_s > 0 else None
+    pace = "" if x is None else f": {x:.0f}× real time" if x >= 10 else f": {x:.2g}× real time"
     _say(
         f"{show.reason} after {show.ticks} ticks "
         f"({show_s:.2f} s of show in {show.wall_s:.2f} s{pace}); {show.exit_policy}"

@@ -247,7 +247,12 @@ class ParquetSink:
         while self._job is not None:
             self.work()
         if self._raw:
-            self._batches.append(self._batch(self._take_raw()))
+            raw = self._take_raw()
+            try:
+                self._batches.append(self._batch(raw))
+            except BaseException:
+                self._rows -= len(raw)  # not written: counted lost, as in work()
+                raise
 
     def flush(self, fsync: bool) -> int:
         """A part is written only at fsync points (a footer per flush would cost more than the

@@ -449,7 +449,7 @@ class TelemetryWriter:
                         waiters.append(item)
                         sync = True
                 self._report_drops()
-                if sync:
+                if sync and not left_behind:  # (rows waiting for free time: the fsync first)
                     left_behind = self._drain_rows()  # rows handed over during the events
                 now = _monotonic()
                 if now - last_fsync >= self.fsync_interval_s:

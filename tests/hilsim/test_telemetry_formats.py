@@ -414,3 +414,27 @@ def test_a_failed_encoding_step_loses_its_rows_only_and_says_so(tmp_path: Path) 
     assert not sink.busy()
     assert sink.flush(True) == 300  # the 300 encoded before; not the 300 that failed
     assert sink.parts == 1 and pq.read_table(tmp_path / "p").num_rows == 300
+
+
+def test_a_failed_encoding_at_a_flush_loses_its_rows_only_and_says_so(tmp_path: Path) -> None:
+    pq = pytest.importorskip("pyarrow.parquet")
+    from hilsim.telemetry.format import csv_columns
+    from hilsim.telemetry.sinks import ParquetSink
+
+    sink = ParquetSink(tmp_path / "p", ["a"], lambda p, m: open(p, m))  # noqa: SIM115
+    width = len(csv_columns(["a"]))
+    sink.put(np.zeros((300, width)))
+    while sink.busy():
+        sink.work()  # 300 rows encoded
+    sink.put(np.ones((100, width)))  # fewer than a step takes: encoded at the flush
+    real = sink._batch
+
+    def failing(rows):
+        raise MemoryError("encoding")
+
+    sink._batch = failing
+    with pytest.raises(MemoryError):
+        sink.flush(True)
+    sink._batch = real
+    assert sink.flush(True) == 300  # the 300 encoded before; not the 100 that failed
+    assert pq.read_table(tmp_path / "p").num_rows == 300
