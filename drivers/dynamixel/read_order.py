@@ -15,20 +15,24 @@ things, and either can be taken for a later read's when that read misses its own
   fold the state to their XOR). Until :data:`LATE_BLOCK_S` after the adapter could have
   shown what the read gave up on, S is *headerless-suspect*: asked first, where its block
   comes with the header; anywhere else its block, and those after it, are not readings
-  (suspects are asked last, so they cost only themselves);
+  (headerless suspects are asked last, so they cost only themselves);
 * a servo S missing first sends the header and its block, whole, and the rest of the
   chain after it: a later read that starts with S takes it whole, as far as its order
-  agrees. S is *headed-suspect* as long: not asked first, and a read that still starts
-  with it (all are suspect) is not a reading at all.
+  agrees. S is *headed-suspect* as long: not asked first (anywhere else its late reply's
+  header cannot pass for a block), and a read that still starts with it (every servo is
+  headed-suspect, or there is only one) is not a reading at all.
 
-A reading taken back this way does not make its servo suspect again, so suspicion ends.
+A suspect's reading taken back may itself have been a late reply, its own reply late in
+turn: its suspicion is renewed, but not past :data:`MAX_SUSPECT_S` after it first went
+missing, so that suspicion ends (two suspects would otherwise keep each other suspect).
 The cost: a servo that fails now and then makes the others miss some reads too (asked
 first, it takes the chain down when it fails there), a dead one until its budget ends the
-show.
+show; a servo alone on its bus is not read for 7-14 ms after each miss.
 What is left: a reply later than that (``tests/hilsim/test_fault_matrix.py`` row 8: 15 % of
-replies up to 9.5 ms late at 250 Hz, never a reading from another read), and Plain Sync
-Read, whose late status packets are whole packets with their own CRC: the wait and the
-changed order protect against them, no more.
+replies up to 9.5 ms late at 250 Hz, never a reading from another read); a servo after the
+first one missing whose own reply is late on top (its block comes alone, without a header,
+and it is not suspect); and Plain Sync Read, whose late status packets are whole packets
+with their own CRC: the wait and the changed order protect against those, no more.
 """
 
 from __future__ import annotations
@@ -42,6 +46,9 @@ from drivers.dynamixel.fast_reply import STALE
 #: have shown the bytes the read gave up on: a reply up to this much later is never taken
 #: for a later read's. Short, so a servo back from a brownout is read again soon
 LATE_BLOCK_S = 0.007
+#: ... and renewed, while its readings taken back may themselves have been late replies, up
+#: to this long after it first went missing (so that two suspects taking turns end)
+MAX_SUSPECT_S = 2 * LATE_BLOCK_S
 
 
 class ReadOrder:
@@ -55,6 +62,7 @@ class ReadOrder:
         self.headerless: dict[int, float] = {}
         self.headed: dict[int, float] = {}
         self._taken_back: set[int] = set()  # readings distrust() took back in this read
+        self._since: dict[int, float] = {}  # when each suspect's suspicion began
 
     @property
     def suspect(self) -> bool:
@@ -73,6 +81,8 @@ class ReadOrder:
         for book in (self.headerless, self.headed):
             for k in [k for k, until in book.items() if until <= now]:
                 del book[k]
+        for k in [k for k in self._since if k not in self.headed and k not in self.headerless]:
+            del self._since[k]
         order = self.order
         start = 0 if order[0] in self.headed else None
         if start is None:
@@ -88,16 +98,27 @@ class ReadOrder:
         """The order for the next read after a (``fast``) read with these statuses; returns
         the position of the first servo missing (None if none)."""
         order, taken_back, self._taken_back = self.order, self._taken_back, set()
-        i = next((i for i, k in enumerate(order) if status[k] == STALE), None)
-        if i is None:
+        stale = [p for p, k in enumerate(order) if status[k] == STALE]
+        if not stale:
             return None
-        k, rest = order[i], order[:i] + order[i + 1 :]
         if not fast:
-            if rest[i:]:  # the chain broke here: ask it last next time
-                self.order = [*rest, k]
+            i, k = stale[0], order[stale[0]]
+            if i + 1 < len(order):  # the chain broke here: ask it last next time
+                self.order = [*order[:i], *order[i + 1 :], k]
             return i
-        if k not in taken_back:  # missing, not taken back: its reply may come late
-            (self.headerless if i else self.headed)[k] = now + LATE_BLOCK_S
+        until = now + LATE_BLOCK_S
+        for p in stale:  # a suspect's reading taken back may have been a late one, its own
+            j = order[p]  # reply late in turn: suspect on, but not past MAX_SUSPECT_S in all
+            if j in taken_back and j in self._since:
+                book = self.headerless if p else self.headed
+                book[j] = max(book.get(j, 0.0), min(until, self._since[j] + MAX_SUSPECT_S))
+        i = next((p for p in stale if order[p] not in taken_back), None)  # really missing
+        if i is None:
+            self.order = self._arranged(list(order))
+            return stale[0]
+        k, rest = order[i], order[:i] + order[i + 1 :]
+        self._since.setdefault(k, now)
+        (self.headerless if i else self.headed)[k] = until  # its reply may come late
         self.order = self._arranged([k, *rest] if i else [*rest, k])
         return i
 

@@ -7,7 +7,7 @@ from __future__ import annotations
 import math
 
 from drivers.dynamixel.fast_reply import GOOD, STALE
-from drivers.dynamixel.read_order import LATE_BLOCK_S, ReadOrder
+from drivers.dynamixel.read_order import LATE_BLOCK_S, MAX_SUSPECT_S, ReadOrder
 
 S, A, B = 0, 1, 2  # servo indices
 
@@ -15,7 +15,8 @@ S, A, B = 0, 1, 2  # servo indices
 def _read(orders: ReadOrder, now: float, missing: set[int]) -> list[int]:
     """One Fast read at ``now``: the servos in ``missing`` sent nothing, the chain stopped at
     the first of them; the statuses after distrust() and after()."""
-    status, pos, errors = [GOOD] * 3, [1.0] * 3, [0] * 3
+    n = len(orders.order)
+    status, pos, errors = [GOOD] * n, [1.0] * n, [0] * n
     broken = False
     for k in orders.order:
         broken = broken or k in missing
@@ -87,3 +88,47 @@ def test_plain_reads_only_move_the_first_missing_servo_last():
     status = [GOOD, STALE, STALE]
     assert orders.after(status, 0.0, fast=False) == 1
     assert orders.order == [S, B, A] and not orders.suspect
+
+
+def test_one_servo_missing_is_not_read_while_its_whole_late_reply_may_come():
+    orders = ReadOrder(1)
+    status, pos, errors = [STALE], [math.nan], [0]
+    orders.after(status, 0.0, fast=True)
+    assert 0 in orders.headed and orders.order == [0]  # its only order starts with it
+    status, pos = [GOOD], [1.0]  # a reply came: its own, or the late one
+    orders.distrust(0.004, pos, status, errors)
+    assert status == [STALE] and math.isnan(pos[0])
+    orders.after(status, 0.004, fast=True)
+    status, pos = [GOOD], [1.0]
+    orders.distrust(MAX_SUSPECT_S + 0.001, pos, status, errors)
+    assert status == [GOOD]  # suspicion ends
+
+
+def test_a_reading_taken_back_renews_the_suspicion_up_to_a_limit():
+    # the late reply of read 0 may have filled read 1 (taken back): read 1's own reply is
+    # then late in turn, and read 2 must not take it either
+    orders = ReadOrder(2)
+    _read(orders, 0.0, {S})  # S missing first: headed, not first
+    assert orders.order == [A, S]
+    _read(orders, 0.001, {A})  # A missing first: headed too; S is first again
+    status = _read(orders, 0.002, set())  # a read that starts with a headed servo ...
+    assert status == [STALE, STALE]  # ... is taken back whole
+    assert orders.headed[S] >= 0.002 + LATE_BLOCK_S - 1e-9  # renewed from this read on
+    t = 0.003
+    while orders.suspect:
+        _read(orders, t, set())
+        t += 0.001
+    assert LATE_BLOCK_S < t <= 0.001 + MAX_SUSPECT_S + 0.002  # A's first miss + the limit
+
+
+def test_a_servo_really_missing_after_one_taken_back_is_suspect_too():
+    orders = ReadOrder(4)
+    orders.order = [1, 0, 2, 3]
+    orders.headerless[0] = orders._since[0] = 1.0  # suspect until 1.0 (and since 1.0)
+    orders._since[0] = 0.0
+    status, pos, errors = [GOOD] * 4, [1.0] * 4, [0] * 4
+    orders.distrust(0.5, pos, status, errors)  # 0 at a later place: it and after it back
+    assert status == [STALE, GOOD, STALE, STALE]
+    orders._taken_back.discard(3)  # as if servo 3's block had been missing anyway
+    orders.after(status, 0.5, fast=True)
+    assert 3 in orders.headerless and orders.order[0] == 3
