@@ -33,7 +33,7 @@ replies up to 9.5 ms late at 250 Hz, never a reading from another read); a servo
 first one missing whose own reply is late on top (its block comes alone, without a header,
 and it is not suspect); and Plain Sync Read, whose late status packets are whole packets
 with their own CRC, the missing servo's and those after it: the wait and the changed order
-do not keep them out (row 8's late replies, read plain, gave earlier values in 6 of 12 runs).
+do not keep them out (row 8's late replies, read plain, gave earlier values in all 12 runs).
 """
 
 from __future__ import annotations
