@@ -23,7 +23,7 @@ things, and either can be taken for a later read's when that read misses its own
   headed-suspect, or there is only one) is not a reading at all.
 
 A suspect's reading taken back may itself have been a late reply, its own reply late in
-turn: its suspicion is renewed, but not past :data:`MAX_SUSPECT_S` after it first went
+turn: its suspicion is renewed, but not past :data:`MAX_SUSPECT_S` after it last went
 missing, so that suspicion ends (two suspects would otherwise keep each other suspect).
 The cost: a servo that fails now and then makes the others miss some reads too (asked
 first, it takes the chain down when it fails there), a dead one until its budget ends the
@@ -48,7 +48,7 @@ from drivers.dynamixel.fast_reply import STALE
 #: for a later read's. Short, so a servo back from a brownout is read again soon
 LATE_BLOCK_S = 0.007
 #: ... and renewed, while its readings taken back may themselves have been late replies, up
-#: to this long after it first went missing (so that two suspects taking turns end)
+#: to this long after it last went missing (so that two suspects taking turns end)
 MAX_SUSPECT_S = 2 * LATE_BLOCK_S
 
 
@@ -97,7 +97,8 @@ class ReadOrder:
 
     def after(self, status: MutableSequence[int], now: float, fast: bool) -> int | None:
         """The order for the next read after a (``fast``) read with these statuses; returns
-        the position of the first servo missing (None if none)."""
+        the position from which its replies may still come: the first servo really missing,
+        else the first reading taken back (None if no servo is STALE)."""
         order, taken_back, self._taken_back = self.order, self._taken_back, set()
         stale = [p for p, k in enumerate(order) if status[k] == STALE]
         if not stale:
@@ -111,14 +112,16 @@ class ReadOrder:
         for p in stale:  # a suspect's reading taken back may have been a late one, its own
             j = order[p]  # reply late in turn: suspect on, but not past MAX_SUSPECT_S in all
             if j in taken_back and j in self._since:
-                book = self.headerless if p else self.headed
-                book[j] = max(book.get(j, 0.0), min(until, self._since[j] + MAX_SUSPECT_S))
+                cap = self._since[j] + MAX_SUSPECT_S
+                if cap > now:
+                    book = self.headerless if p else self.headed
+                    book[j] = max(book.get(j, 0.0), min(until, cap))
         i = next((p for p in stale if order[p] not in taken_back), None)  # really missing
         if i is None:
             self.order = self._arranged(list(order))
             return stale[0]
         k, rest = order[i], order[:i] + order[i + 1 :]
-        self._since.setdefault(k, now)
+        self._since[k] = now  # (renewals are capped from its last real miss)
         (self.headerless if i else self.headed)[k] = until  # its reply may come late
         self.order = self._arranged([k, *rest] if i else [*rest, k])
         return i

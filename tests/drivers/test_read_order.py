@@ -71,7 +71,7 @@ def test_another_servo_taking_the_first_place_does_not_let_a_suspect_be_read_els
     assert status[S] == GOOD and status[B] == GOOD
 
 
-def test_a_reading_taken_back_does_not_renew_the_suspicion():
+def test_two_suspects_taking_turns_still_end():
     orders = ReadOrder(3)
     _read(orders, 0.0, {A})
     _read(orders, 0.001, {S})  # two suspects: one of them is read elsewhere than first
@@ -115,7 +115,7 @@ def test_a_reading_taken_back_renews_the_suspicion_up_to_a_limit():
     assert status == [STALE, STALE]  # ... is taken back whole
     assert orders.headed[S] >= 0.002 + LATE_BLOCK_S - 1e-9  # renewed from this read on
     t = 0.003
-    while orders.suspect:
+    while orders.suspect and t < 1.0:
         _read(orders, t, set())
         t += 0.001
     assert LATE_BLOCK_S < t <= 0.001 + MAX_SUSPECT_S + 0.002  # A's first miss + the limit
@@ -124,11 +124,37 @@ def test_a_reading_taken_back_renews_the_suspicion_up_to_a_limit():
 def test_a_servo_really_missing_after_one_taken_back_is_suspect_too():
     orders = ReadOrder(4)
     orders.order = [1, 0, 2, 3]
-    orders.headerless[0] = orders._since[0] = 1.0  # suspect until 1.0 (and since 1.0)
-    orders._since[0] = 0.0
+    orders.headerless[0], orders._since[0] = 1.0, 0.0  # suspect until 1.0, missing at 0.0
     status, pos, errors = [GOOD] * 4, [1.0] * 4, [0] * 4
     orders.distrust(0.5, pos, status, errors)  # 0 at a later place: it and after it back
     assert status == [STALE, GOOD, STALE, STALE]
     orders._taken_back.discard(3)  # as if servo 3's block had been missing anyway
     orders.after(status, 0.5, fast=True)
     assert 3 in orders.headerless and orders.order[0] == 3
+
+
+def test_a_suspect_kept_off_the_first_place_stops_being_suspect_within_the_limit():
+    # a servo suspect both ways (missing first, then at a later place) is never asked first,
+    # so it is taken back every read, and each taking back renews it: the renewals stop
+    # MAX_SUSPECT_S after its last real miss
+    orders = ReadOrder(2)
+    orders.headed[0] = orders.headerless[0] = 0.007
+    orders._since[0] = 0.0
+    t = 0.001
+    while orders.suspect and t < 1.0:
+        _read(orders, t, set())
+        t += 0.001
+    assert not orders.suspect and t <= MAX_SUSPECT_S + 0.002
+
+
+def test_missing_again_while_suspect_renews_from_the_last_miss():
+    orders = ReadOrder(1)
+    orders.after([STALE], 0.0, fast=True)  # missing: suspect until 0.007
+    status, pos, errors = [STALE], [math.nan], [0]
+    orders.distrust(0.006, pos, status, errors)
+    orders.after(status, 0.006, fast=True)  # missing again (not taken back): until 0.013
+    status, pos = [GOOD], [1.0]
+    orders.distrust(0.010, pos, status, errors)  # a reply: maybe the late one, taken back
+    assert status == [STALE]
+    orders.after(status, 0.010, fast=True)  # its own may come late: until 0.017, within
+    assert orders.headed[0] >= 0.010 + LATE_BLOCK_S - 1e-9  # 0.006 + MAX_SUSPECT_S
