@@ -233,8 +233,8 @@ class DynamixelBus(ServoBus):
                 if fast:
                     port.setPacketTimeoutMillis(self._fast_timeout_ms)
                     receive_fast_reply(port, want, order, pos, status, errors, sample)
-                    if self._orders.suspect:  # a late block may be in flight (read_order)
-                        self._orders.distrust(clock.now(), pos, status, errors)
+                    if self._orders.suspect:  # a late block may be in flight (read_order),
+                        self._orders.distrust(out.t, pos, status, errors)  # from its start
                 else:
                     port.setPacketTimeoutMillis(self._plain_timeout_ms)
                     receive_plain_replies(ph, port, want, order, pos, status, errors, sample)

@@ -27,7 +27,7 @@ turn: its suspicion is renewed, but not past :data:`MAX_SUSPECT_S` after it last
 missing, so that suspicion ends (two suspects would otherwise keep each other suspect).
 The cost: a servo that fails now and then makes the others miss some reads too (asked
 first, it takes the chain down when it fails there), a dead one until its budget ends the
-show; a servo alone on its bus is not read for 7-14 ms after each miss.
+show; a servo alone on its bus is not read for a read or two after each miss.
 What is left: a reply later than that (``tests/hilsim/test_fault_matrix.py`` row 8: 15 % of
 replies up to 9.5 ms late at 250 Hz, never a reading from another read); a servo after the
 first one missing whose own reply is late on top (its block comes alone, without a header,
@@ -44,9 +44,11 @@ from collections.abc import MutableSequence
 from drivers.dynamixel.fast_reply import STALE
 
 #: how long a servo missing from a Fast reply stays suspect (s), from when the adapter could
-#: have shown the bytes the read gave up on: a reply up to this much later is never taken
-#: for a later read's. Short, so a servo back from a brownout is read again soon
-LATE_BLOCK_S = 0.007
+#: have shown the bytes the read gave up on: a read that begins before then does not keep
+#: what may be its late reply (a read lasts up to its timeout, so late replies up to a few ms
+#: more are kept out too: row 8's, up to 9.5 ms, are). Short, so a servo back from a
+#: brownout is read again soon
+LATE_BLOCK_S = 0.005
 #: ... and renewed, while its readings taken back may themselves have been late replies, up
 #: to this long after it last went missing (so that two suspects taking turns end)
 MAX_SUSPECT_S = 2 * LATE_BLOCK_S
@@ -78,7 +80,8 @@ class ReadOrder:
     ) -> None:
         """Take back what a Fast reply may have taken from a late one: all of it if its first
         servo's late reply may still come (header and all), else from the first servo past
-        the first place whose late block may still come (and the blocks after it)."""
+        the first place whose late block may still come (and the blocks after it). ``now``
+        is when the read began: any byte of it may have come from then on."""
         for book in (self.headerless, self.headed):
             for k in [k for k, until in book.items() if until <= now]:
                 del book[k]

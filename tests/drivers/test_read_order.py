@@ -51,11 +51,12 @@ def test_a_late_block_cannot_outlive_the_read_after_its_own():
     # a reading until LATE_BLOCK_S has passed
     orders = ReadOrder(3)
     orders.order = [A, S, B]
+    step = LATE_BLOCK_S / 4  # reads a quarter of the window apart
     _read(orders, 0.0, {S})
     assert orders.order[0] == S
-    _read(orders, 0.004, {S})
+    _read(orders, step, {S})
     assert orders.order[-1] == S
-    status = _read(orders, 0.006, set())  # S answers (or its late block does): taken back
+    status = _read(orders, 2 * step, set())  # S answers (or its late block does): back
     assert status[S] == STALE and status[A] == GOOD
     later = LATE_BLOCK_S + 0.01
     assert _read(orders, later, set()) == [GOOD] * 3  # suspicion over: read again
@@ -63,10 +64,11 @@ def test_a_late_block_cannot_outlive_the_read_after_its_own():
 
 def test_another_servo_taking_the_first_place_does_not_let_a_suspect_be_read_elsewhere():
     orders = ReadOrder(3)
+    step = LATE_BLOCK_S / 4
     _read(orders, 0.0, {A})  # A first now
-    status = _read(orders, 0.004, {S})  # S misses at a later place: S first, A second
+    status = _read(orders, step, {S})  # S misses at a later place: S first, A second
     assert orders.order[0] == S and orders.order[-1] == A  # suspects last
-    status = _read(orders, 0.005, set())
+    status = _read(orders, 2 * step, set())
     assert status[A] == STALE  # A's late block could be there: not a reading
     assert status[S] == GOOD and status[B] == GOOD
 
@@ -138,7 +140,7 @@ def test_a_suspect_kept_off_the_first_place_stops_being_suspect_within_the_limit
     # so it is taken back every read, and each taking back renews it: the renewals stop
     # MAX_SUSPECT_S after its last real miss
     orders = ReadOrder(2)
-    orders.headed[0] = orders.headerless[0] = 0.007
+    orders.headed[0] = orders.headerless[0] = LATE_BLOCK_S
     orders._since[0] = 0.0
     t = 0.001
     while orders.suspect and t < 1.0:
@@ -149,12 +151,13 @@ def test_a_suspect_kept_off_the_first_place_stops_being_suspect_within_the_limit
 
 def test_missing_again_while_suspect_renews_from_the_last_miss():
     orders = ReadOrder(1)
-    orders.after([STALE], 0.0, fast=True)  # missing: suspect until 0.007
+    again, back = 0.8 * LATE_BLOCK_S, 1.4 * LATE_BLOCK_S
+    orders.after([STALE], 0.0, fast=True)  # missing: suspect until LATE_BLOCK_S
     status, pos, errors = [STALE], [math.nan], [0]
-    orders.distrust(0.006, pos, status, errors)
-    orders.after(status, 0.006, fast=True)  # missing again (not taken back): until 0.013
+    orders.distrust(again, pos, status, errors)
+    orders.after(status, again, fast=True)  # missing again (not taken back)
     status, pos = [GOOD], [1.0]
-    orders.distrust(0.010, pos, status, errors)  # a reply: maybe the late one, taken back
+    orders.distrust(back, pos, status, errors)  # a reply: maybe the late one, taken back
     assert status == [STALE]
-    orders.after(status, 0.010, fast=True)  # its own may come late: until 0.017, within
-    assert orders.headed[0] >= 0.010 + LATE_BLOCK_S - 1e-9  # 0.006 + MAX_SUSPECT_S
+    orders.after(status, back, fast=True)  # its own may come late: renewed in full, within
+    assert orders.headed[0] >= back + LATE_BLOCK_S - 1e-9  # again + MAX_SUSPECT_S
