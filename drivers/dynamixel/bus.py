@@ -229,7 +229,7 @@ class DynamixelBus(ServoBus):
             else:  # syncReadTx's txPacket; its own packet timeout is replaced just below
                 result = transmit(port, request)
             if result == OK:
-                want, order, sample = self._read_param, self._order, self._sample
+                want, order, sample = self._read_param, self._orders.order, self._sample
                 if fast:
                     port.setPacketTimeoutMillis(self._fast_timeout_ms)
                     receive_fast_reply(port, want, order, pos, status, errors, sample)
@@ -256,10 +256,11 @@ class DynamixelBus(ServoBus):
             raise_for(result, 0, None, "Sync Read of Present Position")
         out.t_done = clock.now()
         if STALE in status:  # the next order; the rest of the chain may still come:
-            order = self._order  # the next transmit waits it out and discards it
+            order = self._orders.order  # the next transmit waits it out and discards it
             i = self._orders.after(status, out.t_done + self.link.latency_timer_ms * 1e-3, fast)
             port.hold_until_quiet(out.t_done + self._chain_rest_s(i, order))
-            self._set_order()
+            if self._orders.order != order:  # (its requests rebuilt only when it changed)
+                self._set_order()
 
     def _chain_rest_s(self, i: int, order: list[int]) -> float:
         """Longest the replies of this Sync Read's servos from chain position ``i`` on can
@@ -282,7 +283,7 @@ class DynamixelBus(ServoBus):
     def _set_order(self, order: Sequence[int] | None = None) -> None:
         if order is not None:  # (tests set one)
             self._orders.order = list(order)
-        self._order = order = self._orders.order
+        order = self._orders.order
         self._read_param = [self.ids[k] for k in order]
         addr = ct.PRESENT_POSITION.addr
         self._requests = {

@@ -244,15 +244,8 @@ class ParquetSink:
 
     def _encode_raw(self) -> None:
         """Encode everything put, now (a flush): the batch under way first, in order."""
-        while self._job is not None:
+        while self._job is not None or self._raw:
             self.work()
-        if self._raw:
-            raw = self._take_raw()
-            try:
-                self._batches.append(self._batch(raw))
-            except BaseException:
-                self._rows -= len(raw)  # not written: counted lost, as in work()
-                raise
 
     def flush(self, fsync: bool) -> int:
         """A part is written only at fsync points (a footer per flush would cost more than the

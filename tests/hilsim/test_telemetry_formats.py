@@ -427,14 +427,15 @@ def test_a_failed_encoding_at_a_flush_loses_its_rows_only_and_says_so(tmp_path: 
     while sink.busy():
         sink.work()  # 300 rows encoded
     sink.put(np.ones((100, width)))  # fewer than a step takes: encoded at the flush
-    real = sink._batch
+    real = sink._batch_steps
 
     def failing(rows):
         raise MemoryError("encoding")
+        yield  # (a generator, as the real one)
 
-    sink._batch = failing
+    sink._batch_steps = failing
     with pytest.raises(MemoryError):
         sink.flush(True)
-    sink._batch = real
+    sink._batch_steps = real
     assert sink.flush(True) == 300  # the 300 encoded before; not the 100 that failed
     assert pq.read_table(tmp_path / "p").num_rows == 300
