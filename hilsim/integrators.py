@@ -62,9 +62,7 @@ class Integrator(ABC):
     small_bank_limit: ClassVar[int] = 16
 
     def __init__(self, spring: Spring, *, vectorized: bool | None = None) -> None:
-        n = spring.n
-        self.spring = spring
-        self.n = n
+        self.spring, self.n = spring, (n := spring.n)
         self.vectorized = n > self.small_bank_limit if vectorized is None else bool(vectorized)
         w2 = np.reshape(spring.w2, n)
         self._w2 = w2
@@ -104,7 +102,7 @@ class Integrator(ABC):
         """
         if type(target) is tuple:  # held over the step (the loop's case): the linear map
             held = self._held
-            (held if held is not None and held.h == h else self._held_step(h)).step(x, v, *target)
+            (held if held is not None and held.h == h else self.held_step(h)).step(x, v, *target)
         elif self.vectorized:
             self._step_arrays(x, v, h, t, target)
         else:
@@ -160,7 +158,8 @@ class Integrator(ABC):
         M[:, 0, 1], M[:, 1, 0], M[:, 1, 1], M[:, 1, 2] = 1.0, self._neg_w2, self._neg_cm, 1.0
         return self._step_matrix(M, float(h))
 
-    def _held_step(self, h: float) -> HeldStep:
+    def held_step(self, h: float) -> HeldStep:
+        """The held-target step at ``h``, built now (the loop's before tick 0: 0.7 ms at 16)."""
         bm = self._bm if self._has_b else None
         self._held = HeldStep(self.held_matrix(h), h, self._w2, bm, self.vectorized)
         return self._held

@@ -187,6 +187,7 @@ class HilLoop:
         self._positions_view = Packed(self.reading.positions)
         self._status_view = Packed(self.reading.status)
         self._h, self._substeps = rig.loop.h_s, rig.loop.substeps
+        self.integrator.held_step(self._h)  # now: in tick 0 it overran a 1 kHz show
         self.rec = TickRecord(
             target=self.u,
             sim_x=self.x,

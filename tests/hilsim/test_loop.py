@@ -254,6 +254,21 @@ def test_non_finite_from_the_integrator_never_reaches_the_wire(emulated, tmp_pat
         assert np.all((goals >= lo) & (goals <= hi))
 
 
+def test_the_held_step_is_built_before_tick_0_and_kept(emulated, tmp_path):
+    """Built in tick 0 it cost ~0.7 ms at 16 springs: a 1 kHz show's first tick overran."""
+    bus, path = emulated()
+    seen = {}
+
+    def look(loop):
+        seen["loop"], seen["held"] = loop, loop.integrator._held
+
+    rig, result, run = run_loop(bus, path, tmp_path / "run", patch=look, duration=0.1)
+    assert result.exit_code == 0 and run.n_ticks > 1
+    held = seen["held"]
+    assert held is not None and held.h == rig.loop.h_s
+    assert seen["loop"].integrator._held is held  # the ticks used it, none built another
+
+
 def test_non_finite_spring_parameter_is_refused_at_load(tmp_path):
     path = tmp_path / "rig.toml"
     path.write_text(

@@ -74,7 +74,7 @@ def test_the_loops_step_on_arrays_writes_the_lists_result():
     target = ((0.1, 0.2, 0.3, 0.4), (1.0, 0.0, -1.0, 0.5))
     for _ in range(5):
         integ.step(x, v, 0.002, 0.0, target)
-        integ._held_step(0.002).lists(xl, vl, *target)
+        integ.held_step(0.002).lists(xl, vl, *target)
     assert x.tolist() == xl and v.tolist() == vl
     vec = make_integrator("rk4", spring, vectorized=True)  # the array path: the same bits
     xa, va = np.linspace(-0.5, 0.5, 4), np.zeros(4)
