@@ -8,7 +8,12 @@ with the load average before and after:
 * the child's CPU (user + sys from ``os.wait4``'s rusage): µs per tick and % of one core;
 * the stage p50s of ``summary.json`` (sim, safety, bus, telemetry; µs);
 * in ``pty`` mode the emulator is ``hilsim emulate`` on a pseudo-terminal, another process
-  (as a real adapter would be): its CPU is read from ``/proc/PID/stat`` and printed apart.
+  (as a real adapter would be): its CPU is read from ``/proc/PID/stat`` and printed apart;
+* overrun episodes: runs of consecutive overruns counted once (one late wake-up of ~0.5 ms
+  makes several: a tick leaves ~0.25 ms of its period to catch up with);
+* ``--host-check``: then ``cyclictest`` (Debian's rt-tests; C, SCHED_FIFO 80, memory locked,
+  pinned to the last CPU) for as long, on the same host: how often the host itself wakes a
+  real-time thread later than this rig's spare time, the floor under any overrun count here.
 
 Diagnosis knobs (each run is one child; nothing in the shipped code changes):
 
@@ -174,6 +179,7 @@ def run_once(
         if not path.exists():
             raise SystemExit(f"hilsim run exited {code} without {path}:\n{err}")
         summaries[bus] = json.loads(path.read_text())
+    episodes = {bus: overrun_episodes(run_dir / bus) for bus in buses}
     cpu = usage.ru_utime + usage.ru_stime  # the child and every process it waited for
     most_ticks = max(int(s.get("ticks") or 0) for s in summaries.values())
     rows = []
@@ -188,6 +194,7 @@ def run_once(
                 "exit_code": code,
                 "ticks": int(s.get("ticks") or 0),
                 "overruns": s.get("overruns"),
+                "overrun_episodes": episodes[bus],
                 "skipped_ticks": (s.get("loop") or {}).get("skipped_ticks"),
                 "lateness_us": {
                     k: (s.get("lateness_us") or {}).get(k) for k in ("p50", "p99", "max")
@@ -221,6 +228,41 @@ def run_once(
     return rows
 
 
+def overrun_episodes(run_dir: Path) -> int | None:
+    """Runs of consecutive overrun ticks in the run's telemetry (None: it cannot be read)."""
+    from hilsim.telemetry.reader import read_run
+
+    try:
+        over = read_run(run_dir).overrun.astype(bool)
+    except Exception:  # a benchmark's extra: the summary's figures stand without it
+        return None
+    return int(over[0]) + int((over[1:] & ~over[:-1]).sum()) if len(over) else 0
+
+
+def host_check(seconds: float, spare_us: float) -> str:
+    """cyclictest on this host for ``seconds``: wake-ups later than ``spare_us`` and 1 ms."""
+    cpu = max(os.sched_getaffinity(0))
+    cmd = ["cyclictest", "-m", "-q", "-i", "1000", "-p", "80", "-a", str(cpu)]
+    cmd += ["-D", str(max(1, round(seconds))), "-h", "20000"]
+    try:
+        out = subprocess.run(cmd, capture_output=True, text=True, timeout=seconds + 30)
+    except (OSError, subprocess.TimeoutExpired) as exc:
+        return f"host check not run: {exc} (cyclictest is in Debian's rt-tests)"
+    hist = [ln.split() for ln in out.stdout.splitlines() if ln[:1].isdigit()]
+    hist = [(int(h[0]), int(h[1])) for h in hist if len(h) >= 2]
+    worst = re.search(r"Max Latencies:\s*(\d+)", out.stdout)
+    if out.returncode or not hist or worst is None:
+        return f"host check failed (exit {out.returncode}): {out.stderr.strip()[:200]}"
+    n = sum(c for _, c in hist)
+    late = sum(c for us, c in hist if us >= spare_us)
+    ms = sum(c for us, c in hist if us >= 1000)
+    return (
+        f"host (cyclictest, SCHED_FIFO 80, CPU {cpu}, {n} wake-ups at 1 kHz over "
+        f"{seconds:g} s): {late} woke {spare_us:g} us or more late, {ms} 1 ms or more, max "
+        f"{int(worst.group(1))} us; load {loadavg()}"
+    )
+
+
 def comm_errors(s: dict) -> int:
     """stale + error + alert reads (``docs/summary.md``)."""
     return sum(
@@ -237,9 +279,10 @@ def line(r: dict) -> str:
     )
     return (
         f"{r['mode']:6s}{' bus ' + r['bus'] if r['bus'] else ''} gc={r['gc']:7s} "
-        f"{'+'.join(r['diag']) or 'as shipped'}: exit "
-        f"{r['exit_code']}: overruns {r['overruns']}/"
-        f"{r['ticks']} (skipped {r['skipped_ticks']}); lateness p50 {lat['p50']:.1f} p99 "
+        f"{'+'.join(r['diag'] + r['set']) or 'as shipped'}: exit "
+        f"{r['exit_code']}: overruns {r['overruns']}/{r['ticks']} in "
+        f"{r['overrun_episodes']} episodes (skipped {r['skipped_ticks']}); lateness p50 "
+        f"{lat['p50']:.1f} p99 "
         f"{lat['p99']:.1f} max {lat['max']:.0f} us; host stalls {r['host_stalls']} (max "
         f"{r['host_stall_max_ms']:.1f} ms); comm errors {r['comm_errors']}; telemetry rows "
         f"dropped {r['rows_dropped']}, lost {r['rows_lost']}; CPU "
@@ -262,6 +305,13 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--set", action="append", default=[], metavar="SECTION.KEY=VALUE")
     ap.add_argument("--diag", action="append", default=[], choices=sorted(DIAG))
     ap.add_argument("--json", type=Path, help="append the results here (JSON lines)")
+    ap.add_argument(
+        "--host-check",
+        type=float,
+        metavar="SPARE_US",
+        help="then run cyclictest as long and count its wake-ups at least SPARE_US late "
+        "(scale16: ~250, its period less its tick)",
+    )
     args = ap.parse_args(argv)
     if args.gc not in PRELUDE and not re.fullmatch(r"gen0=\d+", args.gc):
         ap.error(f"--gc: none, freeze, disable or gen0=N, got {args.gc!r}")
@@ -278,6 +328,8 @@ def main(argv: list[str] | None = None) -> int:
                     if args.json:
                         with args.json.open("a") as f:
                             f.write(json.dumps(r) + "\n")
+            if args.host_check is not None:
+                print(host_check(args.seconds, args.host_check), flush=True)
     return 0
 
 
