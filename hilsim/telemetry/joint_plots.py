@@ -292,7 +292,11 @@ def joints_figure(
     legend = fig.legend(handles=handles, loc="lower center", ncols=min(len(handles), 4))
     span = f"{t[-1] - t[0]:.3g} s" if t.size else "no ticks"
     where = common.window_note(start, end)
-    title = common.title(fig, f"Joint positions: {run.path.name}{where} ({t.size} ticks, {span})")
+    loop = (run.summary or {}).get("loop")
+    skipped = loop.get("skipped_ticks") if isinstance(loop, dict) and not where else None
+    more = f" + {skipped} caught up without a row" if isinstance(skipped, int) and skipped else ""
+    head = f"Joint positions: {run.path.name}{where} ({t.size} ticks{more}, {span})"
+    title = common.title(fig, head)
     ruler = common.Ruler(fig)
     axes_w = axes[0].get_position().width * fig.get_figwidth()
     common.place_column(

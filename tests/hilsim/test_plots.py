@@ -206,6 +206,19 @@ def test_joint_plot_draws_the_limits_and_shades_where_safety_acted(tmp_path: Pat
     assert "joint limits (rig.toml)" in labels and "safety filter limited the command" in labels
 
 
+def test_joint_plot_title_counts_the_ticks_caught_up_without_a_row(tmp_path: Path) -> None:
+    from hilsim.telemetry.plots import joints_figure
+
+    summary = {"loop": {"skipped_ticks": 62}}
+    run = _write_run(tmp_path / "a", config_text=RIG_TEXT, summary=summary)
+    title = joints_figure(run)._suptitle.get_text()
+    assert "(301 ticks + 62 caught up without a row, 3 s)" in title, title
+    title = joints_figure(run, start=0.5, end=1.0)._suptitle.get_text()  # a window: its rows
+    assert "caught up" not in title and "ticks" in title, title
+    run = _write_run(tmp_path / "b", config_text=RIG_TEXT, summary={"loop": {"skipped_ticks": 0}})
+    assert "(301 ticks, 3 s)" in joints_figure(run)._suptitle.get_text()
+
+
 def test_a_quiet_window_keeps_a_readable_y_axis(tmp_path: Path) -> None:
     from hilsim.telemetry.plots import MIN_SPAN_DEG, joints_figure
 
