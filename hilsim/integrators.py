@@ -159,7 +159,7 @@ class Integrator(ABC):
         return self._step_matrix(M, float(h))
 
     def held_step(self, h: float) -> HeldStep:
-        """The held-target step at ``h``, built now (the loop's before tick 0: 0.7 ms at 16)."""
+        """The held-target step at ``h``, built now (the loop builds its own before tick 0)."""
         bm = self._bm if self._has_b else None
         self._held = HeldStep(self.held_matrix(h), h, self._w2, bm, self.vectorized)
         return self._held

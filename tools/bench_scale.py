@@ -278,6 +278,8 @@ def comm_errors(s: dict) -> int:
 
 def line(r: dict) -> str:
     lat, st = r["lateness_us"], r["stage_p50_us"]
+    n = r["overrun_episodes"]
+    episodes = " (episodes: no telemetry rows to count)" if n is None else f" in {n} episodes"
     emu = (
         f"; emulator process {r['emulator_cpu_percent']:.0f} % of a core"
         if r["emulator_cpu_percent"] is not None
@@ -286,8 +288,8 @@ def line(r: dict) -> str:
     return (
         f"{r['mode']:6s}{' bus ' + r['bus'] if r['bus'] else ''} gc={r['gc']:7s} "
         f"{'+'.join(r['diag'] + r['set']) or 'as shipped'}: exit "
-        f"{r['exit_code']}: overruns {r['overruns']}/{r['ticks']} in "
-        f"{r['overrun_episodes']} episodes (skipped {r['skipped_ticks']}); lateness p50 "
+        f"{r['exit_code']}: overruns {r['overruns']}/{r['ticks']}{episodes} (skipped "
+        f"{r['skipped_ticks']}); lateness p50 "
         f"{lat['p50']:.1f} p99 "
         f"{lat['p99']:.1f} max {lat['max']:.0f} us; host stalls {r['host_stalls']} (max "
         f"{r['host_stall_max_ms']:.1f} ms); comm errors {r['comm_errors']}; telemetry rows "
