@@ -11,9 +11,10 @@ with the load average before and after:
   (as a real adapter would be): its CPU is read from ``/proc/PID/stat`` and printed apart;
 * overrun episodes: runs of consecutive overruns counted once (one late wake-up of ~0.5 ms
   makes several: a tick leaves ~0.25 ms of its period to catch up with);
-* ``--host-check``: then ``cyclictest`` (Debian's rt-tests; C, SCHED_FIFO 80, memory locked,
-  pinned to the last CPU) for as long, on the same host: how often the host itself wakes a
-  real-time thread later than this rig's spare time, the floor under any overrun count here.
+* ``--host-check``: then ``cyclictest`` (Debian's rt-tests; C, memory locked, SCHED_FIFO at
+  ``--set loop.realtime_priority`` or 80, on ``--set loop.cpu`` or the last CPU) for as long,
+  on the same host: how often the host itself wakes a real-time thread later than this rig's
+  spare time (the runs are not at the same time: the host's noise comes and goes).
 
 Diagnosis knobs (each run is one child; nothing in the shipped code changes):
 
@@ -38,6 +39,8 @@ import sys
 import tempfile
 import time
 from pathlib import Path
+
+import numpy as np
 
 REPO = Path(__file__).resolve().parents[1]
 PRELUDE = {
@@ -234,37 +237,59 @@ def run_once(
     return rows
 
 
-def overrun_episodes(run_dir: Path) -> int | None:
-    """Runs of consecutive overrun ticks in the run's telemetry (None: it cannot be read)."""
+#: how an overrun episode began (µs): a wake-up at least this late, else a bus stage at least
+#: this much longer than its median on a tick that woke on time
+_LATE_WAKE_US, _LONG_BUS_US = 50.0, 150.0
+
+
+def overrun_episodes(run_dir: Path) -> dict | str:
+    """Runs of consecutive overrun ticks in the run's telemetry, and how many began at a late
+    wake-up or inside a long bus stage (consecutive rows taken as consecutive ticks: rows
+    dropped, counted in the line, can merge two); or why they could not be counted."""
     from hilsim.telemetry.reader import read_run
 
     try:
-        over = read_run(run_dir).overrun.astype(bool)
-    except Exception:  # a benchmark's extra: the summary's figures stand without it
-        return None
-    return int(over[0]) + int((over[1:] & ~over[:-1]).sum()) if len(over) else 0
+        run = read_run(run_dir)
+        over, late, bus = run.overrun.astype(bool), run.lateness_us, run.stage_us("bus")
+    except Exception as exc:  # a benchmark's extra: the summary's figures stand without it
+        return f"{type(exc).__name__}: {exc}"
+    if not len(over):
+        return "no telemetry rows"
+    starts = np.flatnonzero(over & ~np.r_[False, over[:-1]])
+    woke_late = late[starts] >= _LATE_WAKE_US
+    long_bus = ~woke_late & (bus[starts] - np.median(bus) >= _LONG_BUS_US)
+    return {
+        "episodes": len(starts),
+        "at_late_wake": int(woke_late.sum()),
+        "in_long_bus_stage": int(long_bus.sum()),
+    }
 
 
-def host_check(seconds: float, spare_us: float) -> str:
-    """cyclictest on this host for ``seconds``: wake-ups later than ``spare_us`` and 1 ms."""
-    cpu = max(os.sched_getaffinity(0))
-    cmd = ["cyclictest", "-m", "-q", "-i", "1000", "-p", "80", "-a", str(cpu)]
-    cmd += ["-D", str(max(1, round(seconds))), "-h", "20000"]
+def host_check(seconds: float, spare_us: float, cpu: int | None, priority: int | None) -> str:
+    """cyclictest on this host for ``seconds`` (on ``cpu``, else the last one; SCHED_FIFO at
+    ``priority``, else 80): wake-ups later than ``spare_us`` and 1 ms."""
+    cpu = max(os.sched_getaffinity(0)) if cpu is None else cpu
+    prio = 80 if priority is None else priority
+    secs = max(1, round(seconds))
+    cmd = ["cyclictest", "-m", "-q", "-i", "1000", "-p", str(prio), "-a", str(cpu)]
+    cmd += ["-D", str(secs), "-h", "20000"]
     try:
-        out = subprocess.run(cmd, capture_output=True, text=True, timeout=seconds + 30)
+        out = subprocess.run(cmd, capture_output=True, text=True, timeout=secs + 30)
     except (OSError, subprocess.TimeoutExpired) as exc:
         return f"host check not run: {exc} (cyclictest is in Debian's rt-tests)"
     hist = [ln.split() for ln in out.stdout.splitlines() if ln[:1].isdigit()]
     hist = [(int(h[0]), int(h[1])) for h in hist if len(h) >= 2]
     worst = re.search(r"Max Latencies:\s*(\d+)", out.stdout)
+    over = re.search(r"Histogram Overflows:\s*(\d+)", out.stdout)  # 20 ms or later
     if out.returncode or not hist or worst is None:
         return f"host check failed (exit {out.returncode}): {out.stderr.strip()[:200]}"
-    n = sum(c for _, c in hist)
-    late = sum(c for us, c in hist if us >= spare_us)
-    ms = sum(c for us, c in hist if us >= 1000)
+    beyond = int(over.group(1)) if over else 0
+    n = sum(c for _, c in hist) + beyond
+    late = sum(c for us, c in hist if us >= spare_us) + beyond
+    ms = sum(c for us, c in hist if us >= 1000) + beyond
     return (
-        f"host (cyclictest, SCHED_FIFO 80, CPU {cpu}, {n} wake-ups at 1 kHz over "
-        f"{seconds:g} s): {late} woke {spare_us:g} us or more late, {ms} 1 ms or more, max "
+        f"host (cyclictest, SCHED_FIFO {prio}, CPU {cpu}, {n} wake-ups at 1 kHz over "
+        f"{secs} s): {late} woke {spare_us:g} us or more late, {ms} 1 ms or more, max "
         f"{int(worst.group(1))} us; load {loadavg()}"
     )
 
@@ -278,8 +303,14 @@ def comm_errors(s: dict) -> int:
 
 def line(r: dict) -> str:
     lat, st = r["lateness_us"], r["stage_p50_us"]
-    n = r["overrun_episodes"]
-    episodes = " (episodes: no telemetry rows to count)" if n is None else f" in {n} episodes"
+    e = r["overrun_episodes"]
+    episodes = (
+        f" in {e['episodes']} episodes ({e['at_late_wake']} began at a wake-up "
+        f"{_LATE_WAKE_US:g} us late or more, {e['in_long_bus_stage']} in a bus stage "
+        f"{_LONG_BUS_US:g} us over its median)"
+        if isinstance(e, dict)
+        else f" (episodes not counted: {e})"
+    )
     emu = (
         f"; emulator process {r['emulator_cpu_percent']:.0f} % of a core"
         if r["emulator_cpu_percent"] is not None
@@ -337,7 +368,10 @@ def main(argv: list[str] | None = None) -> int:
                         with args.json.open("a") as f:
                             f.write(json.dumps(r) + "\n")
             if args.host_check is not None:
-                print(host_check(args.seconds, args.host_check), flush=True)
+                keys = dict(item.split("=", 1) for item in args.set)
+                cpu, prio = keys.get("loop.cpu"), keys.get("loop.realtime_priority")
+                cpu, prio = (None if v is None else int(v) for v in (cpu, prio))
+                print(host_check(args.seconds, args.host_check, cpu, prio), flush=True)
     return 0
 
 

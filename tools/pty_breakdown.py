@@ -14,10 +14,11 @@ each part wrapped in a thread-CPU counter (``time.thread_time_ns``, this thread 
   waits inside a tick are the tick's, those before the show are left out).
 
 and, for scale, what one bare ``time.sleep`` and its wake-up cost this thread on this
-host (nothing else running in it), and what the same tick costs back to back and after a
-sleep (:class:`hilsim.bench.tick.HilsimTick`, 4 servos on an instant in-process port, no
-I/O): after a sleep the CPU's caches hold other work, and on some hosts the tick costs
-several times as much. The wrappers cost ~1 µs a call.
+host (nothing else running in it), and what hilsim's tick costs back to back and after a
+sleep (:class:`hilsim.bench.tick.HilsimTick`: the bench's 4-servo rig on an instant
+in-process port, no I/O; not the demo's own tick): on some hosts it costs several times as
+much after a sleep (the caches holding other work, or the CPU's return from idle). The
+wrappers cost ~1 µs a call.
 
     python tools/pty_breakdown.py [--seconds 6]
 """
@@ -165,8 +166,8 @@ def main(argv=None) -> int:
     for sleep_s, p10, p50, p90 in tick_after_sleep():
         when = f"after a {sleep_s * 1e3:g} ms sleep" if sleep_s else "back to back"
         print(
-            f"The demo's tick alone (4 servos, instant port, no I/O) {when}: {p50:.0f} µs of "
-            f"CPU (p10 {p10:.0f}, p90 {p90:.0f}; 600 ticks)"
+            f"hilsim's tick (the bench's 4-servo rig, instant port, no I/O) {when}: "
+            f"{p50:.0f} µs of CPU (p10 {p10:.0f}, p90 {p90:.0f}; 600 ticks)"
         )
     return 0
 

@@ -294,7 +294,7 @@ def joints_figure(
     where = common.window_note(start, end)
     loop = (run.summary or {}).get("loop")
     skipped = loop.get("skipped_ticks") if isinstance(loop, dict) and not where else None
-    more = f" + {skipped} caught up without a row" if isinstance(skipped, int) and skipped else ""
+    more = f" + {skipped} caught up without a row" if type(skipped) is int and skipped > 0 else ""
     head = f"Joint positions: {run.path.name}{where} ({t.size} ticks{more}, {span})"
     title = common.title(fig, head)
     ruler = common.Ruler(fig)

@@ -215,8 +215,10 @@ def test_joint_plot_title_counts_the_ticks_caught_up_without_a_row(tmp_path: Pat
     assert "(301 ticks + 62 caught up without a row, 3 s)" in title, title
     title = joints_figure(run, start=0.5, end=1.0)._suptitle.get_text()  # a window: its rows
     assert "caught up" not in title and "ticks" in title, title
-    run = _write_run(tmp_path / "b", config_text=RIG_TEXT, summary={"loop": {"skipped_ticks": 0}})
-    assert "(301 ticks, 3 s)" in joints_figure(run)._suptitle.get_text()
+    for i, bad in enumerate((0, True, -5, "62", 6.2, None)):  # none of them a count to add
+        summary = {"loop": {"skipped_ticks": bad}}
+        run = _write_run(tmp_path / f"b{i}", config_text=RIG_TEXT, summary=summary)
+        assert "(301 ticks, 3 s)" in joints_figure(run)._suptitle.get_text(), bad
 
 
 def test_a_quiet_window_keeps_a_readable_y_axis(tmp_path: Path) -> None:
