@@ -15,10 +15,13 @@ each part wrapped in a thread-CPU counter (``time.thread_time_ns``, this thread 
 
 and, for scale, what one bare ``time.sleep`` and its wake-up cost this thread on this
 host (nothing else running in it), and what hilsim's tick costs back to back and after a
-sleep (:class:`hilsim.bench.tick.HilsimTick`: the bench's 4-servo rig on an instant
-in-process port, no I/O; not the demo's own tick): on some hosts it costs several times as
-much after a sleep (the caches holding other work, or the CPU's return from idle). The
-wrappers cost ~1 µs a call.
+sleep, and after the same time spun in a busy loop
+(:class:`hilsim.bench.tick.HilsimTick`: the bench's 4-servo rig on an instant in-process
+port, no I/O; not the demo's own tick): on some hosts it costs several times as much after
+a sleep, and still twice as much after a spin, when the CPU never idled and this process ran
+nothing else (most likely its caches taken by work outside the process: on a shared VM,
+other guests on the same core; a busy loop's own footprint is a few kB).
+The wrappers cost ~1 µs a call.
 
     python tools/pty_breakdown.py [--seconds 6]
 """
@@ -90,9 +93,22 @@ def sleep_cost(n: int = 1000, sleep_s: float = 0.0035) -> tuple[float, float]:
     return cpu[n // 2] * 1e6, late[n // 2] * 1e6
 
 
-def tick_after_sleep(sleeps_s=(0.0, 0.001, 0.0035), n: int = 600) -> list[tuple]:
-    """(sleep, p10, p50, p90 of the tick's thread CPU in µs): an instant-port tick of 4
-    servos after each ``time.sleep`` (0: back to back), timer slack 1 ns."""
+def _spin(seconds: float) -> None:
+    end = time.perf_counter() + seconds
+    while time.perf_counter() < end:
+        pass
+
+
+def tick_after_sleep(
+    waits=(("", 0.0), ("sleep", 0.001), ("spin", 0.001), ("sleep", 0.0035), ("spin", 0.0035)),
+    n: int = 600,
+) -> list[tuple]:
+    """(how, wait, p10, p50, p90 of the tick's thread CPU in µs): an instant-port tick of 4
+    servos after each wait, timer slack 1 ns. ``sleep``: ``time.sleep`` (the CPU may idle);
+    ``spin``: the same time spent in a busy loop (the CPU never idles, and this process runs
+    nothing else: the bench rig keeps its rows in memory, no writer thread); ``""``: back to
+    back. A tick slower after a spin than back to back lost its caches to something outside
+    this process in the meantime (a busy loop touches little of its own)."""
     import tempfile
 
     from drivers.clock import PRECISE_SLACK_NS, precise_timers
@@ -105,19 +121,20 @@ def tick_after_sleep(sleeps_s=(0.0, 0.001, 0.0035), n: int = 600) -> list[tuple]
             for _ in range(2000):  # warm, and the ring emptied as the bench does
                 tick()
             tick.between_rounds()
-            for sleep_s in sleeps_s:
+            for how, wait_s in waits:
+                pause = {"sleep": time.sleep, "spin": _spin}.get(how)
                 cpu = []
                 with precise_timers(PRECISE_SLACK_NS):
                     for i in range(n):
-                        if sleep_s:
-                            time.sleep(sleep_s)
+                        if pause is not None:
+                            pause(wait_s)
                         c = time.thread_time_ns()
                         tick()
                         cpu.append(time.thread_time_ns() - c)
                         if i % 200 == 199:
                             tick.between_rounds()
                 cpu.sort()
-                rows.append((sleep_s, *(cpu[n * q // 10] / 1e3 for q in (1, 5, 9))))
+                rows.append((how, wait_s, *(cpu[n * q // 10] / 1e3 for q in (1, 5, 9))))
         finally:
             tick.close()
     return rows
@@ -163,8 +180,8 @@ def main(argv=None) -> int:
         f"A bare 3.5 ms sleep on this host: {cpu:.0f} µs of CPU, wakes {late:.0f} µs late "
         "(medians of 1,000; timer slack 1 ns)"
     )
-    for sleep_s, p10, p50, p90 in tick_after_sleep():
-        when = f"after a {sleep_s * 1e3:g} ms sleep" if sleep_s else "back to back"
+    for how, wait_s, p10, p50, p90 in tick_after_sleep():
+        when = f"after a {wait_s * 1e3:g} ms {how}" if how else "back to back"
         print(
             f"hilsim's tick (the bench's 4-servo rig, instant port, no I/O) {when}: "
             f"{p50:.0f} µs of CPU (p10 {p10:.0f}, p90 {p90:.0f}; 600 ticks)"
