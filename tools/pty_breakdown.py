@@ -18,9 +18,10 @@ host (nothing else running in it), and what hilsim's tick costs back to back and
 sleep, and after the same time spun in a busy loop
 (:class:`hilsim.bench.tick.HilsimTick`: the bench's 4-servo rig on an instant in-process
 port, no I/O; not the demo's own tick): on some hosts it costs several times as much after
-a sleep, and still twice as much after a spin, when the CPU never idled and this process ran
-nothing else (most likely its caches taken by work outside the process: on a shared VM,
-other guests on the same core; a busy loop's own footprint is a few kB).
+a sleep, and still several times as much after a spin in C, when the CPU never idled and
+this process ran nothing else: its caches taken meanwhile, most likely by work outside the
+process (on a shared VM, other guests on the same core; the spin's own footprint is a few
+kB).
 The wrappers cost ~1 µs a call.
 
     python tools/pty_breakdown.py [--seconds 6]
@@ -31,6 +32,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import io
+import itertools
 import os
 import sys
 import time
@@ -94,9 +96,12 @@ def sleep_cost(n: int = 1000, sleep_s: float = 0.0035) -> tuple[float, float]:
 
 
 def _spin(seconds: float) -> None:
+    """Busy for ``seconds`` in C: chunks of ~20 µs of ``sum`` over ``itertools.repeat`` (no
+    Python code runs in a chunk and no memory is touched), the clock read between chunks."""
     end = time.perf_counter() + seconds
+    zeros = itertools.repeat
     while time.perf_counter() < end:
-        pass
+        sum(zeros(0, 4096))
 
 
 def tick_after_sleep(
@@ -105,10 +110,11 @@ def tick_after_sleep(
 ) -> list[tuple]:
     """(how, wait, p10, p50, p90 of the tick's thread CPU in µs): an instant-port tick of 4
     servos after each wait, timer slack 1 ns. ``sleep``: ``time.sleep`` (the CPU may idle);
-    ``spin``: the same time spent in a busy loop (the CPU never idles, and this process runs
-    nothing else: the bench rig keeps its rows in memory, no writer thread); ``""``: back to
-    back. A tick slower after a spin than back to back lost its caches to something outside
-    this process in the meantime (a busy loop touches little of its own)."""
+    ``spin``: the same time spent busy in C (:func:`_spin`: the CPU never idles, this process
+    runs nothing else - the bench rig keeps its rows in memory, no writer thread - and the
+    spin itself runs no Python and touches no memory); ``""``: back to back. A tick slower
+    after a spin than back to back lost its caches, or its branch predictors' training, in
+    the meantime: to the spin's few kB, the timer's interrupts, or work outside the process."""
     import tempfile
 
     from drivers.clock import PRECISE_SLACK_NS, precise_timers
