@@ -292,9 +292,7 @@ def joints_figure(
     legend = fig.legend(handles=handles, loc="lower center", ncols=min(len(handles), 4))
     span = f"{t[-1] - t[0]:.3g} s" if t.size else "no ticks"
     where = common.window_note(start, end)
-    loop = (run.summary or {}).get("loop")
-    skipped = loop.get("skipped_ticks") if isinstance(loop, dict) and not where else None
-    more = f" + {skipped} caught up without a row" if type(skipped) is int and skipped > 0 else ""
+    more = common.caught_up_note(run, where)
     head = f"Joint positions: {run.path.name}{where} ({t.size} ticks{more}, {span})"
     title = common.title(fig, head)
     ruler = common.Ruler(fig)

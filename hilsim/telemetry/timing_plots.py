@@ -70,10 +70,11 @@ def plot_lateness(
     fig = common.new_figure(11.0, 8.0, dpi)
     ax_h, ax_t = fig.subplots(2, 1)
     n_over = int(np.count_nonzero(overrun))
+    where = common.window_note(start, end)
     title = common.title(
         fig,
-        f"Tick lateness: {run.path.name}{common.window_note(start, end)} ({lat.size} ticks, "
-        f"{n_over} overrun{'s' if n_over != 1 else ''})",
+        f"Tick lateness: {run.path.name}{where} ({lat.size} ticks"
+        f"{common.caught_up_note(run, where)}, {n_over} overrun{'s' if n_over != 1 else ''})",
     )
     log_x = _use_log_axis(lat)
     if lat.size == 0:

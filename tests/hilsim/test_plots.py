@@ -221,6 +221,25 @@ def test_joint_plot_title_counts_the_ticks_caught_up_without_a_row(tmp_path: Pat
         assert "(301 ticks, 3 s)" in joints_figure(run)._suptitle.get_text(), bad
 
 
+def test_lateness_plot_title_counts_the_ticks_caught_up_as_the_joints_plot_does(
+    tmp_path: Path, monkeypatch
+) -> None:
+    from hilsim.telemetry import plot_common, timing_plots
+
+    titles = []
+    monkeypatch.setattr(
+        plot_common, "save", lambda fig, path, dpi: titles.append(fig._suptitle.get_text())
+    )
+    run = _write_run(tmp_path / "a", config_text=RIG_TEXT, summary={"loop": {"skipped_ticks": 62}})
+    timing_plots.plot_lateness(run, tmp_path / "l.png")
+    timing_plots.plot_lateness(run, tmp_path / "w.png", start=0.5, end=1.0)
+    run = _write_run(tmp_path / "b", config_text=RIG_TEXT, summary={"loop": {"skipped_ticks": -5}})
+    timing_plots.plot_lateness(run, tmp_path / "b.png")
+    assert "(301 ticks + 62 caught up without a row, 0 overruns)" in titles[0], titles
+    assert "caught up" not in titles[1] and "ticks" in titles[1], titles  # a window: its rows
+    assert "(301 ticks, 0 overruns)" in titles[2], titles
+
+
 def test_a_quiet_window_keeps_a_readable_y_axis(tmp_path: Path) -> None:
     from hilsim.telemetry.plots import MIN_SPAN_DEG, joints_figure
 
