@@ -182,9 +182,11 @@ def plot_timing(
     virtual = common.is_virtual_time(run)
     fig = common.new_figure(11.0, 7.5, dpi)
     ax_s, ax_b = fig.subplots(2, 1)
+    where = common.window_note(start, end)
     title = common.title(
         fig,
-        f"Time per tick by stage: {run.path.name}{common.window_note(start, end)} ({t.size} ticks)"
+        f"Time per tick by stage: {run.path.name}{where} ({t.size} ticks"
+        f"{common.caught_up_note(run, where)})"
         + (
             "\nvirtual-time run: the host's compute time per stage ('bus' includes the "
             "in-process emulator, not wire time); no deadline applied"

@@ -221,7 +221,7 @@ def test_joint_plot_title_counts_the_ticks_caught_up_without_a_row(tmp_path: Pat
         assert "(301 ticks, 3 s)" in joints_figure(run)._suptitle.get_text(), bad
 
 
-def test_lateness_plot_title_counts_the_ticks_caught_up_as_the_joints_plot_does(
+def test_timing_plot_titles_count_the_ticks_caught_up_as_the_joints_plot_does(
     tmp_path: Path, monkeypatch
 ) -> None:
     from hilsim.telemetry import plot_common, timing_plots
@@ -238,6 +238,9 @@ def test_lateness_plot_title_counts_the_ticks_caught_up_as_the_joints_plot_does(
     assert "(301 ticks + 62 caught up without a row, 0 overruns)" in titles[0], titles
     assert "caught up" not in titles[1] and "ticks" in titles[1], titles  # a window: its rows
     assert "(301 ticks, 0 overruns)" in titles[2], titles
+    run = _write_run(tmp_path / "c", config_text=RIG_TEXT, summary={"loop": {"skipped_ticks": 7}})
+    timing_plots.plot_timing(run, tmp_path / "t.png")
+    assert "(301 ticks + 7 caught up without a row)" in titles[3], titles
 
 
 def test_a_quiet_window_keeps_a_readable_y_axis(tmp_path: Path) -> None:
