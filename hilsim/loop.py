@@ -443,10 +443,13 @@ class HilLoop:
             if event.fatal:
                 raise LoopFaultError(f"safety: {event}")
         tb = clock.now()  # (a microsecond before the Sync Write: early, never late)
+        checks = 0.0  # the servo checks after a bus silence: bus time, not the filter's
         if watch.watchdog_s:  # a long silence on the bus: have the servos stopped?
             gap = tb - watch.last_bus_t
             if gap >= WATCHDOG_GAP_FRACTION * watch.watchdog_s:
+                checks = perf()
                 watch.after_bus_silence(gap, k)
+                checks = perf() - checks
                 tb = clock.now()
         # the joint map on Python floats: a few joints cost less than numpy's calls
         jmap, cmd = self.map, self._cmd_view.tolist()
@@ -488,7 +491,7 @@ class HilLoop:
         all_ok = not any(view.tolist())  # OK is 0; no numpy reduction
         rec.tick, rec.t_sched, rec.t_actual, rec.status = k, t_sim, t_actual - self._t0, status
         rec.t_sim_us, rec.t_telemetry_us, rec.overrun = math.nan, math.nan, False
-        rec.t_safety_us, rec.t_bus_us = (c1 - c0) * 1e6, (c2 - c1) * 1e6
+        rec.t_safety_us, rec.t_bus_us = (c1 - c0 - checks) * 1e6, (c2 - c1 + checks) * 1e6
         rec.comm_errors = watch.comm_errors + (0 if all_ok else int(np.count_nonzero(status)))
         rec.host_stall_us = stall * 1e6
         if self._recording:

@@ -1097,6 +1097,33 @@ def test_row_24_a_host_stall_is_caught_up_and_tripped_watchdogs_recovered(emulat
     assert run.summary["exit_policy_confirmed"] is True
 
 
+def test_row_24_the_servo_checks_after_a_silence_are_bus_time_not_the_safety_filters(
+    emulated, monkeypatch
+):
+    """The checks of every servo after a bus silence (health reads, recoveries: bus
+    transactions) happen between the safety filter and the Sync Write: their time goes in
+    the tick's bus stage, not in its safety stage (a 200 ms stall once showed a 46 ms
+    "safety" stage)."""
+    holder: dict = {}
+    replace_track(monkeypatch, 1, lambda tr: StallAt(tr, holder["clock"], 0.8, 0.2))
+    emu = emulated()
+    clock = holder["clock"] = emu.bus.clock
+    # the stages timed on the emulator's clock: the filter costs no time, the bus its wire time
+    monkeypatch.setattr(
+        loop_mod, "time", types.SimpleNamespace(perf_counter=clock.now, monotonic=clock.now)
+    )
+    assert emu.run() == ExitCode.OK
+    run = emu.read()
+    (silence,) = events(run, "bus_silence")
+    assert run.summary["loop"]["recoveries"] == 3
+    row = int(np.flatnonzero(run.tick == silence["tick"])[0])
+    safety, bus = run.stage_us("safety"), run.stage_us("bus")
+    assert np.nanmax(safety) < 1.0, np.nanmax(safety)  # never more than float round-off
+    others = np.delete(bus, row)
+    # three servos checked and recovered: reads and writes of their own on the wire
+    assert bus[row] > np.nanmax(others) + 1000.0, (bus[row], np.nanmax(others))
+
+
 class _NotVirtual:
     """The loop's view of the emulator's clock as a real one (so its real-time checks run);
     the bus keeps the virtual clock underneath, so nothing sleeps."""
