@@ -447,9 +447,9 @@ class HilLoop:
         if watch.watchdog_s:  # a long silence on the bus: have the servos stopped?
             gap = tb - watch.last_bus_t
             if gap >= WATCHDOG_GAP_FRACTION * watch.watchdog_s:
-                checks = perf()
+                c_checks = perf()
                 watch.after_bus_silence(gap, k)
-                checks = perf() - checks
+                checks = perf() - c_checks
                 tb = clock.now()
         # the joint map on Python floats: a few joints cost less than numpy's calls
         jmap, cmd = self.map, self._cmd_view.tolist()

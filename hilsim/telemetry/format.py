@@ -25,11 +25,14 @@ A run directory (written by :class:`hilsim.telemetry.TelemetryWriter`, read back
     status_<j>  ...            read status (:class:`drivers.servo_bus.ReadStatus`: 0 OK, 1 STALE,
                                2 ERROR, 3 ALERT)
     t_sim_us  t_safety_us  t_bus_us  t_telemetry_us    per-stage wall time of this tick, µs:
-                               sim: the reading mapped to joints, the targets sampled, the
-                               springs stepped to the next tick; safety: the filter, the
-                               commands mapped to servo ticks; bus: the Sync Write and Sync
-                               Read, and the servo checks after a bus silence; telemetry: the
-                               row recorded
+                               sim: the reading mapped to joints, live inputs and cues, the
+                               targets sampled, the read and following checks, the springs
+                               stepped to the next tick; safety: the filter (its event, if
+                               any), the commands mapped to servo ticks; bus: the Sync Write
+                               and Sync Read, and the servo checks after a bus silence (health
+                               reads, recoveries, their events); telemetry: the host-stall
+                               accounting, the row recorded. In no stage: a health read in the
+                               spare time, the catch-up after an overrun, the wait
     overrun                    1 if the tick missed its deadline, else 0
     comm_errors                cumulative communication errors on the bus
     host_stall_us              time the host itself stalled in or before this tick (the process

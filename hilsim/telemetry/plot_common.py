@@ -198,9 +198,9 @@ def window_note(start: float | None, end: float | None) -> str:
 def caught_up_note(run: Run, where: str) -> str:
     """`` + K caught up without a row`` for a whole run whose loop skipped K ticks' rows to
     catch up after overruns (its summary's ``loop.skipped_ticks``, a positive int), so a
-    title's tick count agrees with the end line's; empty for a window (``where``: its rows
-    only) or anything else in the summary."""
-    loop = (run.summary or {}).get("loop") if isinstance(run.summary, dict) else None
+    title's tick count adds up to the end line's (unless rows were dropped); empty for a
+    window (``where``: its rows only) or anything else in the summary."""
+    loop = run.summary.get("loop") if isinstance(run.summary, dict) else None
     skipped = loop.get("skipped_ticks") if isinstance(loop, dict) and not where else None
     return f" + {skipped} caught up without a row" if type(skipped) is int and skipped > 0 else ""
 

@@ -51,7 +51,8 @@ def plot_lateness(
     if common.is_virtual_time(run):
         fig = common.new_figure(11.0, 3.0, dpi)
         where = common.window_note(start, end)
-        title = common.title(fig, f"Tick lateness: {run.path.name}{where} ({t.size} ticks)")
+        more = common.caught_up_note(run, where)
+        title = common.title(fig, f"Tick lateness: {run.path.name}{where} ({t.size} ticks{more})")
         ax = fig.subplots()
         top = common.Ruler(fig).size(title)[1] + common.PAD
         common.place_column(fig, [ax], left=0.0, right=0.0, top=top, bottom=0.0)

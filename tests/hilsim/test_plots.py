@@ -241,6 +241,11 @@ def test_timing_plot_titles_count_the_ticks_caught_up_as_the_joints_plot_does(
     run = _write_run(tmp_path / "c", config_text=RIG_TEXT, summary={"loop": {"skipped_ticks": 7}})
     timing_plots.plot_timing(run, tmp_path / "t.png")
     assert "(301 ticks + 7 caught up without a row)" in titles[3], titles
+    # a virtual-time run skips ticks too (a stall in the show's own code): its lateness note
+    virtual = {"clock": plot_common.VIRTUAL_CLOCK, "loop": {"skipped_ticks": 9}}
+    run = _write_run(tmp_path / "d", config_text=RIG_TEXT, summary=virtual)
+    timing_plots.plot_lateness(run, tmp_path / "v.png")
+    assert "(301 ticks + 9 caught up without a row)" in titles[4], titles
 
 
 def test_a_quiet_window_keeps_a_readable_y_axis(tmp_path: Path) -> None:
