@@ -65,6 +65,7 @@ from hilsim.servo_watch import LoopFaultError, ServoWatch
 from hilsim.show_log import ShowLog
 from hilsim.telemetry import TelemetryWriter, WriterFailedError
 from hilsim.telemetry.format import TickRecord
+from hilsim.warm_up import warm_up
 
 if TYPE_CHECKING:
     from hilsim.session import Parts
@@ -376,6 +377,8 @@ class HilLoop:
         if shared:
             clock.idle = slack  # type: ignore[attr-defined]
         try:
+            if not clock.virtual and (cold := warm_up(self)):  # tick 0 as warm as later ones
+                self.log.event("warm_up", f"tick 0 runs cold: the warm-up failed ({cold})")
             t0 = self._begin()
             k = 0
             while n_ticks is None or k < n_ticks:

@@ -254,6 +254,20 @@ class TelemetryWriter:
         ring.put(rec)
         return True
 
+    def warm_up(self, rec: TickRecord, n: int) -> None:
+        """Run :meth:`record`'s and :meth:`amend`'s books ``n`` times on scratch ones (run
+        stats of ``n`` ticks, a two-row ring) before a real-time show (:mod:`hilsim.warm_up`):
+        nothing is queued or counted."""
+        stats, ring = (
+            RunStats(self.joint_names, chunk_ticks=n),
+            TickRing(2, len(self.joint_names), self._ncols),
+        )
+        for _ in range(n):
+            stats.add(rec)
+            ring.put(rec)
+            stats.amend(rec)
+            ring.amend(rec)
+
     def amend(self, rec: TickRecord) -> bool:
         """Write the late values of the last recorded tick (``rec.tick``): its stage times and
         overrun, known only after :meth:`record`.

@@ -474,3 +474,65 @@ def test_real_time_scheduling_holds_for_the_run_only(monkeypatch):
     with pytest.raises(RuntimeError), realtime_mod.realtime(50, None):
         raise RuntimeError("a show that crashes still gives the process back")
     assert state == {"sched": (0, 0), "cpus": {0, 1}}
+
+
+class _RealLooking:
+    """The emulator's virtual clock seen by the loop as a real one (so its real-clock steps,
+    the warm-up among them, run); the bus keeps the virtual clock, so nothing sleeps."""
+
+    virtual = False
+
+    def __init__(self, clock: VirtualClock) -> None:
+        self._clock = clock
+
+    def now(self) -> float:
+        return self._clock.now()
+
+    def wait_until(self, t: float, idle=None) -> float:
+        return self._clock.wait_until(t)
+
+
+def test_only_a_real_clock_show_is_warmed_and_nothing_it_does_shows(
+    emulated, tmp_path, monkeypatch
+):
+    """The warm-up runs once, before tick 0, on the real clock and never in virtual time;
+    warm, cold or with a warm-up that fails (said in an event), the show is the same: every
+    number recorded and every goal on the wire."""
+    import hilsim.loop as loop_mod
+    import hilsim.warm_up as warm_mod
+
+    real, calls, how = warm_mod.warm_up, [], [""]
+
+    def spy(loop):
+        calls.append(loop.telemetry.stats._i)  # ticks recorded when it runs: none
+        if how[0] == "failing":
+            return "TypeError: cannot pickle 'socket' object"
+        return None if how[0] == "cold" else real(loop)
+
+    monkeypatch.setattr(loop_mod, "warm_up", spy)
+    shows = {}
+    for i, way in enumerate(("warm", "cold", "failing", "virtual")):
+        how[0], calls[:] = way, []
+        bus, path = emulated(name=f"warmbus{i}")
+
+        def patch(loop, way=way):
+            if way != "virtual":
+                loop.clock = _RealLooking(loop.clock)
+
+        _, result, run = run_loop(bus, path, tmp_path / way, patch=patch, duration=0.4)
+        assert result.exit_code == 0 and run.n_ticks == 101, way
+        assert calls == ([] if way == "virtual" else [0]), way
+        said = [e for e in run.events if e["kind"] == "warm_up"]
+        assert len(said) == (way == "failing"), way
+        if said:
+            assert "tick 0 runs cold" in said[0]["message"] and "socket" in said[0]["message"]
+        shows[way] = (
+            [run.joint(q) for q in ("target", "sim_x", "sim_v", "cmd", "present")],
+            wire_goals(bus),
+        )
+    for way in ("cold", "failing", "virtual"):
+        for a, b in zip(shows["warm"][0], shows[way][0], strict=True):
+            np.testing.assert_array_equal(a, b, err_msg=way)
+        assert shows["warm"][1].keys() == shows[way][1].keys()
+        for sid, goals in shows["warm"][1].items():
+            np.testing.assert_array_equal(goals, shows[way][1][sid], err_msg=way)
