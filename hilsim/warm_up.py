@@ -3,9 +3,10 @@ parts, so that the first ticks cost what later ones do.
 
 A 1 kHz show's first ticks ran cold: CPython specialises a function's bytecode only after
 it has run a few times, and the CPU's caches held the start-up's work. scale16 (16 joints at
-1 kHz, 2026-11-27, five runs): tick 0 overran in 5 of 5, its stages sim 108-123 µs, safety
-72-105, telemetry 71-84 against 27, 15 and 16 µs later; warming the springs, the filter, the
-joint map and the targets this way brought it to 2 of 5 (sim 67-74, safety 27-31).
+1 kHz, 2026-11-27, 16 runs each way): tick 0 overran in 16 of 16 before, its stages sim
+113-122 µs, safety 69-83, telemetry 79-85 (medians of two rounds) against 21-24, 13-15 and
+10-11 later; 3 of 16 after (sim 71-80, safety 30-31, telemetry 46-54). It costs ~1.5 ms
+before the show.
 
 Nothing the show keeps is touched: the safety filter, the targets, the springs and the
 telemetry's books are deep copies (a part that cannot be copied, such as a show's live
