@@ -492,12 +492,13 @@ class _RealLooking:
         return self._clock.wait_until(t)
 
 
-def test_only_a_real_clock_show_is_warmed_and_nothing_it_does_shows(
+def test_only_a_real_clock_show_is_warmed_and_its_numbers_are_the_same(
     emulated, tmp_path, monkeypatch
 ):
     """The warm-up runs once, before tick 0, on the real clock and never in virtual time;
-    warm, cold or with a warm-up that fails (said in an event), the show is the same: every
-    number recorded and every goal on the wire."""
+    warm, cold or with a warm-up that reports a failure (said in an event), the show is the
+    same: every number recorded and every goal on the wire. (Its time, which the clock here
+    does not see, is bounded in tests/hilsim/test_warm_up.py: no animation copied, a budget.)"""
     import hilsim.loop as loop_mod
     import hilsim.warm_up as warm_mod
 

@@ -1,5 +1,6 @@
 """The warm-up before a real-time show's tick 0 (hilsim.warm_up): the tick's stages but the
-bus run on copies, the show's own parts untouched, a failure skipped and said."""
+bus run on copies, the show's own parts untouched and its animation never copied, a part
+that cannot be copied left out, a failure said, the runs within a budget."""
 
 from __future__ import annotations
 
@@ -11,6 +12,8 @@ import pytest
 import hilsim.warm_up as warm_mod
 from hilsim.bench.tick import HilsimTick
 from hilsim.safety import SafetyFilter
+from hilsim.targets import TargetSet, Track
+from hilsim.telemetry.stats import RunStats
 
 
 def _state(loop) -> dict:
@@ -30,73 +33,101 @@ def _state(loop) -> dict:
     }
 
 
-def test_the_stages_run_n_times_on_copies_and_the_show_keeps_nothing(tmp_path: Path, monkeypatch):
-    tick = HilsimTick(4, tmp_path)
-    try:
-        loop = tick.loop
-        calls = []
-        filt = SafetyFilter.filter
-
-        def counted(self, desired, out):  # the class's method: the warm-up calls it
-            calls.append(self is loop.safety)
-            return filt(self, desired, out)
-
-        monkeypatch.setattr(SafetyFilter, "filter", counted)
-        loop.safety.filter = lambda *a: (_ for _ in ()).throw(AssertionError("instance spy"))
-        before = _state(loop)
-        assert warm_mod.warm_up(loop, 7) is None
-        after = _state(loop)
-        assert calls == [False] * 7  # seven times, never on the show's own filter
-        for a, b in zip(before["arrays"], after["arrays"], strict=True):
-            np.testing.assert_array_equal(a, b)
-        assert before["safety"] == after["safety"]
-        assert after["targets_view"] is before["targets_view"]
-        assert after["stats"] == before["stats"] and after["ring"] == before["ring"]
-        assert after["held"] is before["held"]
-    finally:
-        tick.close()
+def _assert_untouched(loop, before: dict) -> None:
+    after = _state(loop)
+    for a, b in zip(before["arrays"], after["arrays"], strict=True):
+        np.testing.assert_array_equal(a, b)
+    assert before["safety"] == after["safety"]
+    assert after["targets_view"] is before["targets_view"]
+    assert after["stats"] == before["stats"] and after["ring"] == before["ring"]
+    assert after["held"] is before["held"]
 
 
-def test_parts_that_cannot_be_copied_are_left_out_and_the_rest_warmed(tmp_path: Path, monkeypatch):
-    """A show's live targets hold locks: not copied, not sampled; the others still run."""
-    tick = HilsimTick(2, tmp_path)
-    try:
-        loop = tick.loop
-        deepcopy, filtered = warm_mod.copy.deepcopy, []
-
-        def refuse_targets(obj, memo=None):
-            if obj is loop.targets:
-                raise TypeError("cannot pickle '_thread.lock' object")
-            return deepcopy(obj, memo)
-
-        filt = SafetyFilter.filter
-        monkeypatch.setattr(warm_mod.copy, "deepcopy", refuse_targets)
-        monkeypatch.setattr(SafetyFilter, "filter", lambda *a: filtered.append(1) or filt(*a))
-        sample = type(loop.targets).sample_into
-        monkeypatch.setattr(
-            type(loop.targets), "sample_into", lambda *a: pytest.fail("sampled the show's targets")
-        )
-        before = _state(loop)
-        assert warm_mod.warm_up(loop, 5) is None
-        monkeypatch.setattr(type(loop.targets), "sample_into", sample)
-        assert len(filtered) == 5
-        assert _state(loop)["stats"] == before["stats"]
-    finally:
-        tick.close()
+@pytest.fixture
+def tick(tmp_path: Path):
+    t = HilsimTick(4, tmp_path)
+    yield t
+    t.close()
 
 
-def test_a_warm_up_that_fails_does_nothing_and_says_what(tmp_path: Path, monkeypatch):
-    tick = HilsimTick(2, tmp_path)
-    try:
-        loop = tick.loop
+def _spy(monkeypatch, cls, name: str, seen: list, show_part):
+    """Count calls of ``cls.name`` (the class's method, as the warm-up calls it), noting
+    whether each was on the show's own part."""
+    orig = getattr(cls, name)
 
-        def broken(self, x):
-            raise ValueError("3 joint angles for 2 joints")
+    def counted(self, *a, **kw):
+        seen.append(self is show_part)
+        return orig(self, *a, **kw)
 
-        monkeypatch.setattr(type(loop.map), "to_servo_list", broken)
-        before = _state(loop)
-        assert warm_mod.warm_up(loop) == "ValueError: 3 joint angles for 2 joints"
-        after = _state(loop)
-        assert after["stats"] == before["stats"] and after["safety"] == before["safety"]
-    finally:
-        tick.close()
+    monkeypatch.setattr(cls, name, counted)
+
+
+def test_every_stage_runs_n_times_on_copies_and_the_show_keeps_nothing(tick, monkeypatch):
+    loop = tick.loop
+    seen = {k: [] for k in ("filter", "step", "sample", "stats")}
+    _spy(monkeypatch, SafetyFilter, "filter", seen["filter"], loop.safety)
+    _spy(monkeypatch, type(loop.integrator), "step", seen["step"], loop.integrator)
+    _spy(monkeypatch, TargetSet, "sample_into", seen["sample"], loop.targets)
+    _spy(monkeypatch, RunStats, "add", seen["stats"], loop.telemetry.stats)
+    copied = []
+    deepcopy = warm_mod.copy.deepcopy
+    monkeypatch.setattr(
+        warm_mod.copy, "deepcopy", lambda o, m=None: copied.append(o) or deepcopy(o, m)
+    )
+    loop.safety.filter = lambda *a: pytest.fail("an instance's own override was called")
+    before = _state(loop)
+    assert warm_mod.warm_up(loop, 7) is None
+    assert seen == {k: [False] * 7 for k in seen}  # seven times each, never the show's own
+    _assert_untouched(loop, before)
+    # the animation is never copied (its size is the show's, not the joints')
+    assert not any(o is loop.targets or isinstance(o, Track) for o in copied)
+
+
+def test_a_part_that_cannot_be_copied_is_left_out_and_the_rest_warmed(tick, monkeypatch):
+    loop = tick.loop
+    deepcopy, filtered, stepped = warm_mod.copy.deepcopy, [], []
+
+    def refuse_springs(obj, memo=None):
+        if obj is loop.integrator:
+            raise TypeError("cannot pickle '_thread.lock' object")
+        return deepcopy(obj, memo)
+
+    monkeypatch.setattr(warm_mod.copy, "deepcopy", refuse_springs)
+    _spy(monkeypatch, SafetyFilter, "filter", filtered, loop.safety)
+    _spy(monkeypatch, type(loop.integrator), "step", stepped, loop.integrator)
+    before = _state(loop)
+    assert warm_mod.warm_up(loop, 5) is None
+    assert filtered == [False] * 5 and stepped == []
+    _assert_untouched(loop, before)
+
+
+def test_a_shows_targets_are_not_sampled_and_the_springs_follow_a_held_target(tick, monkeypatch):
+    loop = tick.loop
+    sampled, stepped = [], []
+    _spy(monkeypatch, TargetSet, "sample_into", sampled, loop.targets)
+    _spy(monkeypatch, type(loop.integrator), "step", stepped, loop.integrator)
+    monkeypatch.setattr(loop, "director", object())  # a show: live inputs behind the targets
+    assert warm_mod.warm_up(loop, 3) is None
+    assert sampled == [] and stepped == [False] * 3
+
+
+def test_the_runs_stop_at_the_budget(tick, monkeypatch):
+    loop = tick.loop
+    filtered = []
+    _spy(monkeypatch, SafetyFilter, "filter", filtered, loop.safety)
+    monkeypatch.setattr(warm_mod, "BUDGET_S", -1.0)  # past it from the start: one run
+    assert warm_mod.warm_up(loop, 16) is None
+    assert filtered == [False]
+
+
+def test_a_warm_up_that_fails_does_nothing_and_says_what(tick, monkeypatch):
+    loop = tick.loop
+
+    def broken(self, x):
+        raise ValueError("3 joint angles for 2 joints")
+
+    monkeypatch.setattr(type(loop.map), "to_servo_list", broken)
+    before = _state(loop)
+    assert warm_mod.warm_up(loop) == "ValueError: 3 joint angles for 2 joints"
+    monkeypatch.undo()
+    _assert_untouched(loop, before)
