@@ -66,6 +66,7 @@ from hilsim.targets import TargetSet, Track
 from hilsim.telemetry import TelemetryWriter
 from hilsim.telemetry.reader import Run, read_run
 from hilsim.telemetry.stats import comm_errors
+from tests.hilsim.clocks import NotVirtual
 from tests.serial_stub import CannedPort
 
 OK, STALE, ERROR, ALERT = (int(s) for s in ReadStatus)
@@ -1124,22 +1125,6 @@ def test_row_24_the_servo_checks_after_a_silence_are_bus_time_not_the_safety_fil
     assert bus[row] > np.nanmax(others) + 1000.0, (bus[row], np.nanmax(others))
 
 
-class _NotVirtual:
-    """The loop's view of the emulator's clock as a real one (so its real-time checks run);
-    the bus keeps the virtual clock underneath, so nothing sleeps."""
-
-    virtual = False
-
-    def __init__(self, clock: VirtualClock) -> None:
-        self._clock = clock
-
-    def now(self) -> float:
-        return self._clock.now()
-
-    def wait_until(self, t: float, idle=None) -> float:
-        return self._clock.wait_until(t)
-
-
 def test_row_24_integration_that_never_keeps_up_is_a_safe_stop(emulated, monkeypatch):
     emu = emulated()
     clock = emu.bus.clock
@@ -1151,7 +1136,7 @@ def test_row_24_integration_that_never_keeps_up_is_a_safe_stop(emulated, monkeyp
 
     def slow_host(self, *a, **kw):
         init(self, *a, **kw)
-        self.clock = _NotVirtual(clock)
+        self.clock = NotVirtual(clock)
         step = self.integrator.step
 
         def slow_step(x, v, h, t, target):

@@ -31,6 +31,7 @@ from hilsim.springs import Spring
 from hilsim.targets import TargetSet, Track
 from hilsim.telemetry import TelemetryWriter
 from hilsim.telemetry.reader import read_run
+from tests.hilsim.clocks import NotVirtual
 
 REPO = Path(__file__).resolve().parents[2]
 TICK_RAD = 2 * math.pi / 4096
@@ -476,22 +477,6 @@ def test_real_time_scheduling_holds_for_the_run_only(monkeypatch):
     assert state == {"sched": (0, 0), "cpus": {0, 1}}
 
 
-class _RealLooking:
-    """The emulator's virtual clock seen by the loop as a real one (so its real-clock steps,
-    the warm-up among them, run); the bus keeps the virtual clock, so nothing sleeps."""
-
-    virtual = False
-
-    def __init__(self, clock: VirtualClock) -> None:
-        self._clock = clock
-
-    def now(self) -> float:
-        return self._clock.now()
-
-    def wait_until(self, t: float, idle=None) -> float:
-        return self._clock.wait_until(t)
-
-
 def test_only_a_real_clock_show_is_warmed_and_its_numbers_are_the_same(
     emulated, tmp_path, monkeypatch
 ):
@@ -518,7 +503,7 @@ def test_only_a_real_clock_show_is_warmed_and_its_numbers_are_the_same(
 
         def patch(loop, way=way):
             if way != "virtual":
-                loop.clock = _RealLooking(loop.clock)
+                loop.clock = NotVirtual(loop.clock)
 
         _, result, run = run_loop(bus, path, tmp_path / way, patch=patch, duration=0.4)
         assert result.exit_code == 0 and run.n_ticks == 101, way
