@@ -46,6 +46,16 @@ def pty_port(clock=None):
                 os.close(fd)
 
 
+def read_from(master: int, n: int, timeout_s: float = 10.0) -> bytes:
+    """``n`` bytes from the pty's master: two writes may arrive in two reads."""
+    import select
+
+    got = b""
+    while len(got) < n and select.select([master], [], [], timeout_s)[0]:
+        got += os.read(master, n - len(got))
+    return got
+
+
 def spy_reads(port) -> list[tuple[int, float]]:
     """Record ``(length asked, timeout it may wait)`` for every read of the device."""
     calls = []
@@ -248,7 +258,7 @@ def test_write_port_takes_the_sdks_lists_and_prebuilt_frames():
     with pty_port() as (port, master):
         assert port.writePort([0xFF, 0xFF, 0xFD]) == 3
         assert port.writePort(bytearray(b"\x00\x01")) == 2
-        assert os.read(master, 16) == b"\xff\xff\xfd\x00\x01"
+        assert read_from(master, 5) == b"\xff\xff\xfd\x00\x01"
 
 
 def test_a_closed_port_raises_and_frees_it():
