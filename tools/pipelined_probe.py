@@ -68,7 +68,7 @@ def pipeline() -> None:
         )
         out.positions[:], out.status[:], out.errors[:] = pos, status, errors
         self._all_ok = not any(status)
-        transmit(self._port, self._requests[True])
+        transmit(self._port, self._request(True, 4))
         self._pending = True
         out.t_done = self._clock.now()
 

@@ -19,7 +19,9 @@ block was kept, the block carries the ID asked at its position, and the running 
 matches (:func:`~drivers.dynamixel.fast_reply.parse_blocks`). After a silent servo the next
 request waits out the rest of that chain and discards it, and the order of the next read
 changes (:mod:`drivers.dynamixel.read_order`: a silent servo silences those after it, and a
-Fast block later than the wait could fill its own servo's place in a later reply).
+Fast block later than the wait could fill its own servo's place in a later reply); plain
+reads after it ask another length for a while, so a late status packet (its LEN says the
+length it answers) is passed over.
 """
 
 from __future__ import annotations
@@ -222,10 +224,15 @@ class DynamixelBus(ServoBus):
         pos, status, errors = [math.nan] * n, [STALE] * n, [0] * n
         port, ph = self._port, self._ph
         fast = self._fast
-        request = self._requests[fast]
+        size, untold = _DATA_BYTES, ()
+        seen = status  # the replies as they came (the order follows them)
+        if not fast and self._orders.busy_lengths:  # a late packet may come: another length
+            size, untold = self._orders.plain_length(out.t)
+        request = self._request(fast, size)
         try:
             if request is None:
-                result = ph.syncReadTx(port, ct.PRESENT_POSITION.addr, 4, self._read_param, n, fast)
+                addr = ct.PRESENT_POSITION.addr
+                result = ph.syncReadTx(port, addr, size, self._read_param, n, fast)
             else:  # syncReadTx's txPacket; its own packet timeout is replaced just below
                 result = transmit(port, request)
             if result == OK:
@@ -236,8 +243,11 @@ class DynamixelBus(ServoBus):
                     if self._orders.suspect:  # a late block may be in flight (read_order),
                         self._orders.distrust(out.t, pos, status, errors)  # from its start
                 else:
-                    port.setPacketTimeoutMillis(self._plain_timeout_ms)
-                    receive_plain_replies(ph, port, want, order, pos, status, errors, sample)
+                    more = (size - _DATA_BYTES) * n * port.tx_time_per_byte  # ms
+                    port.setPacketTimeoutMillis(self._plain_timeout_ms + more)
+                    receive_plain_replies(ph, port, want, order, pos, status, errors, sample, size)
+                    if untold:  # these servos' packets of this length may be late ones
+                        seen = self._orders.take_back(untold, pos, status, errors)
         except SERIAL_ERRORS as exc:
             if isinstance(exc, DynamixelError):
                 raise
@@ -255,41 +265,35 @@ class DynamixelBus(ServoBus):
         if result != OK:
             raise_for(result, 0, None, "Sync Read of Present Position")
         out.t_done = clock.now()
-        if STALE in status:  # the next order; the rest of the chain may still come:
-            order = self._orders.order  # the next transmit waits it out and discards it
-            i = self._orders.after(status, out.t_done + self.link.latency_timer_ms * 1e-3, fast)
-            port.hold_until_quiet(out.t_done + self._chain_rest_s(i, order))
-            if self._orders.order != order:  # (its requests rebuilt only when it changed)
-                self._set_order()
-
-    def _chain_rest_s(self, i: int, order: list[int]) -> float:
-        """Longest the replies of this Sync Read's servos from chain position ``i`` on can
-        still take from now, if the one at ``i`` started late: their wire time, Return
-        Delay Times and turnaround (one of each in a Fast Sync Read, every one in a plain
-        chain), and the adapter's latency. 1.5 ms for four fast servos at 1 Mbps, 1 ms
-        latency. Not the device margin: only a failed read pays this, every time."""
-        byte_s = self._port.tx_time_per_byte * 1e-3
-        rest = len(order) - i
-        delays = self._rdt_s + TURNAROUND_ALLOWANCE_S
-        if self._fast:  # (header if it is still to come) + ERR ID pos(4) CRC(2) each
-            head = wire_time.FAST_REPLY_HEADER_BYTES if i == 0 else 0
-            wire = (wire_time.fast_block_bytes(_DATA_BYTES) * rest + head) * byte_s
-            wait = float(delays[order[i]])
-        else:  # one 15-byte status packet each, each after its own delay
-            wire = wire_time.status_bytes(_DATA_BYTES) * rest * byte_s
-            wait = float(sum(delays[k] for k in order[i:]))
-        return wire + wait + self.link.latency_timer_ms * 1e-3
+        if STALE in status:
+            now = out.t_done + self.link.latency_timer_ms * 1e-3
+            if not fast:  # a servo not read may send its packet late: ask another length
+                self._orders.plain_unread(size, status, now)
+            if STALE in seen:  # the next order; the rest of the chain may still come:
+                order = self._orders.order  # the next transmit waits it out, discards it
+                i = self._orders.after(seen, now, fast)
+                delays = self._rdt_s + TURNAROUND_ALLOWANCE_S  # those from place i on
+                rest = wire_time.chain_rest_s(
+                    fast, delays[order[i:]].tolist(), i == 0, port.tx_time_per_byte * 1e-3, size
+                )
+                port.hold_until_quiet(out.t_done + rest + self.link.latency_timer_ms * 1e-3)
+                if self._orders.order != order:  # (requests rebuilt only when it changed)
+                    self._set_order()
 
     def _set_order(self, order: Sequence[int] | None = None) -> None:
         if order is not None:  # (tests set one)
             self._orders.order = list(order)
         order = self._orders.order
         self._read_param = [self.ids[k] for k in order]
-        addr = ct.PRESENT_POSITION.addr
-        self._requests = {
-            fast: sync_read_request(addr, _DATA_BYTES, self._read_param, fast)
-            for fast in (False, True)
-        }
+        self._requests: dict[tuple[bool, int], bytes | None] = {}  # built when first asked
+
+    def _request(self, fast: bool, size: int) -> bytes | None:
+        """The (Fast) Sync Read of ``size`` bytes from Present Position, in this order."""
+        key = (fast, size)
+        if key not in self._requests:
+            ids, addr = self._read_param, ct.PRESENT_POSITION.addr
+            self._requests[key] = sync_read_request(addr, size, ids, fast)
+        return self._requests[key]
 
     def _sample(self, packet: bytes) -> None:
         self.corrupt_sample = packet

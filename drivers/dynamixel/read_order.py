@@ -28,20 +28,33 @@ missing, so that suspicion ends (two suspects would otherwise keep each other su
 The cost: a servo that fails now and then makes the others miss some reads too (asked
 first, it takes the chain down when it fails there), a dead one until its budget ends the
 show; a servo alone on its bus is not read for a read or two after each miss.
+A plain Sync Read's replies are status packets, each whole with its own CRC: the missing
+servo's late packet, and those of every servo after it (each waits for the one before),
+would pass for a later read's wherever that asks them. What tells them apart is their
+length: a status packet carries the number of bytes its request asked for. So after a plain
+read, each servo it did not read (silent, cut off, or a corrupt packet in its place, which
+may have been something else) may still send a packet of that length until
+:data:`PLAIN_LATE_S` has passed; the next reads ask the first length of :data:`PLAIN_LENGTHS`
+no such packet may come of (Present Position and the bytes after it, which are not used),
+and a packet of another length than its read's is passed over, never a reading. If every
+length has one, the read asks the length with the fewest, and those servos' readings are
+taken back (a servo whose replies come corrupt every time costs only itself so). The
+missing servo goes last, since a silent servo silences those after it. The cost: a read
+after a failed one carries a few bytes more a servo, for a tick or two.
+
 What is left: a reply later than that (``tests/hilsim/test_fault_matrix.py`` row 8: 15 % of
-replies up to 9.5 ms late at 250 Hz, never a reading from another read); a servo after the
-first one missing whose own reply is late on top (its block comes alone, without a header,
-and it is not suspect); and Plain Sync Read, whose late status packets are whole packets
-with their own CRC, the missing servo's and those after it: the wait and the changed order
-do not keep them out (row 8's late replies, read plain, gave earlier values in all 12 runs).
+replies up to 9.5 ms late at 250 Hz, never a reading from another read, Fast or plain); with
+Fast Sync Read, a servo after the first one missing whose own reply is late on top (its
+block comes alone, without a header, and it is not suspect).
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import MutableSequence
+from collections.abc import MutableSequence, Sequence
 
 from drivers.dynamixel.fast_reply import STALE
+from drivers.protocol2 import control_table as ct
 
 #: how long a servo missing from a Fast reply stays suspect (s), from when the adapter could
 #: have shown the bytes the read gave up on: a read that begins before then does not keep
@@ -52,6 +65,23 @@ LATE_BLOCK_S = 0.005
 #: ... and renewed, while its readings taken back may themselves have been late replies, up
 #: to this long after it last went missing (so that two suspects taking turns end)
 MAX_SUSPECT_S = 2 * LATE_BLOCK_S
+#: how long a plain read that failed keeps its length busy (s), from when the adapter could
+#: have shown what it gave up on. Longer than LATE_BLOCK_S: late replies add up along a plain
+#: chain (each servo answers after the one before, so every late one delays those after
+#: it: row 8's three servos, each up to 9.5 ms late, bring a packet ~30 ms after its read),
+#: and the window costs only a few bytes a servo in the reads after a failed one
+PLAIN_LATE_S = 0.040
+#: the lengths a plain Sync Read of Present Position asks, in the order tried: the position
+#: and 0-11 bytes after it (Velocity Trajectory .. Present Temperature, the same addresses on
+#: every X series), but not the length of a block the bus reads from one servo in a show (a
+#: late reply to a health read, 7 bytes, would pass for that servo's). Eleven
+PLAIN_LENGTHS = tuple(
+    n
+    for n in range(
+        ct.PRESENT_POSITION.size, ct.PRESENT_TEMPERATURE.end - ct.PRESENT_POSITION.addr + 1
+    )
+    if n not in {b.size for b in (ct.HEALTH_BLOCK, ct.HEALTH_WATCHDOG_BLOCK, ct.CONDITION_BLOCK)}
+)
 
 
 class ReadOrder:
@@ -64,12 +94,48 @@ class ReadOrder:
         #: starts with its header and block (it went missing first)
         self.headerless: dict[int, float] = {}
         self.headed: dict[int, float] = {}
+        #: plain read length -> {servo index: until when a late status packet of it, of
+        #: that length, may still come}
+        self.busy_lengths: dict[int, dict[int, float]] = {}
         self._taken_back: set[int] = set()  # readings distrust() took back in this read
         self._since: dict[int, float] = {}  # when each suspect's suspicion began
 
     @property
     def suspect(self) -> bool:
         return bool(self.headerless or self.headed)
+
+    def plain_length(self, now: float) -> tuple[int, tuple[int, ...]]:
+        """The length the plain read beginning ``now`` asks, and the servos whose packet of
+        that length may be a late one (their readings are not kept): the first length of
+        :data:`PLAIN_LENGTHS` with none, else the one with the fewest."""
+        busy = self.busy_lengths
+        for n, book in list(busy.items()):
+            for k in [k for k, until in book.items() if until <= now]:
+                del book[k]
+            if not book:
+                del busy[n]
+        free = next((n for n in PLAIN_LENGTHS if n not in busy), None)
+        if free is not None:
+            return free, ()
+        n = min(PLAIN_LENGTHS, key=lambda n: len(busy[n]))
+        return n, tuple(busy[n])
+
+    def take_back(self, servos, pos, status, errors) -> list[int]:
+        """Take back the readings of ``servos``; returns the statuses as they came."""
+        came = list(status)
+        for k in servos:
+            pos[k], status[k], errors[k] = math.nan, STALE, 0
+        return came
+
+    def plain_unread(self, length: int, status: Sequence[int], now: float) -> None:
+        """After a plain read of ``length`` bytes: a servo it did not read (STALE) may still
+        send its packet, late, until ``now`` + :data:`PLAIN_LATE_S` (``now``: when the
+        adapter could have shown what the read gave up on)."""
+        book = self.busy_lengths.setdefault(length, {})
+        until = now + PLAIN_LATE_S
+        for k, st in enumerate(status):
+            if st == STALE:
+                book[k] = max(book.get(k, until), until)
 
     def distrust(
         self,

@@ -322,31 +322,36 @@ def receive_fast_reply(port, want, order, pos, status, errors, on_corrupt) -> No
             on_corrupt(bytes(packet))
 
 
-def receive_plain_replies(ph, port, want, order, pos, status, errors, on_corrupt) -> None:
-    """The chain of status packets answering a plain Sync Read, in the order asked (each
-    servo answers after the one before it), through ``ph.rxPacket``. A packet is a reading
-    only if it carries the ID asked at its place. A corrupt one takes its place (that servo
-    only loses this tick); a valid one from another ID - a late reply to an earlier
-    request, whose chain had another order, a stranger, a second reply - ends the read,
-    since what follows it cannot be placed. ``on_corrupt(bytes)`` is told of each corrupt
-    packet as it comes."""
-    p, n = 0, len(want)
+def receive_plain_replies(
+    ph, port, want, order, pos, status, errors, on_corrupt, size: int = 4
+) -> None:
+    """The chain of status packets answering a plain Sync Read of ``size`` bytes from
+    Present Position, in the order asked (each servo answers after the one before it),
+    through ``ph.rxPacket``. A packet is a reading only if it carries the ID asked at its
+    place and ``size`` bytes; one with other data (a late reply to an earlier read that
+    asked another length: ``read_order``) is passed over. A corrupt one takes its place
+    (that servo only loses this tick); a valid one from another ID - a late reply to an
+    earlier request, whose chain had another order, a stranger, a second reply - ends the
+    read, since what follows it cannot be placed. ``on_corrupt(bytes)`` is told of each
+    corrupt packet as it comes."""
+    p, n, length = 0, len(want), size + 4  # LEN = INST ERR data CRC(2)
     while p < n:
         packet, result = ph.rxPacket(port, False)
         if result == OK:
+            err = packet[8]
+            if (packet[5] | packet[6] << 8) != length and not err & ct.ERROR_NUMBER_MASK:
+                continue  # another request's reply: not this read's, nor its end
             if packet[4] != want[p]:
                 return
             k = order[p]
             p += 1
-            err = packet[8]
             errors[k] = err
             if err & ct.ERROR_NUMBER_MASK:
                 status[k] = ALERT if err & ct.ALERT_BIT else ERROR
-            elif (packet[5] | packet[6] << 8) == 8:  # LEN = INST ERR data(4) CRC(2)
+            else:
                 v = packet[9] | packet[10] << 8 | packet[11] << 16 | packet[12] << 24
                 pos[k] = (decode_position(v) - CENTER_TICK) * RAD_PER_TICK
                 status[k] = ALERT if err & ct.ALERT_BIT else GOOD
-            # else no data and no error, or a reply to another request: not a reading
         elif result == TIMEOUT:
             return
         else:  # corrupt: this place's reply is lost; the next may be fine

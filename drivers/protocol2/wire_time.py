@@ -63,6 +63,21 @@ def read_bytes(data_bytes: int) -> int:
     return READ_INSTRUCTION_BYTES + status_bytes(data_bytes)
 
 
+def chain_rest_s(
+    fast: bool, delays_s: Sequence[float], first: bool, byte_s: float, data_bytes: int = 4
+) -> float:
+    """Longest the replies of a Sync Read's servos from one place of its chain on can still
+    take, if the one there started late (the adapter's latency not included): their wire
+    time, Return Delay Times and turnaround (``delays_s``, in chain order from that place:
+    one of each in a Fast Sync Read, every one in a plain chain; in a Fast reply the header
+    too if the place is the ``first``). 0.45 ms for four fast servos at 1 Mbps, Return Delay
+    Time 0."""
+    if fast:  # (header if it is still to come) + ERR ID data CRC(2) each
+        head = FAST_REPLY_HEADER_BYTES if first else 0
+        return (fast_block_bytes(data_bytes) * len(delays_s) + head) * byte_s + delays_s[0]
+    return status_bytes(data_bytes) * len(delays_s) * byte_s + sum(delays_s)
+
+
 def sync_write_bytes(n: int, data_bytes: int = 4) -> int:
     """Bytes on the wire of one Sync Write of ``data_bytes`` to ``n`` servos."""
     return 14 + n * (1 + data_bytes)

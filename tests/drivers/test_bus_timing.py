@@ -155,3 +155,14 @@ def test_inter_byte_gap_over_1_5_ms_drops_the_packet():
     bus.clock.advance(1e-3)  # under the limit: still one packet
     bus.write(frame[5:])
     assert bus.servo(1).read(65, 1, bus.clock.now() + 1e-3)[1] == b"\x01"
+
+
+def test_the_rest_of_a_broken_chain_is_its_bytes_and_delays_from_that_place():
+    from drivers.protocol2.wire_time import chain_rest_s
+
+    byte_s, d = 1e-5, [100e-6, 200e-6, 300e-6]  # Return Delay + turnaround, chain order
+    # Fast: the header only if the first servo is missing, one delay (the first's)
+    assert chain_rest_s(True, d, True, byte_s) == pytest.approx((8 + 3 * 8) * byte_s + 100e-6)
+    assert chain_rest_s(True, d[1:], False, byte_s) == pytest.approx(2 * 8 * byte_s + 200e-6)
+    # plain: a status packet and a delay each, longer for a longer read
+    assert chain_rest_s(False, d, True, byte_s, 5) == pytest.approx(3 * 16 * byte_s + 600e-6)

@@ -32,6 +32,7 @@ from drivers.dynamixel.link import (
     tune_latency_timer,
 )
 from drivers.dynamixel.port import PortHandler
+from drivers.dynamixel.read_order import PLAIN_LATE_S, PLAIN_LENGTHS
 from drivers.protocol2 import control_table as ct
 from drivers.servo_bus import BusClosed, PresentReading, ReadStatus
 from tests.drivers.conftest import make_bus
@@ -294,6 +295,9 @@ def test_corrupt_reply_is_stale(open_bus, mode):
         assert r.status[1] == STALE and math.isnan(r.positions[1])
         if mode == "plain":
             assert r.status[0] == OK  # before the bad reply: never affected
+            # its real packet may yet come late (and those its bad one swallowed), never
+            # the packet of a servo read before it
+            assert all(1 in b and 0 not in b for b in bus._orders.busy_lengths.values())
         others_ok += r.status[[0, 2, 3]].tolist() == [OK, OK, OK]
     # a flipped CRC byte may also cost the next block; Fast asks the servo first after it
     # failed at a later place (its own late block could fill it) and last after it failed
@@ -392,6 +396,52 @@ def test_plain_corrupt_packet_costs_only_that_servo(open_bus):
     r = bus.read_present()
     assert r.status.tolist() == [OK, STALE, OK, OK]
     assert r.positions[2] == pytest.approx(3 * units.RAD_PER_TICK)
+
+
+def test_plain_late_packet_of_a_failed_read_is_never_a_later_reading(open_bus):
+    """After a plain read that failed, the next reads ask another length: a late status
+    packet of the failed read (its length) is passed over where the servo's own reply of
+    this read is expected, and the next packets still place; later the length is 4 again."""
+    bus, _ = open_bus(read_mode="plain")
+    asked = []
+
+    def reply(*packets: tuple[int, int, int]) -> None:  # (id, position, data bytes)
+        canned(
+            bus, b"".join(encode_status(i, 0, pos_bytes(t) + bytes(n - 4)) for i, t, n in packets)
+        )
+        write = bus.link.port.ser.write
+        bus.link.port.ser.write = lambda data: asked.append(data[10]) or write(data)
+
+    reply((1, 2001, 4))  # servo 2 silent: 2, 3 and 4 unread, 2 asked last from now on
+    r = bus.read_present()
+    assert r.status.tolist() == [OK, STALE, STALE, STALE] and bus.read_order == (1, 3, 4, 2)
+    bus.clock.advance(1e-3)
+    # servo 2's late packet of the first read (2002, 4 bytes) comes just before its own
+    reply((1, 2011, 5), (3, 2013, 5), (4, 2014, 5), (2, 2002, 4), (2, 2012, 5))
+    bus.read_present(r)
+    assert r.status.tolist() == [OK, OK, OK, OK]
+    assert np.rint(r.positions / units.RAD_PER_TICK).tolist() == [-37, -36, -35, -34]  # 201x
+    # one late packet before the first place does not end the read either
+    bus.clock.advance(1e-3)
+    reply((3, 2003, 4), (1, 2021, 5), (3, 2023, 5), (4, 2024, 5), (2, 2022, 5))
+    bus.read_present(r)
+    assert r.status.tolist() == [OK, OK, OK, OK] and asked == [4, 5, 5]
+    bus.clock.advance(PLAIN_LATE_S)
+    reply((1, 2031, 4), (3, 2033, 4), (4, 2034, 4), (2, 2032, 4))
+    assert bus.read_present(r).all_ok and asked[-1] == 4
+
+
+def test_plain_read_with_every_length_busy_does_not_keep_those_servos_readings(open_bus):
+    bus, _ = open_bus(read_mode="plain")
+    t = bus.clock.now()
+    # servo 2 (index 1) may send a late packet of every length; servo 4 of one more
+    bus._orders.busy_lengths.update({n: {1: t + 0.01} for n in PLAIN_LENGTHS})
+    bus._orders.busy_lengths[4][3] = t + 0.01
+    r = bus.read_present()  # every servo answers, but servo 2's packet may be a late one
+    assert r.status.tolist() == [OK, STALE, OK, OK] and np.isnan(r.positions[1])
+    assert bus.read_order == (1, 2, 3, 4)  # nobody went missing: the order stays
+    bus.clock.advance(0.02)
+    assert bus.read_present(r).all_ok
 
 
 # ------------------------------------------------------------------ wire failures

@@ -1,13 +1,20 @@
-"""The Sync Read order and the Fast readings taken back while a late reply may still come
-(drivers/dynamixel/read_order.py), step by step; the whole bus under late replies is
-tests/hilsim/test_fault_matrix.py row 8."""
+"""The Sync Read order, the Fast readings taken back while a late reply may still come and
+the plain reads' lengths (drivers/dynamixel/read_order.py), step by step; the whole bus
+under late replies is tests/hilsim/test_fault_matrix.py row 8."""
 
 from __future__ import annotations
 
 import math
 
 from drivers.dynamixel.fast_reply import GOOD, STALE
-from drivers.dynamixel.read_order import LATE_BLOCK_S, MAX_SUSPECT_S, ReadOrder
+from drivers.dynamixel.read_order import (
+    LATE_BLOCK_S,
+    MAX_SUSPECT_S,
+    PLAIN_LATE_S,
+    PLAIN_LENGTHS,
+    ReadOrder,
+)
+from drivers.protocol2 import control_table as ct
 
 S, A, B = 0, 1, 2  # servo indices
 
@@ -90,6 +97,38 @@ def test_plain_reads_only_move_the_first_missing_servo_last():
     status = [GOOD, STALE, STALE]
     assert orders.after(status, 0.0, fast=False) == 1
     assert orders.order == [S, B, A] and not orders.suspect
+
+
+def test_plain_lengths_are_present_position_and_what_follows_but_no_health_block():
+    assert PLAIN_LENGTHS[0] == ct.PRESENT_POSITION.size == 4
+    assert ct.PRESENT_POSITION.addr + max(PLAIN_LENGTHS) == ct.PRESENT_TEMPERATURE.end
+    assert ct.HEALTH_BLOCK.size not in PLAIN_LENGTHS  # a late health reply is 7 bytes
+    assert len(set(PLAIN_LENGTHS)) == len(PLAIN_LENGTHS) == 11
+
+
+def test_a_servo_a_plain_read_did_not_read_makes_that_length_busy_for_it():
+    orders = ReadOrder(3)
+    assert orders.plain_length(0.0) == (4, ())
+    orders.plain_unread(4, [GOOD, STALE, STALE], 0.001)  # A and B may send 4 bytes late
+    assert orders.busy_lengths == {4: {A: 0.001 + PLAIN_LATE_S, B: 0.001 + PLAIN_LATE_S}}
+    assert orders.plain_length(0.004) == (5, ())
+    assert orders.plain_length(0.008) == (5, ())  # (the read of 5 was whole)
+    orders.plain_unread(5, [STALE, GOOD, GOOD], 0.009)
+    assert orders.plain_length(0.012) == (6, ())
+    assert orders.plain_length(0.001 + PLAIN_LATE_S) == (4, ())  # 4's packets are past
+    assert orders.plain_length(0.009 + PLAIN_LATE_S) == (4, ()) and not orders.busy_lengths
+
+
+def test_with_every_plain_length_busy_the_fewest_servos_are_not_read():
+    orders = ReadOrder(3)
+    for k, n in enumerate(PLAIN_LENGTHS):  # B corrupt every time, and S once
+        assert orders.plain_length(k * 1e-3) == (n, ())
+        orders.plain_unread(n, [STALE if k == 3 else GOOD, GOOD, STALE], k * 1e-3)
+    # every length has B's late packet to fear: the first (4) has only B's
+    assert orders.plain_length(0.0115) == (4, (B,))
+    orders.plain_unread(4, [GOOD, GOOD, STALE], 0.0115)  # B taken back: renewed
+    assert orders.plain_length(0.02) == (4, (B,))
+    assert orders.plain_length(0.0115 + PLAIN_LATE_S) == (4, ())
 
 
 def test_one_servo_missing_is_not_read_while_its_whole_late_reply_may_come():
