@@ -64,7 +64,18 @@ def verdict(summary: dict, ticks_run: int) -> str | None:
     problems = []
     overruns = int(summary.get("overruns") or 0)
     if overruns > VERDICT_OVERRUN_SHARE * ticks:
-        problems.append(f"{overruns / ticks:.0%} of ticks overran (the host is too busy?)")
+        on_bus = min(int(summary.get("overruns_failed_read") or 0), overruns)
+        # in virtual time the host takes no time: what is left is the bus's other traffic
+        virtual = summary.get("clock") == "virtual time"
+        cause = "other bus traffic, such as health reads?" if virtual else "the host is too busy?"
+        why = (
+            cause
+            if not on_bus
+            else "each after a read that failed and waited out its timeout"
+            if on_bus == overruns
+            else f"{on_bus} after a read that failed and waited out its timeout; the rest: {cause}"
+        )
+        problems.append(f"{overruns / ticks:.0%} of ticks overran ({why})")
     comm = comm_errors(summary)
     if comm > VERDICT_COMM_SHARE * ticks * max(len(summary.get("stale_reads") or {}), 1):
         problems.append(f"{comm} failed reads (check wiring, power and Return Delay Time)")

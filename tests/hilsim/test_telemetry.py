@@ -570,6 +570,40 @@ def test_header_only_run_has_no_ticks(tmp_path: Path) -> None:
 # ----------------------------------------------------------------------------- statistics
 
 
+def test_overruns_on_a_failed_read_are_counted_apart_and_the_verdict_names_them() -> None:
+    from hilsim.cli._report import verdict
+
+    status = np.zeros((100, 2), dtype=np.int8)
+    status[[10, 20, 30], 1] = ReadStatus.STALE  # three reads waited out their timeout
+    status[40, 0] = ReadStatus.ALERT  # a reading, not a failed read
+    overrun = np.zeros(100)
+    overrun[[10, 20, 30, 40, 50, 60]] = 1
+
+    def summary(overrun) -> dict:
+        return summarize(
+            joint_names=["a", "b"],
+            t_actual=np.arange(100) * 4e-3,
+            lateness_us=np.zeros(100),
+            overrun=overrun,
+            stage_us={},
+            status=status,
+        )
+
+    s = summary(overrun)
+    assert s["overruns"] == 6 and s["overruns_failed_read"] == 3
+    line = verdict(s, 100)
+    assert "6% of ticks overran (3 after a read that failed" in line
+    assert "the rest: the host is too busy?" in line
+    assert "the rest: other bus traffic" in verdict({**s, "clock": "virtual time"}, 100)
+    overrun[[11, 12]] = 1  # the ticks after a failed read catching up: the same hiccup
+    s = summary(overrun)
+    assert s["overruns"] == 8 and s["overruns_failed_read"] == 5
+    status[[40, 50, 60], 1] = ReadStatus.STALE
+    assert "8% of ticks overran (each after a read that failed" in verdict(summary(overrun), 100)
+    status[:] = 0
+    assert "(the host is too busy?)" in verdict(summary(overrun), 100)
+
+
 def test_summarize_percentiles_on_known_data() -> None:
     rng = np.random.default_rng(0)
     lateness = rng.permutation(np.arange(1000.0))  # 0..999 µs in random order
@@ -595,6 +629,7 @@ def test_summarize_percentiles_on_known_data() -> None:
     assert lat["p99.9"] == pytest.approx(998.001)
     assert lat["max"] == 999.0 and lat["mean"] == pytest.approx(499.5)
     assert s["ticks"] == 1000 and s["overruns"] == 9
+    assert s["overruns_failed_read"] == 0  # the stale reads (ticks 0-6) did not overrun
     assert s["duration_s"] == pytest.approx(1.998) and s["rate_hz"] == pytest.approx(500.0)
     assert s["stale_reads"] == {"a": 7, "b": 0} and s["alert_reads"] == {"a": 0, "b": 2}
     assert s["servo_ids"] == {"a": 11, "b": 12} and s["schema_version"] == 1
