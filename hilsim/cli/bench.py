@@ -50,7 +50,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--priority", type=int, default=80, help="SCHED_FIFO priority (80)")
     spin = round(DEFAULT_SPIN_S * 1e6, 6)
     parser.add_argument(
-        "--spin-us", type=float, default=spin, help=f"scheduler spin window (µs, {spin:g})"
+        "--spin-us",
+        type=float,
+        help=f"scheduler spin window (µs; default: the rig's loop.spin_us, else {spin:g})",
     )
     parser.add_argument("--no-cyclictest", action="store_true", help="do not run cyclictest")
     parser.add_argument("--rate", type=float, help="latency loop rate, Hz (default: rig's or 500)")
@@ -80,7 +82,7 @@ def build_plan(args: argparse.Namespace, argv_text: str = "hilsim bench"):
         quick=quick,
         clock=args.clock,
         loop_duration_s=2.0 if quick else 10.0,
-        spin_us=args.spin_us,
+        spin_us=round(DEFAULT_SPIN_S * 1e6, 6) if args.spin_us is None else args.spin_us,
         sched=args.sched,
         priority=args.priority,
         use_cyclictest=not args.no_cyclictest,
@@ -96,6 +98,8 @@ def build_plan(args: argparse.Namespace, argv_text: str = "hilsim bench"):
         rig = load_rig(args.config, port=args.port)
         rate = float(rig.loop.rate_hz)
         read = rig.bus.read.value
+        if args.spin_us is None:  # the rig's spin window, as its shows run
+            common["spin_us"] = float(rig.loop.spin_us)
         return BenchPlan(
             **common,
             loop_rates_hz=(1000.0,) if rate == 1000.0 else (1000.0, rate),

@@ -195,6 +195,11 @@ target = { type = "sine", amplitude_deg = 30, frequency_hz = 0.25 }
     assert plan.target.ids == (1, 2) and plan.target.baud == 1_000_000
     assert plan.sweep == () and plan.latency_rate_hz == 250.0
     assert plan.loop_duration_s == 2.0 and plan.bus_duration_s == 0.3
+    assert plan.spin_us == 100.0  # the rig's spin window, as its shows run
+    rig.write_text(rig.read_text().replace("[loop]\n", "[loop]\nspin_us = 250\n", 1))
+    assert bench_cli.build_plan(parser.parse_args([str(rig)])).spin_us == 250.0
+    assert bench_cli.build_plan(parser.parse_args([str(rig), "--spin-us", "40"])).spin_us == 40
+    assert bench_cli.build_plan(parser.parse_args(["--quick"])).spin_us == 100.0  # no rig
 
 
 def test_importing_the_cli_imports_neither_matplotlib_nor_the_sdk():
