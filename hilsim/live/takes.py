@@ -32,9 +32,8 @@ from pathlib import Path
 import numpy as np
 import numpy.typing as npt
 
+from hilsim._types import FloatArray
 from hilsim.targets.tracks import Keyframes
-
-FloatArray = npt.NDArray[np.float64]
 
 
 class Take:
