@@ -36,10 +36,8 @@ from numpy.typing import ArrayLike
 from drivers.clock import Clock
 from drivers.dynamixel import health
 from drivers.dynamixel.errors import (
-    CommError,
     DynamixelError,
     Mismatch,
-    ServoError,
     StartupMismatch,
 )
 from drivers.dynamixel.fast_reply import STALE
@@ -51,8 +49,8 @@ from drivers.dynamixel.startup import (
     ReadMode,
     ServoState,
     StartupReport,
+    all_support_fast,
     check_servo,
-    retry,
 )
 from drivers.dynamixel.tick_packets import (
     GoalFrame,
@@ -110,6 +108,7 @@ class DynamixelBus(ServoBus):
         n = self.n
         self._index = {sid: k for k, sid in enumerate(self.ids)}
         self._orders = ReadOrder(n)
+        link.unanswered = self._unanswered  # a show's other reads' late replies, too
         self._set_order()
         self._goal_frame = GoalFrame(self.ids, ct.GOAL_POSITION.addr)  # the tick's Sync Write
         self._lo = np.zeros(n)  # accepted Goal Position ticks (Position mode until check)
@@ -150,7 +149,7 @@ class DynamixelBus(ServoBus):
         try:
             bus = cls(link, ids, mode, retries)
             if mode is ReadMode.AUTO:
-                bus._fast = bus._all_support_fast()
+                bus._fast = all_support_fast(bus.link, bus.ids, 1 + bus.retries)
         except BaseException:
             link.close()
             raise
@@ -224,10 +223,11 @@ class DynamixelBus(ServoBus):
         pos, status, errors = [math.nan] * n, [STALE] * n, [0] * n
         port, ph = self._port, self._ph
         fast = self._fast
-        size, untold = _DATA_BYTES, ()
+        size, untold, late = _DATA_BYTES, (), frozenset()
         seen = status  # the replies as they came (the order follows them)
         if not fast and self._orders.busy_lengths:  # a late packet may come: another length
             size, untold = self._orders.plain_length(out.t)
+            late = self._orders.late_ids(self.ids)
         request = self._request(fast, size)
         try:
             if request is None:
@@ -245,7 +245,9 @@ class DynamixelBus(ServoBus):
                 else:
                     more = (size - _DATA_BYTES) * n * port.tx_time_per_byte  # ms
                     port.setPacketTimeoutMillis(self._plain_timeout_ms + more)
-                    receive_plain_replies(ph, port, want, order, pos, status, errors, sample, size)
+                    receive_plain_replies(
+                        ph, port, want, order, pos, status, errors, sample, size, late
+                    )
                     if untold:  # these servos' packets of this length may be late ones
                         seen = self._orders.take_back(untold, pos, status, errors)
         except SERIAL_ERRORS as exc:
@@ -268,7 +270,7 @@ class DynamixelBus(ServoBus):
         if STALE in status:
             now = out.t_done + self.link.latency_timer_ms * 1e-3
             if not fast:  # a servo not read may send its packet late: ask another length
-                self._orders.plain_unread(size, status, now)
+                self._orders.plain_unread(size, [k for k in range(n) if status[k] == STALE], now)
             if STALE in seen:  # the next order; the rest of the chain may still come:
                 order = self._orders.order  # the next transmit waits it out, discards it
                 i = self._orders.after(seen, now, fast)
@@ -295,6 +297,11 @@ class DynamixelBus(ServoBus):
             self._requests[key] = sync_read_request(addr, size, ids, fast)
         return self._requests[key]
 
+    def _unanswered(self, servo_id: int, size: int) -> None:
+        if not self._fast and servo_id in self._index:
+            now = self._clock.now() + self.link.latency_timer_ms * 1e-3
+            self._orders.plain_unread(size, (self._index[servo_id],), now)
+
     def _sample(self, packet: bytes) -> None:
         self.corrupt_sample = packet
 
@@ -316,16 +323,6 @@ class DynamixelBus(ServoBus):
         self._fast_timeout_ms = base + 1e3 * float(delays.max())
 
     # -- start-up ------------------------------------------------------------------
-    def _all_support_fast(self) -> bool:
-        for sid in self.ids:
-            try:
-                model, fw = retry(1 + self.retries, lambda sid=sid: self.link.ping(sid))
-            except (CommError, ServoError):
-                return False
-            if not ct.supports_fast_read(model, fw):
-                return False
-        return True
-
     def check(self, expectations: Iterable[Expectation]) -> StartupReport:
         """Compare every servo with its :class:`Expectation`; read-only.
 

@@ -156,6 +156,9 @@ class Link:
         # Read requests built once per (ID, address, size): the health reads repeat a few
         # (b"": one the SDK would stuff, left to it)
         self._reads: dict[tuple[int, int, int], bytes] = {}
+        #: told ``(servo_id, size)`` of each read that got no reply or a corrupt one, whose
+        #: reply may so come late (the bus keeps its plain reads from taking it)
+        self.unanswered: Callable[[int, int], None] | None = None
 
     @classmethod
     def open(
@@ -291,11 +294,15 @@ class Link:
             tx[4], tx[5], tx[6], tx[7] = servo_id, 7, 0, sdk.INST_READ
             tx[8:12] = addr & 0xFF, addr >> 8, size & 0xFF, size >> 8
             rx, result, error = self._call(what, self.ph.txRxPacket, self.port, tx)
+        if result in (TIMEOUT, CORRUPT) and self.unanswered is not None:
+            self.unanswered(servo_id, size)
         raise_for(result, error, servo_id, what, rx)
         # LEN = INST ERR data CRC(2): a reply of another length (a late one to another
         # request) is not this one's data, whatever its first bytes are
         got = (rx[5] | rx[6] << 8) - 4
         if got != size:
+            if self.unanswered is not None:  # (its own reply may still come)
+                self.unanswered(servo_id, size)
             raise CorruptPacket(
                 f"servo {servo_id}: {got} of {size} bytes in reply to {what}",
                 servo_id=servo_id,

@@ -12,7 +12,7 @@ report read) without loading the SDK.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from enum import StrEnum
 from typing import TYPE_CHECKING, TypeVar
@@ -156,6 +156,19 @@ class ServoCheck:
     notes: tuple[str, ...] = ()
     goal_range: tuple[int, int] | None = None
     return_delay_s: float | None = None
+
+
+def all_support_fast(link: Link, ids: Iterable[int], attempts: int) -> bool:
+    """Whether every servo answers Ping (``attempts`` times each at most) with a model and
+    firmware that have Fast Sync Read: ``read_mode = "auto"`` before the check has run."""
+    for sid in ids:
+        try:
+            model, fw = retry(attempts, lambda sid=sid: link.ping(sid))
+        except (CommError, ServoError):
+            return False
+        if not ct.supports_fast_read(model, fw):
+            return False
+    return True
 
 
 def retry(attempts: int, fn: Callable[[], T], seen: list[CommError] | None = None) -> T:

@@ -323,13 +323,15 @@ def receive_fast_reply(port, want, order, pos, status, errors, on_corrupt) -> No
 
 
 def receive_plain_replies(
-    ph, port, want, order, pos, status, errors, on_corrupt, size: int = 4
+    ph, port, want, order, pos, status, errors, on_corrupt, size: int = 4, late=frozenset()
 ) -> None:
     """The chain of status packets answering a plain Sync Read of ``size`` bytes from
     Present Position, in the order asked (each servo answers after the one before it),
     through ``ph.rxPacket``. A packet is a reading only if it carries the ID asked at its
     place and ``size`` bytes; one with other data (a late reply to an earlier read that
-    asked another length: ``read_order``) is passed over. A corrupt one takes its place
+    asked another length: ``read_order``) is passed over, as is a packet with an error
+    number, which has no data whatever was asked, from a servo in ``late`` (whose late
+    packet may still come). A corrupt one takes its place
     (that servo only loses this tick); a valid one from another ID - a late reply to an
     earlier request, whose chain had another order, a stranger, a second reply - ends the
     read, since what follows it cannot be placed. ``on_corrupt(bytes)`` is told of each
@@ -339,7 +341,9 @@ def receive_plain_replies(
         packet, result = ph.rxPacket(port, False)
         if result == OK:
             err = packet[8]
-            if (packet[5] | packet[6] << 8) != length and not err & ct.ERROR_NUMBER_MASK:
+            if (packet[5] | packet[6] << 8) != length and (
+                not err & ct.ERROR_NUMBER_MASK or packet[4] in late
+            ):
                 continue  # another request's reply: not this read's, nor its end
             if packet[4] != want[p]:
                 return

@@ -431,6 +431,41 @@ def test_plain_late_packet_of_a_failed_read_is_never_a_later_reading(open_bus):
     assert bus.read_present(r).all_ok and asked[-1] == 4
 
 
+def test_plain_late_error_packet_is_passed_over_where_a_late_one_may_come(open_bus):
+    # servo 1 may send a late packet of 4 bytes; an error packet carries no data at all,
+    # so its length cannot tell which read it answers (review of b2e6cfc)
+    bus, _ = open_bus(read_mode="plain")
+    bus._orders.busy_lengths[4] = {0: bus.clock.now() + 0.01}
+    packets = [encode_status(i, 0, pos_bytes(2000 + i) + b"\0") for i in (1, 2, 3, 4)]
+    canned(bus, encode_status(1, 0x01, b"") + b"".join(packets))
+    r = bus.read_present()
+    assert r.status.tolist() == [OK] * 4 and r.errors.tolist() == [0] * 4
+    # a servo no late packet is expected of: its error packet is this read's
+    bus._orders.busy_lengths[4] = {0: bus.clock.now() + 0.01}
+    canned(bus, packets[0] + encode_status(2, 0x01, b"") + b"".join(packets[2:]))
+    assert bus.read_present(r).status.tolist() == [OK, ERROR, OK, OK]
+
+
+def test_a_shows_other_read_that_got_no_reply_makes_its_length_busy(open_bus):
+    """A watchdog recovery's read-back of Goal Position (4 bytes) that timed out: its late
+    reply would pass for a plain read's of servo 2, so servo 2 is busy at 4 bytes."""
+    bus, _ = open_bus(read_mode="plain", faults="drop:id=2,at=0.01,count=1")
+    bus.clock.advance(0.01)
+    with pytest.raises(CommTimeout):
+        bus.link.read_item(2, ct.GOAL_POSITION)
+    assert set(bus._orders.busy_lengths) == {4} and set(bus._orders.busy_lengths[4]) == {1}
+    port, timeouts, asked = bus.link.port, [], []
+    set_timeout, write = port.setPacketTimeoutMillis, port.writePort
+    port.setPacketTimeoutMillis = lambda ms: timeouts.append(ms) or set_timeout(ms)
+    port.writePort = lambda data: asked.append(bytes(data)) or write(data)
+    r = bus.read_present()
+    assert r.all_ok and asked[-1][10] == 5  # it asked 5 bytes a servo
+    # ... and waits the 4 servos' extra byte longer than a read of 4
+    assert timeouts[-1] == pytest.approx(bus._plain_timeout_ms + 4 * bus.link.port.tx_time_per_byte)
+    bus.link.read_item(2, ct.TORQUE_ENABLE)  # (1 byte: never a plain read's length)
+    assert set(bus._orders.busy_lengths) == {4}
+
+
 def test_plain_read_with_every_length_busy_does_not_keep_those_servos_readings(open_bus):
     bus, _ = open_bus(read_mode="plain")
     t = bus.clock.now()

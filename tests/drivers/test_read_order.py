@@ -109,12 +109,15 @@ def test_plain_lengths_are_present_position_and_what_follows_but_no_health_block
 def test_a_servo_a_plain_read_did_not_read_makes_that_length_busy_for_it():
     orders = ReadOrder(3)
     assert orders.plain_length(0.0) == (4, ())
-    orders.plain_unread(4, [GOOD, STALE, STALE], 0.001)  # A and B may send 4 bytes late
+    orders.plain_unread(4, [A, B], 0.001)  # A and B may send 4 bytes late
     assert orders.busy_lengths == {4: {A: 0.001 + PLAIN_LATE_S, B: 0.001 + PLAIN_LATE_S}}
+    assert orders.late_ids((11, 12, 13)) == {12, 13}
     assert orders.plain_length(0.004) == (5, ())
     assert orders.plain_length(0.008) == (5, ())  # (the read of 5 was whole)
-    orders.plain_unread(5, [STALE, GOOD, GOOD], 0.009)
+    orders.plain_unread(5, [S], 0.009)
     assert orders.plain_length(0.012) == (6, ())
+    orders.plain_unread(7, [S], 0.012)  # the health read's length is never asked: no book
+    assert 7 not in orders.busy_lengths
     assert orders.plain_length(0.001 + PLAIN_LATE_S) == (4, ())  # 4's packets are past
     assert orders.plain_length(0.009 + PLAIN_LATE_S) == (4, ()) and not orders.busy_lengths
 
@@ -123,12 +126,12 @@ def test_with_every_plain_length_busy_the_fewest_servos_are_not_read():
     orders = ReadOrder(3)
     for k, n in enumerate(PLAIN_LENGTHS):  # B corrupt every time, and S once
         assert orders.plain_length(k * 1e-3) == (n, ())
-        orders.plain_unread(n, [STALE if k == 3 else GOOD, GOOD, STALE], k * 1e-3)
+        orders.plain_unread(n, [S, B] if k == 3 else [B], k * 1e-3)
     # every length has B's late packet to fear: the first (4) has only B's
     assert orders.plain_length(0.0115) == (4, (B,))
-    orders.plain_unread(4, [GOOD, GOOD, STALE], 0.0115)  # B taken back: renewed
+    orders.plain_unread(4, [B], 0.0115)  # B taken back: renewed
     assert orders.plain_length(0.02) == (4, (B,))
-    assert orders.plain_length(0.0115 + PLAIN_LATE_S) == (4, ())
+    assert orders.plain_length(0.0115 + PLAIN_LATE_S)[1] == ()
 
 
 def test_one_servo_missing_is_not_read_while_its_whole_late_reply_may_come():
