@@ -70,8 +70,7 @@ def summarize(
     Keys: ``ticks``; ``duration_s`` (first to last tick start) and ``rate_hz`` (achieved:
     (ticks - 1) / duration); ``lateness_us`` and ``stage_us[stage]`` as p50/p99/p99.9/max/mean
     (numpy's linear interpolation over finite values; None when there are none); ``overruns``
-    and ``overruns_failed_read`` (those in a run of consecutive overruns with a tick whose read
-    left a servo unread);
+    and ``overruns_failed_read`` (those on a tick whose read left a servo unread);
     ``stale_reads``/``error_reads``/``alert_reads`` per joint (their sum is the run's
     communication errors); ``servo_ids`` (joint -> servo ID); ``safety_limits`` (kind -> joint
     -> count) and ``safety_ticks`` (as given; None, JSON null, when not given: see the module
@@ -87,9 +86,6 @@ def summarize(
     t = np.asarray(t_actual, dtype=np.float64).reshape(-1)
     span = float(t[-1] - t[0]) if ticks else 0.0
     late = np.nan_to_num(np.asarray(overrun, dtype=np.float64).reshape(-1)) != 0
-    # runs of consecutive overruns (one hiccup makes several), and those with a failed read
-    episode = np.cumsum(late & ~np.r_[False, late[:-1]]) * late
-    failed = np.unique(episode[late & (st == ReadStatus.STALE).any(axis=1)])
 
     def per_joint(code: ReadStatus) -> list[int]:
         return [int(c) for c in (st == code).sum(axis=0)]
@@ -101,7 +97,7 @@ def summarize(
         "rate_hz": (ticks - 1) / span if span > 0 else None,
         "lateness_us": _percentiles(lat),
         "overruns": int(np.count_nonzero(late)),
-        "overruns_failed_read": int(np.count_nonzero(np.isin(episode, failed) & late)),
+        "overruns_failed_read": int(np.count_nonzero(late & (st == ReadStatus.STALE).any(axis=1))),
         "stage_us": {s: _percentiles(np.asarray(v, dtype=np.float64)) for s, v in stage_us.items()},
         "stale_reads": dict(zip(names, per_joint(ReadStatus.STALE), strict=True)),
         "error_reads": dict(zip(names, per_joint(ReadStatus.ERROR), strict=True)),
