@@ -95,7 +95,7 @@ def make_run_dir(out: str | None, out_dir: str, name: str) -> Path:
     Raises :class:`UsageError` naming the path and the problem.
     """
     if out is not None:
-        path = Path(out)
+        path = Path(out).expanduser()
         if path.exists() and not path.is_dir():
             raise UsageError(f"--out {out}: exists and is not a directory")
         if path.is_dir() and any(path.iterdir()):
@@ -107,7 +107,7 @@ def make_run_dir(out: str | None, out_dir: str, name: str) -> Path:
         if not existed:
             _CREATED.add(path)
         return path
-    stem = Path(out_dir) / f"{name}-{time.strftime('%Y%m%d-%H%M%S')}"
+    stem = Path(out_dir).expanduser() / f"{name}-{time.strftime('%Y%m%d-%H%M%S')}"
     for n in range(1, 1000):
         path = stem if n == 1 else stem.with_name(f"{stem.name}-{n}")
         try:
@@ -183,6 +183,9 @@ def run(args: argparse.Namespace) -> int:
                 return EXIT_USAGE
             _say("the show runs until stopped: Ctrl-C, or a stop command (exit policy applied)")
     elif args.duration is None and parts.targets.duration is None:
+        if args.virtual_time:  # it would rehearse as fast as it can, filling the disk
+            _say("the animation never ends (generators only): give --duration with --virtual-time")
+            return EXIT_USAGE
         _say(
             "the animation never ends (generators only); running until Ctrl-C. "
             "Give --duration to stop by itself."

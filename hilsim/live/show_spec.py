@@ -47,6 +47,7 @@ from typing import Any
 
 from hilsim.live.triggers import TIMER_KINDS, Trigger, Window, parse_trigger, parse_window
 from hilsim.rig.clips import CLIP_NAME_RE
+from hilsim.targets.sources import rig_file
 from hilsim.targets.tracks import Track
 
 #: what ``make_track(spec, joint_name, where)`` is: one clip track from its target table
@@ -262,7 +263,7 @@ def _sounds(s: _Section, raw: Any, base_dir: Path, clips: dict[str, Clip]) -> di
             file, fkey = value, key
         if not isinstance(file, str) or not file:
             raise s.fail(fkey, f"must be a sound file's path (a string), got {file!r}")
-        path = Path(file) if Path(file).is_absolute() else base_dir / file
+        path = rig_file(base_dir, file)
         if not path.is_file():
             raise s.fail(fkey, f"no such sound file: {path}")
         offset = s.number(f"{key}.offset_ms", offset_ms, lo=-10_000.0, hi=10_000.0)

@@ -4,6 +4,7 @@
 
 from __future__ import annotations
 
+import difflib
 import math
 from enum import StrEnum
 from typing import TYPE_CHECKING, Any
@@ -34,8 +35,11 @@ class Reader:
         self.used.add(name)
         if name not in self.table:
             if default is ...:
+                typo = difflib.get_close_matches(name, [str(k) for k in self.table], 1, 0.75)
                 raise RigError(
-                    f"{self.path}: missing {self.key(name)}" + (f" ({allowed})" if allowed else "")
+                    f"{self.path}: missing {self.key(name)}"
+                    + (f" ({allowed})" if allowed else "")
+                    + (f"; the table has {typo[0]!r}: a typo?" if typo else "")
                 )
             return default
         value = self.table[name]

@@ -19,7 +19,7 @@ from types import MappingProxyType
 import numpy as np
 
 from hilsim.targets.formats.common import SampledTrack
-from hilsim.targets.tracks import FloatArray, frozen_array
+from hilsim.targets.tracks import MAX_TRACK_TURNS, FloatArray, frozen_array
 
 #: header names accepted for the CSV time column (case-insensitive)
 TIME_COLUMNS = ("time_s", "time", "t")
@@ -106,8 +106,8 @@ class CsvAnimation:
                         path, line, f"{len(row)} cells, but the header has {len(header)}"
                     )
                 values = [
-                    _csv_number(path, line, name, cell)
-                    for name, cell in zip(header, row, strict=True)
+                    _csv_number(path, line, name, cell, degrees=j > 0)
+                    for j, (name, cell) in enumerate(zip(header, row, strict=True))
                 ]
                 if rows and values[0] <= rows[-1][0]:
                     raise CsvFormatError(
@@ -166,7 +166,7 @@ def _csv_header(path: Path, line: int, row: list[str]) -> list[str]:
     return names
 
 
-def _csv_number(path: Path, line: int, name: str, cell: str) -> float:
+def _csv_number(path: Path, line: int, name: str, cell: str, degrees: bool) -> float:
     try:
         x = float(cell)
     except ValueError:
@@ -175,4 +175,9 @@ def _csv_number(path: Path, line: int, name: str, cell: str) -> float:
         ) from None
     if not math.isfinite(x):
         raise CsvFormatError(path, line, f"column {name!r}: {cell.strip()!r} is not finite")
+    limit = 360.0 * MAX_TRACK_TURNS  # a joint's column (the time's bound is its own)
+    if degrees and abs(x) > limit:
+        raise CsvFormatError(
+            path, line, f"column {name!r}: {cell.strip()}° is beyond ±{limit:g}° (256 turns)"
+        )
     return x

@@ -114,11 +114,17 @@ def _note(notes: list[str] | None, *lines: str) -> None:
         notes.extend(line for line in lines if line not in notes)
 
 
+def rig_file(base_dir: Path, name: str) -> Path:
+    """A file a rig or show names: ``~`` is the user's home, a relative name is relative to
+    the file that names it (``base_dir``)."""
+    return (Path(base_dir) / Path(name).expanduser()).resolve()
+
+
 def _file(spec: Mapping[str, Any], base_dir: Path) -> Path:
     file = spec["file"]
     if not isinstance(file, str) or not file:
         raise SourceError("file", f"must be a file name, got {file!r}")
-    path = (base_dir / file).resolve()
+    path = rig_file(base_dir, file)
     if not path.exists():
         raise SourceError("file", f"no such file: {path}")
     return path

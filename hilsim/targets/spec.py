@@ -13,7 +13,7 @@ from typing import Any
 
 from hilsim.springs import Spring
 from hilsim.targets.csv_file import CsvAnimation, CsvCurve
-from hilsim.targets.sources import SOURCE_KEYS, SourceError, track_from_source
+from hilsim.targets.sources import SOURCE_KEYS, SourceError, rig_file, track_from_source
 from hilsim.targets.tracks import Hold, Keyframes, Layered, Sine, Step, Track, easing_names
 
 
@@ -194,7 +194,7 @@ def _csv_from_spec(
         raise SpecError("file", f"must be a file name, got {file!r}")
     if not isinstance(column, str) or not column:
         raise SpecError("column", f"must be a column name, got {column!r}")
-    path = (base_dir / file).resolve()
+    path = rig_file(base_dir, file)
     anim = cache.get(path) if cache is not None else None
     if anim is None:
         if not path.is_file():

@@ -102,8 +102,13 @@ def frozen_array(arr: FloatArray) -> FloatArray:
     return arr
 
 
+#: the most turns a track's value may hold: Extended Position Mode's ±1,048,575 ticks
+MAX_TRACK_TURNS = 256
+
+
 def times_values(times: npt.ArrayLike, values: npt.ArrayLike) -> tuple[FloatArray, FloatArray]:
-    """Validated read-only copies: 1-D, same length ≥ 1, finite, times strictly increasing."""
+    """Validated read-only copies: 1-D, same length ≥ 1, finite, times strictly increasing,
+    values (rad) within ±:data:`MAX_TRACK_TURNS` turns."""
     t = np.asarray(times, dtype=np.float64)
     v = np.asarray(values, dtype=np.float64)
     if t.ndim != 1 or t.size == 0 or v.shape != t.shape:
@@ -115,6 +120,11 @@ def times_values(times: npt.ArrayLike, values: npt.ArrayLike) -> tuple[FloatArra
         bad = np.flatnonzero(~np.isfinite(arr))
         if bad.size:
             raise ValueError(f"key {bad[0]}: {name} must be finite, got {float(arr[bad[0]])!r}")
+    if (bad := np.flatnonzero(np.abs(v) > MAX_TRACK_TURNS * 2.0 * math.pi)).size:
+        raise ValueError(
+            f"key {bad[0]}: value {math.degrees(float(v[bad[0]])):.6g}° is beyond "
+            f"±{MAX_TRACK_TURNS * 360}° ({MAX_TRACK_TURNS} turns, the most a servo reaches)"
+        )
     with np.errstate(divide="ignore", over="ignore"):
         # 1/Δt overflows for subnormal gaps; treat those as not increasing
         bad = np.flatnonzero(~(np.isfinite(1.0 / np.diff(t)) & (np.diff(t) > 0)))

@@ -38,6 +38,11 @@ def _one_line(err: str) -> str:
         (TILT_SPRING, "spring = { m = 1.0, c = 0.8, k = 1e300 }", "joints[1].spring.k"),
         (PAN_SPRING, PAN_SPRING.replace(" }", ", response = 1e308 }"), "spring.response"),
         ("[bus]", 'name = "../../escape/x"\n[bus]', "name: it names the run directory"),
+        (
+            PAN_SPRING,
+            PAN_SPRING.replace("damping_ratio", "dampng_ratio"),
+            "'dampng_ratio': a typo?",
+        ),
     ],
 )
 def test_run_refuses_a_bad_rig_in_one_line(tmp_path, capsys, old, new, says):
@@ -51,6 +56,18 @@ def test_run_refuses_a_bad_rig_in_one_line(tmp_path, capsys, old, new, says):
     assert str(rig) in line and says in line
     assert not out.exists()  # nothing was written
     assert not (tmp_path.parent / "escape").exists()
+
+
+def test_a_rehearsal_that_would_never_end_is_refused(tmp_path, capsys):
+    # generators only (hold, sine): in virtual time it would run flat out, filling the disk
+    rig = tmp_path / "rig.toml"
+    rig.write_text(BASE)
+    out = tmp_path / "out"
+    assert main(["run", str(rig), "--virtual-time", "--no-plots", "--out", str(out)]) == 2
+    assert "give --duration with --virtual-time" in _one_line(capsys.readouterr().err)
+    assert not out.exists()
+    argv = ["run", str(rig), "--virtual-time", "--no-plots", "--out", str(out), "--duration", "0.1"]
+    assert main(argv) == 0
 
 
 def test_run_refuses_a_binary_rig_in_one_line(tmp_path, capsys):
@@ -179,3 +196,16 @@ def test_plot_window_without_ticks_says_what_the_run_covers(run_dir, capsys):
     assert hilsim_main(["plot", str(run_dir), "--start", "50", "--end", "60"]) == 1
     line = _one_line(capsys.readouterr().err)
     assert line.startswith("hilsim plot: no ticks between 50.0 and 60.0 s; the run covers 0..")
+
+
+def test_a_home_relative_path_is_the_users_home(tmp_path, monkeypatch):
+    """``~/anim.csv`` in a rig, ``out_dir = "~/runs"``: the user's home, as in a shell."""
+    from hilsim.cli.run import make_run_dir
+    from hilsim.targets.sources import rig_file
+
+    monkeypatch.setenv("HOME", str(tmp_path))
+    assert rig_file(pathlib.Path("/elsewhere"), "~/anim.csv") == tmp_path / "anim.csv"
+    assert rig_file(tmp_path / "rigs", "anim.csv") == tmp_path / "rigs" / "anim.csv"
+    run = make_run_dir(None, "~/runs", "demo")
+    assert run.parent == tmp_path / "runs" and run.is_dir()
+    assert make_run_dir("~/out", "runs", "demo") == tmp_path / "out"

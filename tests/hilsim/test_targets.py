@@ -175,6 +175,7 @@ def test_single_key_is_a_hold():
         ([0.0, 2.0, 1.0], [0, 1, 2], r"key 2"),
         ([0.0, math.nan], [0, 1], r"key 1: time must be finite"),
         ([0.0, 1.0], [0, math.inf], r"key 1: value must be finite"),
+        ([0.0, 1.0], [0, 1e306], r"key 1: value 5.7\d*e\+307° is beyond ±92160° \(256 turns"),
         ([], [], r"non-empty"),
         ([0.0, 1.0], [0.0], r"one length"),
         ([0.0, 5e-324], [0.0, 1.0], r"key 1"),  # a subnormal gap: 1/Δt overflows
@@ -268,6 +269,8 @@ def test_csv_accepts_a_utf8_bom_and_other_time_headers(tmp_path):
     [
         ("time_s,jaw\n0,0\n0.1,abc\n", 3, r"column 'jaw': 'abc' is not a number"),
         ("time_s,jaw\n0,0\n0.1,nan\n", 3, r"'nan' is not finite"),
+        ("time_s,jaw\n0,0\n0.1,1e308\n", 3, r"'jaw': 1e308° is beyond ±92160° \(256 turns\)"),
+        ("time_s,jaw\n0,92160\n0.1,-92161\n", 3, r"'jaw': -92161° is beyond"),
         ("time_s,jaw\n0,0\n0.1,\n", 3, r"'' is not a number"),
         ("time_s,jaw\n0,0\n# note\n0.1,1\n0.1,2\n", 5, r"time 0.1 s is not after 0.1 s on line 4"),
         ("time_s,jaw\n0,0\n0.1,1,2\n", 3, r"3 cells, but the header has 2"),
