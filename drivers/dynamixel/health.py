@@ -108,7 +108,7 @@ def write_all(
     failures: list[DynamixelError] = []
     for sid in ids:
         try:
-            retry(attempts, lambda sid=sid: link.write_item(sid, item, value))
+            retry(attempts, lambda sid=sid: link.write_item(sid, item, value), settle=link.settle)
         except (CommError, ServoError) as exc:
             failures.append(exc)
     if failures:
@@ -126,9 +126,15 @@ def clear_watchdog_trips(link: Link, ids: Sequence[int], attempts: int) -> tuple
     tripped = []
     for sid in ids:
         try:
-            value = retry(attempts, lambda sid=sid: link.read_item(sid, ct.BUS_WATCHDOG))
+            value = retry(
+                attempts, lambda sid=sid: link.read_item(sid, ct.BUS_WATCHDOG), settle=link.settle
+            )
             if value != 0:
-                retry(attempts, lambda sid=sid: link.write_item(sid, ct.BUS_WATCHDOG, 0))
+                retry(
+                    attempts,
+                    lambda sid=sid: link.write_item(sid, ct.BUS_WATCHDOG, 0),
+                    settle=link.settle,
+                )
         except (CommError, ServoError):
             continue
         if value == ct.WATCHDOG_TRIPPED:
@@ -217,6 +223,7 @@ def _read(link: Link, sid: int, item: Item, attempts: int) -> int:
             return link.read_item(sid, item)
         except (CommError, ServoError) as exc:
             last = exc
+            link.settle()
     raise _UnconfirmedError(f"reading {item.name} failed {attempts}x: {last}")
 
 
@@ -229,6 +236,7 @@ def _confirm(link: Link, sid: int, item: Item, value: int, attempts: int) -> Non
             got = link.read_item(sid, item)
         except (CommError, ServoError) as exc:
             last = str(exc)
+            link.settle()
             continue
         if got == value:
             return

@@ -30,6 +30,7 @@ import serial
 from drivers.clock import Clock
 from drivers.dynamixel.errors import CorruptPacket, PortGone
 from drivers.dynamixel.port import SDK_LATENCY_TIMER_MS, PortHandler
+from drivers.dynamixel.read_order import LATE_BLOCK_S as LATE_REPLY_S
 from drivers.dynamixel.sdk_result import CORRUPT, OK, SERIAL_ERRORS, TIMEOUT, port_gone, raise_for
 from drivers.dynamixel.tick_packets import read_request, read_transaction
 from drivers.protocol2 import control_table as ct
@@ -254,6 +255,14 @@ class Link:
             return fn(*args)
         except SERIAL_ERRORS as exc:
             raise port_gone(exc, self.name, what) from exc
+
+    def settle(self) -> None:
+        """Before retrying a transaction that got no reply or a corrupt one: its reply may
+        still come, so the next transaction waits :data:`LATE_REPLY_S` and the adapter's
+        latency, and discards what came meanwhile (the retry would otherwise meet the late
+        reply, or take it for its own)."""
+        wait = LATE_REPLY_S + self.latency_timer_ms * 1e-3
+        self.port.hold_until_quiet(self.port.clock.now() + wait)
 
     # -- transactions --------------------------------------------------------------
     def ping(self, servo_id: int) -> tuple[int, int]:

@@ -163,7 +163,7 @@ def all_support_fast(link: Link, ids: Iterable[int], attempts: int) -> bool:
     firmware that have Fast Sync Read: ``read_mode = "auto"`` before the check has run."""
     for sid in ids:
         try:
-            model, fw = retry(attempts, lambda sid=sid: link.ping(sid))
+            model, fw = retry(attempts, lambda sid=sid: link.ping(sid), settle=link.settle)
         except (CommError, ServoError):
             return False
         if not ct.supports_fast_read(model, fw):
@@ -171,10 +171,16 @@ def all_support_fast(link: Link, ids: Iterable[int], attempts: int) -> bool:
     return True
 
 
-def retry(attempts: int, fn: Callable[[], T], seen: list[CommError] | None = None) -> T:
+def retry(
+    attempts: int,
+    fn: Callable[[], T],
+    seen: list[CommError] | None = None,
+    settle: Callable[[], None] | None = None,
+) -> T:
     """Call ``fn`` up to ``attempts`` times while it fails on the wire (:class:`CommError`),
-    the last failure raised; each failure is appended to ``seen`` when given. The retry
-    rule of every step outside the tick (start-up check, torque, watchdog)."""
+    the last failure raised; each failure is appended to ``seen`` when given, and
+    ``settle`` (:meth:`Link.settle`) called before the next try. The retry rule of every
+    step outside the tick (start-up check, torque, watchdog)."""
     for k in range(attempts):
         try:
             return fn()
@@ -183,6 +189,8 @@ def retry(attempts: int, fn: Callable[[], T], seen: list[CommError] | None = Non
                 seen.append(exc)
             if k + 1 == attempts:
                 raise
+            if settle is not None:
+                settle()
     raise AssertionError("unreachable")
 
 
@@ -211,7 +219,7 @@ def check_servo(link: Link, exp: Expectation, *, attempts: int, fast_required: b
     # answer), so one late reply costs one try, never the check.
     seen: list[CommError] = []
     try:
-        model, fw = retry(attempts, lambda: link.ping(sid), seen)
+        model, fw = retry(attempts, lambda: link.ping(sid), seen, link.settle)
     except CommTimeout:
         add(
             "answers Ping",
@@ -246,7 +254,7 @@ def check_servo(link: Link, exp: Expectation, *, attempts: int, fast_required: b
     block_item = ct.STARTUP_BLOCK
     seen = []
     try:
-        block = retry(attempts, lambda: link.read(sid, 0, block_item.size), seen)
+        block = retry(attempts, lambda: link.read(sid, 0, block_item.size), seen, link.settle)
     except CommTimeout:
         add(
             "Status Return Level",

@@ -241,3 +241,24 @@ def test_exit_policy_arguments_are_checked(open_bus):
         bus.apply_exit_policy("stay")
     with pytest.raises(ValueError, match="retries"):
         bus.apply_exit_policy("relax", retries=-1)
+
+
+def test_a_retry_first_waits_out_the_failed_transactions_late_reply(open_bus):
+    from drivers.dynamixel.errors import CommTimeout
+    from drivers.dynamixel.read_order import LATE_BLOCK_S
+    from drivers.dynamixel.startup import retry
+
+    calls, settled = [], []
+
+    def fails_twice():
+        calls.append(1)
+        if len(calls) < 3:
+            raise CommTimeout("no reply", servo_id=1, what="Ping")
+        return "ok"
+
+    assert retry(3, fails_twice, settle=lambda: settled.append(len(calls))) == "ok"
+    assert settled == [1, 2]  # before each retry, never after the last try
+    bus, _ = open_bus()
+    port, t = bus.link.port, bus.clock.now()
+    bus.link.settle()  # the next transmit waits the late window and the adapter's latency
+    assert port._quiet_at == pytest.approx(t + LATE_BLOCK_S + bus.link.latency_timer_ms * 1e-3)
