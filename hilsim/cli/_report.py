@@ -3,7 +3,11 @@ the one-line verdict on a show that completed but was not healthy."""
 
 from __future__ import annotations
 
+import collections
+import contextlib
+import math
 import sys
+import threading
 import time
 
 #: a show that completes with more than this share of overrunning ticks, or of failed reads,
@@ -12,27 +16,74 @@ VERDICT_OVERRUN_SHARE = 0.05
 VERDICT_COMM_SHARE = 0.01
 
 
-def status_printer(rate_hz: float):
-    if not sys.stderr.isatty():
-        return None
-    start = time.perf_counter()
+#: when stderr is not a terminal (a log file, systemd's journal), a status line this often
+LOG_STATUS_S = 10.0
 
-    def show(st: dict) -> None:
-        wall = time.perf_counter() - start
+
+class StatusLine:
+    """The live status line of a show on the real clock: on a terminal rewritten in place
+    (the loop offers it about twice a second); elsewhere one line every
+    :data:`LOG_STATUS_S`, so an operator reading a log sees the show go on. Its own thread
+    writes: a terminal paused with Ctrl-S or a pipe nobody reads never holds up the loop
+    (only the newest lines wait). :meth:`close` ends it before the end-of-show lines."""
+
+    def __init__(self, rate_hz: float, stream=None, *, tty: bool | None = None, clock=None):
+        self.stream = sys.stderr if stream is None else stream
+        self.tty = self.stream.isatty() if tty is None else tty
+        self.rate_hz, self._clock = rate_hz, clock or time.perf_counter
+        self._start, self._logged = self._clock(), -math.inf
+        self._cv = threading.Condition()
+        # what waits to be written: on a terminal the newest line only; in a log the lines
+        # of the last ten minutes (older ones are dropped only if the log never takes them)
+        self._waiting: collections.deque[str] = collections.deque(maxlen=1 if self.tty else 60)
+        self._closed = self._wrote = False
+        self._thread = threading.Thread(target=self._write, name="hilsim-status", daemon=True)
+        self._thread.start()
+
+    def __call__(self, st: dict) -> None:
+        wall = self._clock() - self._start
+        if not self.tty and wall - self._logged < LOG_STATUS_S:
+            return
+        self._logged = wall
         rate = st["tick"] / wall if wall > 0 else 0.0
         total = st.get("duration")
         of = f"/{total:.1f}" if total is not None else ""
-        sys.stderr.write(
-            f"\r t {st['t']:.1f}{of} s  {rate:.0f}/{rate_hz:g} Hz  "
+        line = (
+            f"t {st['t']:.1f}{of} s  {rate:.0f}/{self.rate_hz:g} Hz  "
             f"late p99 {st.get('lateness_p99_us', float('nan')):.0f} us  "
             f"comm err {st['comm_errors']}  overruns {st['overruns']}  "
-            f"stalls {st.get('host_stalls', 0)} "
-            + (f" | {st['cue']}" if st.get("cue") else "")
-            + "\033[K"
+            f"stalls {st.get('host_stalls', 0)}" + (f" | {st['cue']}" if st.get("cue") else "")
         )
-        sys.stderr.flush()
+        with self._cv:
+            self._waiting.append(
+                f"\r {line} \033[K" if self.tty else f"hilsim run: status: {line}\n"
+            )
+            self._cv.notify()
 
-    return show
+    def _write(self) -> None:
+        while True:
+            with self._cv:
+                while not self._waiting and not self._closed:
+                    self._cv.wait()
+                if not self._waiting:
+                    return
+                line = self._waiting.popleft()
+            try:
+                self.stream.write(line)
+                self.stream.flush()
+                self._wrote = True
+            except (OSError, ValueError):  # a closed or broken stream: nothing more to say
+                return
+
+    def close(self, timeout_s: float = 1.0) -> None:
+        """Write the last line offered, end the terminal's line; wait at most ``timeout_s``."""
+        with self._cv:
+            self._closed = True
+            self._cv.notify()
+        self._thread.join(timeout_s)
+        if self.tty and self._wrote and not self._thread.is_alive():
+            with contextlib.suppress(OSError, ValueError):
+                self.stream.write("\n")
 
 
 def print_stats(summary: dict) -> None:

@@ -26,7 +26,7 @@ import time
 from pathlib import Path
 
 from hilsim.cli._args import add_port
-from hilsim.cli._report import print_stats, status_printer, verdict
+from hilsim.cli._report import StatusLine, print_stats, verdict
 from hilsim.exit_codes import ExitCode, for_signal
 
 HELP = "run a rig: springs follow the animation, streamed to the servos (or the emulator)"
@@ -335,15 +335,20 @@ def _run_on_bus(args, parts, bus, run_dir: Path) -> int:
         if args.shared_start:
             _watch_parent()
         _SHOWN.add(run_dir)
-        show = run_show(
-            parts,
-            bus,
-            telemetry,
-            duration_s=args.duration,
-            stop=stop,
-            on_status=None if virtual else status_printer(rig.loop.rate_hz),
-            start_at=start_at,
-        )
+        status = None if virtual else StatusLine(rig.loop.rate_hz)
+        try:
+            show = run_show(
+                parts,
+                bus,
+                telemetry,
+                duration_s=args.duration,
+                stop=stop,
+                on_status=status,
+                start_at=start_at,
+            )
+        finally:
+            if status is not None:
+                status.close()
     finally:
         if not args.shared_start:  # a group's child keeps them: the parent's stop is late
             for s, handler in previous.items():
@@ -352,8 +357,6 @@ def _run_on_bus(args, parts, bus, run_dir: Path) -> int:
         _say(f"telemetry could not be written to {run_dir}: {show.telemetry_error}")
         if show.telemetry_traceback:
             print(show.telemetry_traceback.rstrip(), file=sys.stderr)
-    if sys.stderr.isatty() and not virtual:
-        sys.stderr.write("\n")
     summary = show.summary
     show_s = show.ticks / rig.loop.rate_hz
     x = show_s / show.wall_s if virtual and show.wall_s > 0 else None
