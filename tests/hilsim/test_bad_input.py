@@ -209,3 +209,19 @@ def test_a_home_relative_path_is_the_users_home(tmp_path, monkeypatch):
     run = make_run_dir(None, "~/runs", "demo")
     assert run.parent == tmp_path / "runs" and run.is_dir()
     assert make_run_dir("~/out", "runs", "demo") == tmp_path / "out"
+
+
+@pytest.mark.parametrize(
+    ("port", "says"),
+    [
+        ("/dev/ttyUSB97", "is the USB adapter plugged in?"),
+        ("dxlsim:/?ids=1-4", "begin with dxlsim://, e.g. dxlsim://?ids=1-4"),
+    ],
+)
+def test_a_port_that_cannot_be_opened_says_what_to_try(tmp_path, capsys, port, says):
+    rig = tmp_path / "rig.toml"
+    rig.write_text(BASE)
+    argv = ["run", str(rig), "--port", port, "--duration", "1", "--no-plots"]
+    assert main([*argv, "--out", str(tmp_path / "out")]) == 2
+    line = _one_line(capsys.readouterr().err)
+    assert f"cannot open {port}" in line and says in line
