@@ -290,3 +290,21 @@ def test_thermal_model_does_not_depend_on_how_time_is_stepped():
         b.advance(0.1 * k)
     rise = THERMAL_STALL_RISE_K * 0.25 * (1.0 - math.exp(-100.0 / THERMAL_TIME_CONSTANT_S))
     assert get(a, "present_temperature") == get(b, "present_temperature") == round(30 + rise)
+
+
+def test_a_move_and_a_long_silence_after_it_heat_as_the_move_does():
+    """The last packet while the horn speeds up (stall current) and none for ten minutes (an
+    idle `hilsim emulate`): heated at each stretch's current, not the first one's for the
+    whole gap (it read 116 °C and latched Overheating; 48 °C after a minute)."""
+    stepped, silent = servo_on(), servo_on()
+    for s in (stepped, silent):
+        assert put(s, "goal_position", 2200, 0.0) == OK
+        s.advance(0.001)
+    assert abs(silent._mo.current_a()) == silent.model.stall_current_a  # speeding up
+    for k in range(1, 101):  # a packet every 10 ms for the first second, then silence
+        stepped.advance(0.001 + 0.01 * k)
+    stepped.advance(600.001)
+    silent.advance(600.001)
+    for s in (stepped, silent):
+        assert get(s, "present_position") == 2200
+        assert get(s, "present_temperature") == 30 and get(s, "hardware_error_status") == 0
