@@ -22,7 +22,6 @@ one-line reason. The wire-time model behind the capacity check is
 
 from __future__ import annotations
 
-import os
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -215,27 +214,8 @@ def open_bus(rig: Rig, port: str) -> DynamixelBus:
     except (DynamixelError, ValueError, OSError) as exc:
         msg = str(exc)
         raise ShowRefusedError(
-            (msg if msg.startswith("cannot open") else f"cannot open {rig.bus.port}: {msg}")
-            + port_hint(port, msg)
+            msg if msg.startswith("cannot open") else f"cannot open {rig.bus.port}: {msg}"
         ) from None
-
-
-def port_hint(port: str, message: str) -> str:
-    """What to try when ``port`` could not be opened (empty when nothing is known)."""
-    if port.lower().startswith("dxlsim:") and not port.lower().startswith("dxlsim://"):
-        return f" (the emulator's URLs begin with dxlsim://, e.g. dxlsim://{port[7:].lstrip('/')})"
-    if "://" in port:
-        return ""
-    if not os.path.exists(port):
-        return (
-            " (no such device: is the USB adapter plugged in? On Linux it is usually "
-            "/dev/ttyUSB0 or /dev/ttyACM0; `ls /dev/serial/by-id/` lists them)"
-        )
-    if "ermission denied" in message:
-        return (
-            " (not allowed: add yourself to the group that owns it, e.g. dialout, and log in again)"
-        )
-    return ""
 
 
 def check_bus(rig: Rig, bus: DynamixelBus, say: Callable[[str], None]) -> list[str]:

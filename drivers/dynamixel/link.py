@@ -190,7 +190,7 @@ class Link:
         except SERIAL_ERRORS as exc:
             if isinstance(exc.__cause__, ValueError):  # a dxlsim:// URL it cannot parse
                 raise ValueError(str(exc)) from exc
-            raise PortGone(f"cannot open {port}: {exc}") from exc
+            raise PortGone(f"cannot open {port}: {exc}{port_hint(port, str(exc))}") from exc
         link = cls(ph)
         try:
             ph.device_allowance_ms = device_allowance_ms(ph.ser, port)
@@ -347,3 +347,21 @@ def _check_baud(port: PortHandler, baud: int) -> None:
             f"baud {baud} is not supported; use one of "
             f"{sorted(set(ct.BAUD_RATES.values()) - {4_500_000})}"
         )
+
+
+def port_hint(port: str, message: str) -> str:
+    """What to try when ``port`` could not be opened (empty when nothing is known)."""
+    if port.lower().startswith("dxlsim:") and not port.lower().startswith("dxlsim://"):
+        return f" (the emulator's URLs begin with dxlsim://, e.g. dxlsim://{port[7:].lstrip('/')})"
+    if "://" in port:
+        return ""
+    if not os.path.exists(port):
+        return (
+            " (no such device: is the USB adapter plugged in? On Linux it is usually "
+            "/dev/ttyUSB0 or /dev/ttyACM0; `ls /dev/serial/by-id/` lists them)"
+        )
+    if "ermission denied" in message:
+        return (
+            " (not allowed: add yourself to the group that owns it, e.g. dialout, and log in again)"
+        )
+    return ""
