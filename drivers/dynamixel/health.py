@@ -149,11 +149,11 @@ def recover_watchdog(
     the watchdog again (``watchdog_units``, when armed), each step read back; raises
     :class:`DynamixelError` naming the step that could not be confirmed."""
     link.recover()
-    try:
-        _confirm(link, servo_id, ct.BUS_WATCHDOG, 0, attempts)
-        _confirm(link, servo_id, ct.GOAL_POSITION, tick, attempts)
+    try:  # inside a tick: a failed try is retried at once (no settle)
+        _confirm(link, servo_id, ct.BUS_WATCHDOG, 0, attempts, settle=False)
+        _confirm(link, servo_id, ct.GOAL_POSITION, tick, attempts, settle=False)
         if watchdog_units:
-            _confirm(link, servo_id, ct.BUS_WATCHDOG, watchdog_units, attempts)
+            _confirm(link, servo_id, ct.BUS_WATCHDOG, watchdog_units, attempts, settle=False)
     except _UnconfirmedError as exc:
         raise DynamixelError(
             f"servo {servo_id}: cannot recover from the Bus Watchdog trip: {exc}"
@@ -216,27 +216,34 @@ def _hold_one(
     _confirm(link, sid, ct.BUS_WATCHDOG, units, attempts)
 
 
-def _read(link: Link, sid: int, item: Item, attempts: int) -> int:
+def _read(link: Link, sid: int, item: Item, attempts: int, settle: bool = True) -> int:
+    """``item`` of servo ``sid``, tried ``attempts`` times; ``settle``: wait a failed try's
+    late reply out before the next (:meth:`Link.settle`; never inside a tick)."""
     last: Exception | None = None
-    for _ in range(attempts):
+    for k in range(attempts):
         try:
             return link.read_item(sid, item)
         except (CommError, ServoError) as exc:
             last = exc
-            link.settle()
+            if settle and k + 1 < attempts:
+                link.settle()
     raise _UnconfirmedError(f"reading {item.name} failed {attempts}x: {last}")
 
 
-def _confirm(link: Link, sid: int, item: Item, value: int, attempts: int) -> None:
-    """Write ``item := value`` and read it back, up to ``attempts`` times."""
+def _confirm(
+    link: Link, sid: int, item: Item, value: int, attempts: int, settle: bool = True
+) -> None:
+    """Write ``item := value`` and read it back, up to ``attempts`` times (``settle``: as
+    :func:`_read`)."""
     last = ""
-    for _ in range(attempts):
+    for k in range(attempts):
         try:
             link.write_item(sid, item, value)
             got = link.read_item(sid, item)
         except (CommError, ServoError) as exc:
             last = str(exc)
-            link.settle()
+            if settle and k + 1 < attempts:
+                link.settle()
             continue
         if got == value:
             return

@@ -329,26 +329,36 @@ def receive_plain_replies(
     Present Position, in the order asked (each servo answers after the one before it),
     through ``ph.rxPacket``. A packet is a reading only if it carries the ID asked at its
     place and ``size`` bytes; one with other data (a late reply to an earlier read that
-    asked another length: ``read_order``) is passed over, as is a packet with an error
-    number, which has no data whatever was asked, from a servo in ``late`` (whose late
-    packet may still come). A corrupt one takes its place
+    asked another length: ``read_order``) is passed over. A packet with an error number has
+    no data whatever was asked: from a servo in ``late`` (whose late packet may still come)
+    it cannot be told from a late one, so it is no reading (STALE) and takes its place if
+    it is that servo's (and that servo's reply, if one follows at once, is read), else is
+    passed over. A corrupt one takes its place
     (that servo only loses this tick); a valid one from another ID - a late reply to an
     earlier request, whose chain had another order, a stranger, a second reply - ends the
     read, since what follows it cannot be placed. ``on_corrupt(bytes)`` is told of each
     corrupt packet as it comes."""
     p, n, length = 0, len(want), size + 4  # LEN = INST ERR data CRC(2)
+    redo = -1  # a place such an error packet took: its servo's own reply may still follow
     while p < n:
         packet, result = ph.rxPacket(port, False)
         if result == OK:
-            err = packet[8]
-            if (packet[5] | packet[6] << 8) != length and (
-                not err & ct.ERROR_NUMBER_MASK or packet[4] in late
-            ):
-                continue  # another request's reply: not this read's, nor its end
-            if packet[4] != want[p]:
-                return
-            k = order[p]
-            p += 1
+            err, sid = packet[8], packet[4]
+            if (packet[5] | packet[6] << 8) != length:
+                if not err & ct.ERROR_NUMBER_MASK:
+                    continue  # another request's reply: not this read's, nor its end
+                if sid in late:  # an error packet has no data: late or this read's?
+                    if sid == want[p]:
+                        redo, p = p, p + 1  # its place: no reading (STALE), the rest read
+                    continue
+            if sid != want[p]:
+                if redo < 0 or sid != want[redo]:
+                    return
+                k = order[redo]  # the error packet was a late one: here is its own reply
+            else:
+                k = order[p]
+                p += 1
+            redo = -1
             errors[k] = err
             if err & ct.ERROR_NUMBER_MASK:
                 status[k] = ALERT if err & ct.ALERT_BIT else ERROR

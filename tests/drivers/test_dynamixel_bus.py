@@ -20,6 +20,7 @@ from drivers.dynamixel import units
 from drivers.dynamixel.bus import DynamixelBus
 from drivers.dynamixel.errors import (
     CommTimeout,
+    CorruptPacket,
     ExitNotConfirmed,
     PortBusy,
     PortGone,
@@ -435,13 +436,26 @@ def test_plain_late_error_packet_is_passed_over_where_a_late_one_may_come(open_b
     # servo 1 may send a late packet of 4 bytes; an error packet carries no data at all,
     # so its length cannot tell which read it answers (review of b2e6cfc)
     bus, _ = open_bus(read_mode="plain")
-    bus._orders.busy_lengths[4] = {0: bus.clock.now() + 0.01}
+
+    def late_4_bytes(bus) -> None:  # servo 1 (index 0) may send 4 bytes late; nothing else
+        bus._orders.busy_lengths.clear()
+        bus._orders.busy_lengths[4] = {0: bus.clock.now() + 0.01}
+        bus._set_order([0, 1, 2, 3])  # (a STALE servo 1 went last)
+
+    late_4_bytes(bus)
     packets = [encode_status(i, 0, pos_bytes(2000 + i) + b"\0") for i in (1, 2, 3, 4)]
     canned(bus, encode_status(1, 0x01, b"") + b"".join(packets))
-    r = bus.read_present()
+    r = bus.read_present()  # late, as its own reply right after it shows
     assert r.status.tolist() == [OK] * 4 and r.errors.tolist() == [0] * 4
+    late_4_bytes(bus)
+    canned(bus, encode_status(1, 0x01, b"") + b"".join(packets[1:]))
+    r = bus.read_present()  # its own? then no reply of servo 1 follows: not a reading either
+    assert r.status.tolist() == [STALE, OK, OK, OK] and r.errors.tolist() == [0] * 4
+    late_4_bytes(bus)
+    canned(bus, packets[0] + encode_status(1, 0x01, b"") + b"".join(packets[1:]))
+    assert bus.read_present(r).all_ok  # elsewhere: passed over
     # a servo no late packet is expected of: its error packet is this read's
-    bus._orders.busy_lengths[4] = {0: bus.clock.now() + 0.01}
+    late_4_bytes(bus)
     canned(bus, packets[0] + encode_status(2, 0x01, b"") + b"".join(packets[2:]))
     assert bus.read_present(r).status.tolist() == [OK, ERROR, OK, OK]
 
@@ -464,6 +478,15 @@ def test_a_shows_other_read_that_got_no_reply_makes_its_length_busy(open_bus):
     assert timeouts[-1] == pytest.approx(bus._plain_timeout_ms + 4 * bus.link.port.tx_time_per_byte)
     bus.link.read_item(2, ct.TORQUE_ENABLE)  # (1 byte: never a plain read's length)
     assert set(bus._orders.busy_lengths) == {4}
+
+
+def test_a_corrupt_reply_to_a_shows_other_read_counts_too_but_not_on_a_fast_bus(open_bus):
+    for mode, busy in (("plain", {4}), ("fast", set())):
+        bus, _ = open_bus(read_mode=mode, faults="corrupt:id=3,at=0.01,count=1")
+        bus.clock.advance(0.01)
+        with pytest.raises(CorruptPacket):
+            bus.link.read_item(3, ct.PRESENT_POSITION)
+        assert set(bus._orders.busy_lengths) == busy, mode
 
 
 def test_plain_read_with_every_length_busy_does_not_keep_those_servos_readings(open_bus):

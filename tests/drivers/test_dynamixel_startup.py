@@ -262,3 +262,42 @@ def test_a_retry_first_waits_out_the_failed_transactions_late_reply(open_bus):
     port, t = bus.link.port, bus.clock.now()
     bus.link.settle()  # the next transmit waits the late window and the adapter's latency
     assert port._quiet_at == pytest.approx(t + LATE_BLOCK_S + bus.link.latency_timer_ms * 1e-3)
+
+
+class _FlakyLink:
+    """A Link whose writes fail ``fails`` times (no reply), then succeed; reads echo."""
+
+    def __init__(self, fails: int) -> None:
+        self.fails, self.settled, self.value = fails, 0, None
+
+    def write_item(self, sid, item, value) -> None:
+        from drivers.dynamixel.errors import CommTimeout
+
+        if self.fails:
+            self.fails -= 1
+            raise CommTimeout("no reply", servo_id=sid, what="Write")
+        self.value = value
+
+    def read_item(self, sid, item) -> int:
+        return self.value
+
+    def settle(self) -> None:
+        self.settled += 1
+
+    def recover(self) -> None:
+        pass
+
+
+def test_the_exit_waits_out_late_replies_between_tries_but_a_tick_never_does():
+    from drivers.dynamixel import health
+
+    link = _FlakyLink(fails=2)
+    health._confirm(link, 1, ct.GOAL_POSITION, 2000, attempts=3)
+    assert link.settled == 2  # before each retry, not after the last try
+    link = _FlakyLink(fails=3)
+    with pytest.raises(health._UnconfirmedError):
+        health._confirm(link, 1, ct.GOAL_POSITION, 2000, attempts=3)
+    assert link.settled == 2
+    link = _FlakyLink(fails=2)  # a watchdog recovery runs inside a tick: no waiting
+    health.recover_watchdog(link, 1, 2000, None, attempts=3)
+    assert link.settled == 0
