@@ -36,7 +36,7 @@ class StatusLine:
         # what waits to be written: on a terminal the newest line only; in a log the lines
         # of the last ten minutes (older ones are dropped only if the log never takes them)
         self._waiting: collections.deque[str] = collections.deque(maxlen=1 if self.tty else 60)
-        self._closed = self._wrote = False
+        self._closed = self._wrote = self._abandoned = False
         self._thread = threading.Thread(target=self._write, name="hilsim-status", daemon=True)
         self._thread.start()
 
@@ -65,7 +65,7 @@ class StatusLine:
             with self._cv:
                 while not self._waiting and not self._closed:
                     self._cv.wait()
-                if not self._waiting:
+                if not self._waiting or self._abandoned:
                     return
                 line = self._waiting.popleft()
             try:
@@ -76,14 +76,19 @@ class StatusLine:
                 return
 
     def close(self, timeout_s: float = 1.0) -> None:
-        """Write the last line offered, end the terminal's line; wait at most ``timeout_s``."""
+        """Write the lines offered, end the terminal's line; wait at most ``timeout_s``, then
+        drop what still waits (a blocked stream: the line being written is ended after it)."""
         with self._cv:
             self._closed = True
             self._cv.notify()
         self._thread.join(timeout_s)
-        if self.tty and self._wrote and not self._thread.is_alive():
+        alive = self._thread.is_alive()
+        if alive:
+            with self._cv:
+                self._abandoned = True
+        if self.tty and (self._wrote or alive):
             with contextlib.suppress(OSError, ValueError):
-                self.stream.write("\n")
+                self.stream.write("\n")  # (after the line being written: the stream's lock)
 
 
 def print_stats(summary: dict) -> None:

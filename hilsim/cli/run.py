@@ -95,7 +95,7 @@ def make_run_dir(out: str | None, out_dir: str, name: str) -> Path:
     Raises :class:`UsageError` naming the path and the problem.
     """
     if out is not None:
-        path = Path(out).expanduser()
+        path = _home(Path(out))
         if path.exists() and not path.is_dir():
             raise UsageError(f"--out {out}: exists and is not a directory")
         if path.is_dir() and any(path.iterdir()):
@@ -107,7 +107,7 @@ def make_run_dir(out: str | None, out_dir: str, name: str) -> Path:
         if not existed:
             _CREATED.add(path)
         return path
-    stem = Path(out_dir).expanduser() / f"{name}-{time.strftime('%Y%m%d-%H%M%S')}"
+    stem = _home(Path(out_dir)) / f"{name}-{time.strftime('%Y%m%d-%H%M%S')}"
     for n in range(1, 1000):
         path = stem if n == 1 else stem.with_name(f"{stem.name}-{n}")
         try:
@@ -117,6 +117,14 @@ def make_run_dir(out: str | None, out_dir: str, name: str) -> Path:
         _CREATED.add(path)
         return path
     raise UsageError(f"{stem}: too many runs with this name in one second")
+
+
+def _home(path: Path) -> Path:
+    """``~`` as the user's home; ``~user`` of no such user refused in one line."""
+    try:
+        return path.expanduser()
+    except RuntimeError:
+        raise UsageError(f"{path}: no such user's home directory") from None
 
 
 def _mkdir(path: Path, *, exist_ok: bool) -> None:

@@ -117,7 +117,11 @@ def _note(notes: list[str] | None, *lines: str) -> None:
 def rig_file(base_dir: Path, name: str) -> Path:
     """A file a rig or show names: ``~`` is the user's home, a relative name is relative to
     the file that names it (``base_dir``)."""
-    return (Path(base_dir) / Path(name).expanduser()).resolve()
+    try:
+        path = Path(name).expanduser()
+    except RuntimeError:  # ~user of no such user: the name as it is (then "no such file")
+        path = Path(name)
+    return (Path(base_dir) / path).resolve()
 
 
 def _file(spec: Mapping[str, Any], base_dir: Path) -> Path:

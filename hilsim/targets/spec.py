@@ -14,7 +14,16 @@ from typing import Any
 from hilsim.springs import Spring
 from hilsim.targets.csv_file import CsvAnimation, CsvCurve
 from hilsim.targets.sources import SOURCE_KEYS, SourceError, rig_file, track_from_source
-from hilsim.targets.tracks import Hold, Keyframes, Layered, Sine, Step, Track, easing_names
+from hilsim.targets.tracks import (
+    MAX_TRACK_TURNS,
+    Hold,
+    Keyframes,
+    Layered,
+    Sine,
+    Step,
+    Track,
+    easing_names,
+)
 
 
 class SpecError(ValueError):
@@ -46,6 +55,9 @@ def _spec_number(key: str, value: Any) -> float:
         raise SpecError(key, f"must be a number, got {value!r}")
     if not math.isfinite(value):
         raise SpecError(key, f"must be finite, got {value!r}")
+    limit = 360 * MAX_TRACK_TURNS  # a position (a phase may be any angle)
+    if key.endswith("_deg") and key != "phase_deg" and abs(value) > limit:
+        raise SpecError(key, f"must be within ±{limit}° ({MAX_TRACK_TURNS} turns), got {value!r}")
     return float(value)
 
 

@@ -225,3 +225,13 @@ def test_a_port_that_cannot_be_opened_says_what_to_try(tmp_path, capsys, port, s
     assert main([*argv, "--out", str(tmp_path / "out")]) == 2
     line = _one_line(capsys.readouterr().err)
     assert f"cannot open {port}" in line and says in line
+
+
+def test_a_port_one_may_not_open_names_the_group(tmp_path):
+    from drivers.dynamixel.link import port_hint
+
+    device = tmp_path / "ttyUSB0"
+    device.touch()
+    assert "dialout" in port_hint(str(device), "[Errno 13] Permission denied: '/dev/ttyUSB0'")
+    assert port_hint(str(device), "[Errno 16] Device or resource busy") == ""
+    assert port_hint("dxlsim://?ids=1", "anything") == ""

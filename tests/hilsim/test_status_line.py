@@ -44,20 +44,27 @@ def test_on_a_terminal_the_line_is_rewritten_and_ended():
 
 def test_a_stream_that_blocks_never_holds_up_the_loop():
     """A terminal paused with Ctrl-S, a pipe nobody reads: the writer thread waits, the
-    loop's calls return at once and only the newest line waits to be written."""
-    release = threading.Event()
+    loop's calls return at once, and what still waits when the show ends is dropped (never
+    written after the end-of-show lines)."""
+    entered, release = threading.Event(), threading.Event()
 
     class Blocked(io.StringIO):
         def write(self, s: str) -> int:
-            release.wait(10)
+            if not entered.is_set():  # the first write blocks until released
+                entered.set()
+                release.wait(10)
             return super().write(s)
 
     out, clock = Blocked(), Clock()
     line = StatusLine(250.0, out, tty=True, clock=clock)
-    for k in range(1000):  # would block on the first write if the loop wrote itself
+    clock.t = 0.5
+    line({**ST, "t": 0.5})
+    assert entered.wait(10)  # the writer is stuck in its first write
+    for k in range(1, 1000):  # the loop goes on: each call returns at once
         clock.t = 0.5 * (k + 1)
         line({**ST, "t": clock.t})
-    line.close(timeout_s=0.01)  # gives up waiting; the show's end is not held either
+    line.close(timeout_s=0)  # gives up at once: the newest line is dropped, the line ended
     release.set()
     line._thread.join(10)
-    assert out.getvalue().count("\r") <= 2  # the first line and at most the newest
+    text = out.getvalue()
+    assert text.count("\r") == 1 and "t 0.5/10.0" in text and "\n" in text

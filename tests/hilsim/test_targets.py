@@ -414,6 +414,12 @@ def test_demo_csv_spec():
         ({"type": "sine", "amplitude_deg": 20, "frequency_hz": -1}, "frequency_hz", r">= 0"),
         ({"type": "hold", "value_deg": True}, "value_deg", r"must be a number, got True"),
         ({"type": "hold", "value_deg": math.inf}, "value_deg", r"must be finite"),
+        ({"type": "hold", "value_deg": 1e308}, "value_deg", r"within ±92160° \(256 turns\)"),
+        (
+            {"type": "sine", "amplitude_deg": 1, "frequency_hz": 1, "offset_deg": -1e6},
+            "offset_deg",
+            r"within ±92160°",
+        ),
         ({"type": "step", "at_s": 1, "before_deg": 0}, "after_deg", r"missing"),
         ({"type": "keyframes", "keys": []}, "keys", r"non-empty list of \[time_s, deg\] pairs"),
         ({"type": "keyframes", "keys": [[0, 0], [1]]}, "keys[1]", r"must be a \[time_s, deg\]"),
