@@ -70,8 +70,8 @@ _SUPPLY_LIMITS = frozenset(
 _INPUT_VOLTAGE_ERROR = int(ct.HardwareError.INPUT_VOLTAGE)
 _OVERHEATING_ERROR = int(ct.HardwareError.OVERHEATING)
 # Physical quantities a constructor override may set although the field is read-only.
-#: the longest stretch heated at one motor current while the horn moves (s); longer than a
-#: 100 Hz show's period, so a show's packets never split one
+#: the longest stretch heated at one motor current while the horn moves (s): a 100 Hz show's
+#: period, so a show at 100 Hz or faster never has its packets' gaps split
 THERMAL_STEP_S = 0.010
 _INITIAL_STATE_FIELDS = ("present_position", "present_input_voltage", "present_temperature")
 

@@ -308,3 +308,4 @@ def test_a_move_and_a_long_silence_after_it_heat_as_the_move_does():
     for s in (stepped, silent):
         assert get(s, "present_position") == 2200
         assert get(s, "present_temperature") == 30 and get(s, "hardware_error_status") == 0
+    assert abs(silent._temp_c - stepped._temp_c) < 0.01  # (a 1 s stretch would be 0.2 °C)
