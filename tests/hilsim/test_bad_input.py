@@ -198,7 +198,7 @@ def test_plot_window_without_ticks_says_what_the_run_covers(run_dir, capsys):
     assert line.startswith("hilsim plot: no ticks between 50.0 and 60.0 s; the run covers 0..")
 
 
-def test_a_home_relative_path_is_the_users_home(tmp_path, monkeypatch):
+def test_a_home_relative_path_is_the_users_home(tmp_path, monkeypatch, capsys):
     """``~/anim.csv`` in a rig, ``out_dir = "~/runs"``: the user's home, as in a shell."""
     from hilsim.cli.run import make_run_dir
     from hilsim.targets.sources import rig_file
@@ -209,6 +209,11 @@ def test_a_home_relative_path_is_the_users_home(tmp_path, monkeypatch):
     run = make_run_dir(None, "~/runs", "demo")
     assert run.parent == tmp_path / "runs" and run.is_dir()
     assert make_run_dir("~/out", "runs", "demo") == tmp_path / "out"
+    rig = tmp_path / "rig.toml"
+    rig.write_text(BASE)
+    argv = ["run", str(rig), "--virtual-time", "--duration", "0.1", "--no-plots"]
+    assert main([*argv, "--out", "~nosuchuser4711/out"]) == 2  # (it was a traceback)
+    assert "no such user's home" in _one_line(capsys.readouterr().err)
 
 
 @pytest.mark.parametrize(
