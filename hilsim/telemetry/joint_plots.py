@@ -292,9 +292,8 @@ def joints_figure(
     legend = fig.legend(handles=handles, loc="lower center", ncols=min(len(handles), 4))
     span = f"{t[-1] - t[0]:.3g} s" if t.size else "no ticks"
     where = common.window_note(start, end)
-    more = common.caught_up_note(run, where)
-    head = f"Joint positions: {run.path.name}{where} ({t.size} ticks{more}, {span})"
-    title = common.title(fig, head)
+    ticks = common.tick_count(run, t.size, start, end)
+    title = common.title(fig, f"Joint positions: {run.path.name}{where} ({ticks}, {span})")
     ruler = common.Ruler(fig)
     axes_w = axes[0].get_position().width * fig.get_figwidth()
     common.place_column(

@@ -195,14 +195,16 @@ def window_note(start: float | None, end: float | None) -> str:
     return f", {lo} to {hi}"
 
 
-def caught_up_note(run: Run, where: str) -> str:
-    """`` + K caught up without a row`` for a whole run whose loop skipped K ticks' rows to
-    catch up after overruns (its summary's ``loop.skipped_ticks``, a positive int), so a
-    title's tick count adds up to the end line's (unless rows were dropped); empty for a
-    window (``where``: its rows only) or anything else in the summary."""
+def tick_count(run: Run, n: int, start: float | None, end: float | None) -> str:
+    """``N ticks`` for a title's ``n`` rows, with `` + K caught up without a row`` for a
+    whole run whose loop skipped K ticks' rows to catch up after overruns (its summary's
+    ``loop.skipped_ticks``, a positive int), so the count adds up to the end line's (unless
+    rows were dropped); a window (``start``/``end``) counts its rows only."""
     loop = run.summary.get("loop") if isinstance(run.summary, dict) else None
-    skipped = loop.get("skipped_ticks") if isinstance(loop, dict) and not where else None
-    return f" + {skipped} caught up without a row" if type(skipped) is int and skipped > 0 else ""
+    whole = start is None and end is None
+    skipped = loop.get("skipped_ticks") if isinstance(loop, dict) and whole else None
+    more = f" + {skipped} caught up without a row" if type(skipped) is int and skipped > 0 else ""
+    return f"{n} ticks{more}"
 
 
 def is_virtual_time(run: Run) -> bool:

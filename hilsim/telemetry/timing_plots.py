@@ -50,9 +50,8 @@ def plot_lateness(
     t = run.t_sched[keep]
     if common.is_virtual_time(run):
         fig = common.new_figure(11.0, 3.0, dpi)
-        where = common.window_note(start, end)
-        more = common.caught_up_note(run, where)
-        title = common.title(fig, f"Tick lateness: {run.path.name}{where} ({t.size} ticks{more})")
+        where, ticks = common.window_note(start, end), common.tick_count(run, t.size, start, end)
+        title = common.title(fig, f"Tick lateness: {run.path.name}{where} ({ticks})")
         ax = fig.subplots()
         top = common.Ruler(fig).size(title)[1] + common.PAD
         common.place_column(fig, [ax], left=0.0, right=0.0, top=top, bottom=0.0)
@@ -71,11 +70,11 @@ def plot_lateness(
     fig = common.new_figure(11.0, 8.0, dpi)
     ax_h, ax_t = fig.subplots(2, 1)
     n_over = int(np.count_nonzero(overrun))
-    where = common.window_note(start, end)
     title = common.title(
         fig,
-        f"Tick lateness: {run.path.name}{where} ({lat.size} ticks"
-        f"{common.caught_up_note(run, where)}, {n_over} overrun{'s' if n_over != 1 else ''})",
+        f"Tick lateness: {run.path.name}{common.window_note(start, end)} "
+        f"({common.tick_count(run, lat.size, start, end)}, "
+        f"{n_over} overrun{'s' if n_over != 1 else ''})",
     )
     log_x = _use_log_axis(lat)
     if lat.size == 0:
@@ -183,11 +182,10 @@ def plot_timing(
     virtual = common.is_virtual_time(run)
     fig = common.new_figure(11.0, 7.5, dpi)
     ax_s, ax_b = fig.subplots(2, 1)
-    where = common.window_note(start, end)
     title = common.title(
         fig,
-        f"Time per tick by stage: {run.path.name}{where} ({t.size} ticks"
-        f"{common.caught_up_note(run, where)})"
+        f"Time per tick by stage: {run.path.name}{common.window_note(start, end)} "
+        f"({common.tick_count(run, t.size, start, end)})"
         + (
             "\nvirtual-time run: the host's compute time per stage ('bus' includes the "
             "in-process emulator, not wire time); no deadline applied"
