@@ -26,6 +26,8 @@ from hilsim.cli._args import add_baud, add_ids, add_port, parse_baud, parse_ids,
 from hilsim.exit_codes import ExitCode
 
 HELP = "measure loop timing, bus rate and latency beside the physical limit; diagnose the bus"
+#: the scheduler's spin window without a rig (µs)
+_SPIN_US = round(DEFAULT_SPIN_S * 1e6, 6)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -48,11 +50,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="scheduling class of the timed runs: auto = SCHED_FIFO when permitted (default)",
     )
     parser.add_argument("--priority", type=int, default=80, help="SCHED_FIFO priority (80)")
-    spin = round(DEFAULT_SPIN_S * 1e6, 6)
     parser.add_argument(
         "--spin-us",
         type=float,
-        help=f"scheduler spin window (µs; default: the rig's loop.spin_us, else {spin:g})",
+        help=f"scheduler spin window (µs; default: the rig's loop.spin_us, else {_SPIN_US:g})",
     )
     parser.add_argument("--no-cyclictest", action="store_true", help="do not run cyclictest")
     parser.add_argument("--rate", type=float, help="latency loop rate, Hz (default: rig's or 500)")
@@ -82,7 +83,7 @@ def build_plan(args: argparse.Namespace, argv_text: str = "hilsim bench"):
         quick=quick,
         clock=args.clock,
         loop_duration_s=2.0 if quick else 10.0,
-        spin_us=round(DEFAULT_SPIN_S * 1e6, 6) if args.spin_us is None else args.spin_us,
+        spin_us=_SPIN_US if args.spin_us is None else args.spin_us,
         sched=args.sched,
         priority=args.priority,
         use_cyclictest=not args.no_cyclictest,

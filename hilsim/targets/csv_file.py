@@ -19,7 +19,7 @@ from types import MappingProxyType
 import numpy as np
 
 from hilsim.targets.formats.common import SampledTrack
-from hilsim.targets.tracks import MAX_TRACK_TURNS, FloatArray, frozen_array
+from hilsim.targets.tracks import MAX_TRACK_DEG, MAX_TRACK_TURNS, FloatArray, frozen_array
 
 #: header names accepted for the CSV time column (case-insensitive)
 TIME_COLUMNS = ("time_s", "time", "t")
@@ -175,9 +175,11 @@ def _csv_number(path: Path, line: int, name: str, cell: str, degrees: bool) -> f
         ) from None
     if not math.isfinite(x):
         raise CsvFormatError(path, line, f"column {name!r}: {cell.strip()!r} is not finite")
-    limit = 360.0 * MAX_TRACK_TURNS  # a joint's column (the time's bound is its own)
-    if degrees and abs(x) > limit:
+    if degrees and abs(x) > MAX_TRACK_DEG:  # a joint's column (the time's bound is its own)
         raise CsvFormatError(
-            path, line, f"column {name!r}: {cell.strip()}° is beyond ±{limit:g}° (256 turns)"
+            path,
+            line,
+            f"column {name!r}: {cell.strip()}° is beyond ±{MAX_TRACK_DEG}° "
+            f"({MAX_TRACK_TURNS} turns)",
         )
     return x

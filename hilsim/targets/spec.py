@@ -15,6 +15,7 @@ from hilsim.springs import Spring
 from hilsim.targets.csv_file import CsvAnimation, CsvCurve
 from hilsim.targets.sources import SOURCE_KEYS, SourceError, rig_file, track_from_source
 from hilsim.targets.tracks import (
+    MAX_TRACK_DEG,
     MAX_TRACK_TURNS,
     Hold,
     Keyframes,
@@ -55,9 +56,10 @@ def _spec_number(key: str, value: Any) -> float:
         raise SpecError(key, f"must be a number, got {value!r}")
     if not math.isfinite(value):
         raise SpecError(key, f"must be finite, got {value!r}")
-    limit = 360 * MAX_TRACK_TURNS  # a position (a phase may be any angle)
-    if key.endswith("_deg") and key != "phase_deg" and abs(value) > limit:
-        raise SpecError(key, f"must be within ±{limit}° ({MAX_TRACK_TURNS} turns), got {value!r}")
+    if key.endswith("_deg") and key != "phase_deg" and abs(value) > MAX_TRACK_DEG:
+        raise SpecError(  # a position (a phase may be any angle)
+            key, f"must be within ±{MAX_TRACK_DEG}° ({MAX_TRACK_TURNS} turns), got {value!r}"
+        )
     return float(value)
 
 

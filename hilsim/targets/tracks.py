@@ -102,8 +102,8 @@ def frozen_array(arr: FloatArray) -> FloatArray:
     return arr
 
 
-#: the most turns a track's value may hold: Extended Position Mode's ±1,048,575 ticks
-MAX_TRACK_TURNS = 256
+#: the most turns (degrees) a track's value may hold: Extended Position Mode's ±1,048,575 ticks
+MAX_TRACK_DEG = 360 * (MAX_TRACK_TURNS := 256)
 
 
 def times_values(times: npt.ArrayLike, values: npt.ArrayLike) -> tuple[FloatArray, FloatArray]:
@@ -123,7 +123,7 @@ def times_values(times: npt.ArrayLike, values: npt.ArrayLike) -> tuple[FloatArra
     if (bad := np.flatnonzero(np.abs(v) > MAX_TRACK_TURNS * 2.0 * math.pi)).size:
         raise ValueError(
             f"key {bad[0]}: value {math.degrees(float(v[bad[0]])):.6g}° is beyond "
-            f"±{MAX_TRACK_TURNS * 360}° ({MAX_TRACK_TURNS} turns, the most a servo reaches)"
+            f"±{MAX_TRACK_DEG}° ({MAX_TRACK_TURNS} turns, the most a servo reaches)"
         )
     with np.errstate(divide="ignore", over="ignore"):
         # 1/Δt overflows for subnormal gaps; treat those as not increasing
