@@ -11,10 +11,10 @@ The numerical core::
 Importing ``hilsim`` never imports matplotlib or dynamixel_sdk.
 """
 
-from hilsim.integrators import INTEGRATORS, Integrator, make_integrator
-from hilsim.simulate import Trajectory, simulate
-from hilsim.springs import Spring
-from hilsim.stability import StabilityReport, check_stability
+from hilsim.dynamics.integrators import INTEGRATORS, Integrator, make_integrator
+from hilsim.dynamics.simulate import Trajectory, simulate
+from hilsim.dynamics.springs import Spring
+from hilsim.dynamics.stability import StabilityReport, check_stability
 
 __version__ = "0.1.0"
 

@@ -45,10 +45,10 @@ def _no_real_time_scheduling(monkeypatch):
     SCHED_FIFO process that busy-waits (the virtual clock never sleeps) starves the host, and
     several test runs at once froze a 2-core machine that way. The request is refused as an
     unprivileged user's would be (a warning); tests of the scheduling code patch their own."""
-    import hilsim.realtime
+    import hilsim.show.realtime
 
     def refuse(*_args, **_kwargs):
         raise PermissionError(1, "Operation not permitted (the test suite never runs real time)")
 
-    monkeypatch.setattr(hilsim.realtime.os, "sched_setscheduler", refuse)
-    monkeypatch.setattr(hilsim.realtime.os, "sched_setaffinity", refuse)
+    monkeypatch.setattr(hilsim.show.realtime.os, "sched_setscheduler", refuse)
+    monkeypatch.setattr(hilsim.show.realtime.os, "sched_setaffinity", refuse)

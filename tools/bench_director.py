@@ -19,9 +19,10 @@ import tempfile
 import time
 from pathlib import Path
 
-from hilsim.loop import StopFlag
 from hilsim.rig import load_rig
-from hilsim.session import build_parts, open_bus, open_telemetry, port_for, run_show, with_show
+from hilsim.show.loop import StopFlag
+from hilsim.show.parts import build_parts, with_show
+from hilsim.show.session import open_bus, open_telemetry, port_for, run_show
 
 REPO = Path(__file__).resolve().parents[1]
 

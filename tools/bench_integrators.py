@@ -17,8 +17,8 @@ import timeit
 
 import numpy as np
 
-from hilsim.integrators import INTEGRATORS, make_integrator
-from hilsim.springs import Spring
+from hilsim.dynamics.integrators import INTEGRATORS, make_integrator
+from hilsim.dynamics.springs import Spring
 
 
 def time_step(method: str, n: int, *, vectorized: bool | None, held_target: bool) -> float:

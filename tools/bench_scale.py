@@ -66,7 +66,7 @@ _w.TelemetryWriter._drain_rows = lambda self: False
 """,
     # no health reads in the ticks' spare time
     "no-health": """
-import hilsim.servo_watch as _sw
+import hilsim.show.servo_watch as _sw
 _sw.ServoWatch.maybe_read_health = lambda self, *a: None
 """,
 }

@@ -52,7 +52,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from drivers.clock import MonotonicClock
-from hilsim.realtime import REALTIME_SWITCH_INTERVAL_S
+from hilsim.show.realtime import REALTIME_SWITCH_INTERVAL_S
 from hilsim.telemetry import TelemetryWriter, read_run
 from hilsim.telemetry.format import STAGES, TelemetryFormat, TickRecord
 from hilsim.telemetry.sinks import rows_path

@@ -26,7 +26,7 @@ sys.path[:0] = [str(REPO), str(REPO / "tools")]
 
 
 def no_health_reads() -> None:
-    import hilsim.servo_watch as sw
+    import hilsim.show.servo_watch as sw
 
     sw.ServoWatch.maybe_read_health = lambda self, *a: None
 

@@ -5,7 +5,7 @@ over a ``hilsim emulate`` pty as a whole, counted by the scheduler. This splits 
 thread's share: it runs ``hilsim run configs/demo.toml --port PTY`` in this process with
 each part wrapped in a thread-CPU counter (``time.thread_time_ns``, this thread only):
 
-* ``tick``: :meth:`hilsim.loop.HilLoop._tick`, the port's reads and writes included;
+* ``tick``: :meth:`hilsim.show.loop.HilLoop._tick`, the port's reads and writes included;
 * ``  port write`` / ``  port read``: the driver's descriptor writes and reads (a read
   blocks in ``select`` until its bytes are there: its wall time is the wire's);
 * ``after tick``: the end of a tick (overrun books, a health read in the spare time,
@@ -42,10 +42,10 @@ REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
 PARTS = (  # (label, module, owner, attribute)
-    ("tick", "hilsim.loop", "HilLoop", "_tick"),
+    ("tick", "hilsim.show.loop", "HilLoop", "_tick"),
     ("  port write", "drivers.dynamixel.port", None, "_write_fd"),
     ("  port read", "drivers.dynamixel.port", "PortHandler", "_read_fd"),
-    ("after tick", "hilsim.loop", "HilLoop", "_after_tick"),
+    ("after tick", "hilsim.show.loop", "HilLoop", "_after_tick"),
     ("clock wait", "drivers.clock", "MonotonicClock", "wait_until"),
 )
 

@@ -9,7 +9,7 @@ timed:
 * **bare SDK**: the cheapest cycle dynamixel-sdk offers (``syncWriteTxOnly``,
   ``syncReadTx`` fast, ``rxPacket``, positions out of the reply) on its own ``PortHandler``:
   issue 12's baseline; its group objects cost 20-50 µs more and would flatter the ratio;
-* **hilsim tick**: :meth:`hilsim.loop.HilLoop._tick` itself (springs, targets, safety
+* **hilsim tick**: :meth:`hilsim.show.loop.HilLoop._tick` itself (springs, targets, safety
   filter, joint map, the driver's Sync Write and Fast Sync Read, the checks, the telemetry
   row) and the row's amendment, on a rig of ``n`` joints (RK4 springs, sine targets) and
   :class:`~drivers.dynamixel.bus.DynamixelBus` on hilsim's ``PortHandler``. The telemetry
@@ -44,9 +44,9 @@ from drivers.fill import Packed
 from drivers.protocol2 import control_table as ct
 from drivers.protocol2.crc import crc16
 from hilsim.bench import report
-from hilsim.loop import HilLoop
 from hilsim.rig import load_rig
-from hilsim.session import build_parts
+from hilsim.show.loop import HilLoop
+from hilsim.show.parts import build_parts
 from hilsim.telemetry import TelemetryWriter
 
 SERVO_COUNTS = (4, 8, 16)  # servo counts the bench compares

@@ -7,7 +7,7 @@ policy could not be confirmed on some servo; 5 stopped by a stop command of a sh
 ``--live``: OSC ``/hilsim/stop``, Bottango ``STOP``); 130/143 stopped by SIGINT/SIGTERM (exit
 policy applied); 1 an unexpected error outside the show.
 
-A rig with several ``[buses.<name>]`` runs one child process per bus (``hilsim.show_group``:
+A rig with several ``[buses.<name>]`` runs one child process per bus (``hilsim.show.group``:
 one start instant, one stop, each bus's record in ``RUN/<bus>/``); the exit code is the worst
 bus's. ``--bus NAME`` runs one of them alone.
 """
@@ -72,7 +72,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="a rig with several [buses.<name>]: run this bus's joints alone (default: every "
         "bus, one process each, started together)",
     )
-    # a child of hilsim.show_group: "ready" on stdout once the servos are checked, then the
+    # a child of hilsim.show.group: "ready" on stdout once the servos are checked, then the
     # shared instant of tick 0 from stdin; stdin closing stops it
     p.add_argument("--shared-start", action="store_true", help=argparse.SUPPRESS)
 
@@ -154,7 +154,8 @@ def run(args: argparse.Namespace) -> int:
 
         prestart()
     from hilsim.rig import RigError, load_rigs, select_bus
-    from hilsim.session import build_parts, port_for
+    from hilsim.show.parts import build_parts
+    from hilsim.show.session import port_for
 
     if args.duration is not None and not (math.isfinite(args.duration) and args.duration > 0):
         _say(f"--duration must be a finite number of seconds > 0, got {args.duration!r}")
@@ -176,7 +177,7 @@ def run(args: argparse.Namespace) -> int:
         port = port_for(rig, args.virtual_time)
         parts = build_parts(rig)
         if args.show is not None or args.live:
-            from hilsim.session import with_show
+            from hilsim.show.parts import with_show
 
             parts = with_show(parts, args.show, args.live, virtual=args.virtual_time)
     except (RigError, ValueError) as exc:
@@ -221,8 +222,8 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _run_group(args: argparse.Namespace, rigs) -> int:
-    """Several buses: one child process each (:mod:`hilsim.show_group`), a table at the end."""
-    from hilsim.show_group import format_rows, run_group
+    """Several buses: one child process each (:mod:`hilsim.show.group`), a table at the end."""
+    from hilsim.show.group import format_rows, run_group
 
     rig = rigs[0]
     if args.shared_start:  # a child runs one bus, never a group
@@ -285,7 +286,7 @@ def _watch_parent() -> None:
 
 
 def _open_and_run(args, parts, port: str, run_dir: Path) -> int:
-    from hilsim.session import ShowRefusedError, open_bus
+    from hilsim.show.session import ShowRefusedError, open_bus
 
     try:
         bus = open_bus(parts.rig, port)
@@ -300,8 +301,14 @@ def _open_and_run(args, parts, port: str, run_dir: Path) -> int:
 
 
 def _run_on_bus(args, parts, bus, run_dir: Path) -> int:
-    from hilsim.loop import StopFlag
-    from hilsim.session import ShowRefusedError, check_bus, check_teach, open_telemetry, run_show
+    from hilsim.show.loop import StopFlag
+    from hilsim.show.session import (
+        ShowRefusedError,
+        check_bus,
+        check_teach,
+        open_telemetry,
+        run_show,
+    )
 
     rig = parts.rig
     virtual = bus.clock.virtual
@@ -397,7 +404,7 @@ def _run_on_bus(args, parts, bus, run_dir: Path) -> int:
 
 def _open_inputs(director, clock) -> None:
     """The show's inputs opened (sockets, ports, threads); a refusal is one line, exit 2."""
-    from hilsim.session import ShowRefusedError
+    from hilsim.show.session import ShowRefusedError
 
     try:
         director.open(clock, _say)
@@ -408,7 +415,7 @@ def _open_inputs(director, clock) -> None:
 
 def _track_warnings(rig, targets, duration_s: float | None) -> list[str]:
     """Targets beyond a joint's limits or speed, found at load (joint, time, value)."""
-    from hilsim.track_check import check_tracks
+    from hilsim.targets.check import check_tracks
 
     warnings = check_tracks(targets, rig.joints, rig.loop.period_s, duration_s=duration_s)
     return [str(w) for w in warnings]

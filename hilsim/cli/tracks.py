@@ -3,9 +3,9 @@
 ``--at T1,T2,... [--json]`` prints every joint's target (degrees, before the spring) at those
 show times: as JSON ``{"joint": [values...]}`` with ``--json``, else one line per joint.
 Without ``--at`` it runs the show's targets, springs and safety filter offline
-(:mod:`hilsim.track_preview`), writes a preview plot (target, spring, command, limits, and
+(:mod:`hilsim.show.preview`), writes a preview plot (target, spring, command, limits, and
 where the safety filter changes the command) and prints a warning per joint and limit the
-targets break (:mod:`hilsim.track_check`). Nothing opens a port. Exit codes: 0 done (warnings
+targets break (:mod:`hilsim.targets.check`). Nothing opens a port. Exit codes: 0 done (warnings
 or not), 2 the rig or an option cannot be used (one line on stderr).
 """
 
@@ -67,7 +67,7 @@ def parse_times(text: str) -> list[float]:
 
 def run(args: argparse.Namespace) -> int:
     from hilsim.rig import RigError, load_rig
-    from hilsim.session import build_parts
+    from hilsim.show.parts import build_parts
 
     try:
         times = parse_times(args.at) if args.at is not None else None
@@ -85,7 +85,7 @@ def run(args: argparse.Namespace) -> int:
     for note in parts.targets.notes:  # what the animation files say, on stderr
         _say(f"note: {note}")
     if times is not None:
-        from hilsim.track_preview import targets_at
+        from hilsim.show.preview import targets_at
 
         values = targets_at(parts, times)
         if args.json:
@@ -98,8 +98,8 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _preview(args: argparse.Namespace, rig, parts) -> int:
-    from hilsim.track_check import check_tracks
-    from hilsim.track_preview import plot_preview, preview
+    from hilsim.show.preview import plot_preview, preview
+    from hilsim.targets.check import check_tracks
 
     duration = args.duration or parts.targets.duration or ENDLESS_PREVIEW_S
     if args.duration is None and parts.targets.duration is None:

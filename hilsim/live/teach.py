@@ -21,7 +21,7 @@ Who does what, per tick (the loop and the director, :mod:`hilsim.live.director`)
    safety filter and the goal the loop sends all sit where the hand holds the horn, and when
    torque returns nothing jumps. (Goals written to a torque-off X-series servo are stored in
    RAM and move nothing, unless Drive Mode bit 3, Torque On by Goal Update, is set: a teach
-   joint's servo with it is refused at start, :func:`hilsim.session.check_teach`.)
+   joint's servo with it is refused at start, :func:`hilsim.show.session.check_teach`.)
 4. At the end :meth:`Teach.finish` writes ``raw.csv`` (every sample), ``keys.csv`` (the keys
    within the tolerance) and ``take.toml``, a ``[clips.take]`` table to paste into a show
    file. Each file is written to a temporary name and renamed: whole or absent.

@@ -18,7 +18,7 @@
     clip = "scare"
 
 Each clip plays from its own time 0; a joint a clip does not name follows its own ``target``.
-The targets are checked when the show's parts are built (:func:`hilsim.session.build_targets`),
+The targets are checked when the show's parts are built (:func:`hilsim.show.parts.build_targets`),
 like a joint's ``target``; here only the form: clip names, joint names, the entries' times.
 """
 

@@ -1,7 +1,8 @@
 """The tables inside a joint: the two spring forms, and the target specs' keys.
 
 Spring keys are fields of :class:`AnimatorSpring` and :class:`PhysicsSpring`; the loader reads them
-with their defaults and bounds from there and builds a :class:`hilsim.springs.Spring`. The target
+with their defaults and bounds from there and builds a
+:class:`hilsim.dynamics.springs.Spring`. The target
 keys are :data:`hilsim.targets.spec.SPEC_KEYS`, checked by :func:`~hilsim.targets.spec.
 track_from_spec`; :data:`TARGET_KEYS` and :data:`TARGET_TYPES` only say what they mean, for
 ``docs/rig.md`` (whose generator refuses a key without an entry here).

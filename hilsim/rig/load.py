@@ -15,8 +15,9 @@ from pathlib import Path
 from typing import Any
 
 from drivers.protocol2.control_table import model_number, series
-from hilsim.integrators import INTEGRATORS
-from hilsim.joint_map import JointMap
+from hilsim.dynamics.integrators import INTEGRATORS
+from hilsim.dynamics.springs import Spring
+from hilsim.dynamics.stability import check_stability
 from hilsim.rig.bus import BUS_NAME_RE, SERIES_MAX_BAUD, SUPPORTED_BAUDS, BusConfig
 from hilsim.rig.clips import read_clips
 from hilsim.rig.forms import (
@@ -28,6 +29,7 @@ from hilsim.rig.forms import (
     AnimatorSpring,
     PhysicsSpring,
 )
+from hilsim.rig.joint_map import JointMap
 from hilsim.rig.keys import toml_keys
 from hilsim.rig.model import (
     KNOWN_MODELS,
@@ -44,8 +46,6 @@ from hilsim.rig.model import (
     TelemetryConfig,
 )
 from hilsim.rig.reader import Reader, build, finish, read_key, read_table
-from hilsim.springs import Spring
-from hilsim.stability import check_stability
 
 
 # ------------------------------------------------------------------------------------ the springs

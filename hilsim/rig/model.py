@@ -17,10 +17,11 @@ from typing import Any
 from drivers.clock import DEFAULT_SPIN_S
 from drivers.protocol2.control_table import MODEL_NAMES
 from drivers.servo_bus import ExitPolicy  # hold | relax: the bus carries it out
-from hilsim.integrators import INTEGRATORS
+from hilsim.dynamics.integrators import INTEGRATORS
+from hilsim.dynamics.springs import Spring
 from hilsim.rig.bus import BusConfig  # the [bus] table, and each of [buses]
 from hilsim.rig.keys import rig_key
-from hilsim.springs import Spring
+from hilsim.safety.limits import DEFAULT_SOFT_START_S
 from hilsim.telemetry.format import TelemetryFormat  # the [telemetry] format key's choices
 
 
@@ -185,7 +186,7 @@ class SafetyConfig:
         "number",
         "Ramp from where the figure is to where the show starts.",
         unit="s",
-        default=1.0,
+        default=DEFAULT_SOFT_START_S,
         bounds={
             "nonnegative": True,
             "at_most": MAX_SOFT_START_S,

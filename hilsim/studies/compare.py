@@ -22,11 +22,11 @@ from typing import Any
 
 import numpy as np
 
-from hilsim.integrators import INTEGRATORS, RungeKutta, rk_solve
-from hilsim.simulate import simulate
-from hilsim.springs import Spring
-from hilsim.stability import critical_step, stability_boundary
-from hilsim.stability_algebra import stability_polynomial
+from hilsim.dynamics.integrators import INTEGRATORS, RungeKutta, rk_solve
+from hilsim.dynamics.simulate import simulate
+from hilsim.dynamics.springs import Spring
+from hilsim.dynamics.stability import critical_step, stability_boundary
+from hilsim.dynamics.stability_algebra import stability_polynomial
 
 HELP = "Reproduce the RK4 paper's examples and compare Euler, semi-implicit Euler, midpoint, RK4."
 

@@ -11,8 +11,8 @@ from typing import Any
 
 import numpy as np
 
-from hilsim.integrators import INTEGRATORS
-from hilsim.stability_algebra import growth, stability_function
+from hilsim.dynamics.integrators import INTEGRATORS
+from hilsim.dynamics.stability_algebra import growth, stability_function
 
 COLORS = {
     "euler": "tab:red",

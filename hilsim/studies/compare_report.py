@@ -6,7 +6,7 @@ import os
 from pathlib import Path
 from typing import Any
 
-from hilsim.integrators import INTEGRATORS
+from hilsim.dynamics.integrators import INTEGRATORS
 from hilsim.studies.compare_plots import LABELS
 
 _TEMPLATE = """# Integrator comparison: reproducing the RK4 paper

@@ -26,7 +26,7 @@ from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any
 
-from hilsim.springs import Spring
+from hilsim.dynamics.springs import Spring
 from hilsim.targets.formats.common import UnitMap
 from hilsim.targets.tracks import Track
 

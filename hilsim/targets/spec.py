@@ -11,7 +11,7 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
-from hilsim.springs import Spring
+from hilsim.dynamics.springs import Spring
 from hilsim.targets.csv_file import CsvAnimation, CsvCurve
 from hilsim.targets.sources import SOURCE_KEYS, SourceError, rig_file, track_from_source
 from hilsim.targets.tracks import (

@@ -13,6 +13,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from drivers.servo_bus import ReadStatus
+from hilsim.safety.limits import DEFAULT_SOFT_START_S
 from hilsim.telemetry import plot_common as common
 from hilsim.telemetry.reader import Run
 
@@ -77,12 +78,8 @@ def soft_start_s(run: Run) -> float | None:
     data = _rig_copy(run)
     if not isinstance(data.get("joints"), list):  # not a rig file: its defaults do not apply
         return None
-    from hilsim.rig import SafetyConfig
-
     table = data.get("safety", {})
-    value = (
-        table.get("soft_start_s", SafetyConfig.soft_start_s) if isinstance(table, dict) else None
-    )
+    value = table.get("soft_start_s", DEFAULT_SOFT_START_S) if isinstance(table, dict) else None
     ok = isinstance(value, int | float) and not isinstance(value, bool)
     return float(value) if ok and math.isfinite(value) and value >= 0 else None
 

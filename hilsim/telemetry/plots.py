@@ -342,8 +342,6 @@ def _warm_up() -> None:
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 
-    import hilsim.rig  # noqa: F401  (soft_start_s reads its default)
-
     fig = Figure()
     FigureCanvasAgg(fig)
     fig.text(0, 0, "0").get_window_extent(fig.canvas.get_renderer())

@@ -5,7 +5,7 @@ writer); :func:`summarize` builds the JSON-ready summary (``summary.json``) from
 with percentiles (:data:`PERCENTILES`) of lateness and per-stage times.
 
 Safety interventions are counted in one place, the summary's ``safety_limits``: kind -> joint ->
-count, where the kinds are the safety filter's counters (:data:`hilsim.safety.COUNTER_KINDS`:
+count, where the kinds are the safety filter's counters (:data:`hilsim.safety.filter.COUNTER_KINDS`:
 ``position`` the desired position was beyond a limit and was clamped, ``speed``, ``accel``,
 ``brake`` the step was shortened by that limit, ``nonfinite`` the desired value was NaN/inf,
 ``outside`` the command itself was outside the limits, walking back in after a start outside

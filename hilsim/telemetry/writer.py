@@ -256,7 +256,7 @@ class TelemetryWriter:
 
     def warm_up(self, rec: TickRecord, n: int) -> None:
         """Run :meth:`record`'s and :meth:`amend`'s books ``n`` times on scratch ones (run
-        stats of ``n`` ticks, a two-row ring) before a real-time show (:mod:`hilsim.warm_up`):
+        stats of ``n`` ticks, a two-row ring) before a real-time show (:mod:`hilsim.show.warm_up`):
         nothing is queued or counted."""
         stats, ring = (
             RunStats(self.joint_names, chunk_ticks=n),

@@ -10,10 +10,10 @@ import numpy as np
 import pytest
 
 from hilsim.rig import load_rig
-from hilsim.session import build_parts
+from hilsim.show.parts import build_parts
+from hilsim.show.preview import preview
 from hilsim.targets import Hold, Keyframes, TargetSet
 from hilsim.targets.clips import ClipSequence, Cue, sequence_for
-from hilsim.track_preview import preview
 
 RIG = """
 name = "c"

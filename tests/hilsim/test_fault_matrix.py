@@ -40,8 +40,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-import hilsim.loop as loop_mod
-import hilsim.session as session
+import hilsim.show.loop as loop_mod
+import hilsim.show.parts as parts_mod
 import hilsim.telemetry.writer as tm
 from drivers.clock import VirtualClock
 from drivers.dxlsim import DxlBus, VirtualServo, register_bus, unregister_bus
@@ -918,9 +918,9 @@ class BadAfter(Track):
 
 
 def replace_track(monkeypatch, joint: int, make) -> None:
-    """``hilsim run`` builds its targets through session.build_targets: swap one joint's track
+    """``hilsim run`` builds its targets through parts.build_targets: swap one joint's track
     (``make(original_track)``)."""
-    build = session.build_targets
+    build = parts_mod.build_targets
 
     def patched(rig):
         targets = build(rig)
@@ -928,7 +928,7 @@ def replace_track(monkeypatch, joint: int, make) -> None:
         tracks[joint] = make(tracks[joint])
         return TargetSet(tracks, rig.joint_names)
 
-    monkeypatch.setattr(session, "build_targets", patched)
+    monkeypatch.setattr(parts_mod, "build_targets", patched)
 
 
 # track_check's speed estimate of an infinite target (inf - inf) warns inside numpy

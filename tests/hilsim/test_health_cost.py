@@ -9,8 +9,8 @@ from types import SimpleNamespace
 import pytest
 
 from drivers.dynamixel import DynamixelBus
-from hilsim.joint_map import JointMap
-from hilsim.servo_watch import (
+from hilsim.rig.joint_map import JointMap
+from hilsim.show.servo_watch import (
     HEALTH_COST_MEMORY_S,
     HEALTH_FLOOR_S,
     HEALTH_MARGIN,

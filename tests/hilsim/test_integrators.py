@@ -10,7 +10,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from hilsim.integrators import (
+from hilsim.dynamics.integrators import (
     INTEGRATORS,
     RK4,
     Integrator,
@@ -19,8 +19,8 @@ from hilsim.integrators import (
     make_integrator,
     rk_solve,
 )
-from hilsim.springs import Spring
-from hilsim.stability_algebra import (
+from hilsim.dynamics.springs import Spring
+from hilsim.dynamics.stability_algebra import (
     growth,
     semi_implicit_euler_amplification,
     semi_implicit_euler_update_matrix,

@@ -13,9 +13,10 @@ import numpy as np
 import pytest
 
 from hilsim.exit_codes import ExitCode
-from hilsim.loop import StopFlag
 from hilsim.rig import load_rig
-from hilsim.session import build_parts, open_bus, open_telemetry, port_for, run_show, with_show
+from hilsim.show.loop import StopFlag
+from hilsim.show.parts import build_parts, with_show
+from hilsim.show.session import open_bus, open_telemetry, port_for, run_show
 from hilsim.telemetry.reader import read_run
 
 RIG = """
@@ -588,7 +589,7 @@ def test_a_midi_note_fires_a_cue(tmp_path):
 def test_teach_refuses_a_servo_that_turns_its_torque_on_by_goal(tmp_path):
     """Drive Mode bit 3 (Torque On by Goal Update) on a teach joint's servo: the goals the loop
     writes would stiffen it under the hand. Refused before anything moves, naming the servo."""
-    from hilsim.session import ShowRefusedError, check_teach
+    from hilsim.show.session import ShowRefusedError, check_teach
 
     rig_path = tmp_path / "rig.toml"
     rig_path.write_text(RIG)

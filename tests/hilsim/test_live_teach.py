@@ -14,10 +14,10 @@ import pytest
 
 from drivers.dynamixel.bus import DynamixelBus
 from drivers.servo_bus import PresentReading
-from hilsim.joint_map import JointMap
 from hilsim.live.teach import HALF_COUNT_DEG, Teach, TeachConfig
-from hilsim.monitors import FollowingMonitor
-from hilsim.servo_watch import LoopFaultError, ServoWatch
+from hilsim.rig.joint_map import JointMap
+from hilsim.show.monitors import FollowingMonitor
+from hilsim.show.servo_watch import LoopFaultError, ServoWatch
 from hilsim.targets.spec import track_from_spec
 
 NAMES = ("jaw", "pan")

@@ -24,10 +24,10 @@ from drivers.dxlsim.protocol import Instruction, StreamParser
 from drivers.dynamixel.bus import DynamixelBus
 from drivers.dynamixel.units import rad_to_ticks
 from hilsim.cli import main
-from hilsim.loop import EXIT_FAULT, HilLoop
+from hilsim.dynamics.springs import Spring
 from hilsim.rig import load_rig
-from hilsim.session import build_parts, build_targets
-from hilsim.springs import Spring
+from hilsim.show.loop import EXIT_FAULT, HilLoop
+from hilsim.show.parts import build_parts, build_targets
 from hilsim.targets import TargetSet, Track
 from hilsim.telemetry import TelemetryWriter
 from hilsim.telemetry.reader import read_run
@@ -434,7 +434,7 @@ def test_signals_apply_the_exit_policy_and_keep_telemetry(tmp_path, signum, code
 
 
 def test_realtime_scheduling_refused_is_a_warning_not_a_crash(monkeypatch):
-    from hilsim import realtime as realtime_mod
+    from hilsim.show import realtime as realtime_mod
 
     def refuse(*_a, **_k):
         raise PermissionError(1, "Operation not permitted")
@@ -451,7 +451,7 @@ def test_realtime_scheduling_refused_is_a_warning_not_a_crash(monkeypatch):
 def test_real_time_scheduling_holds_for_the_run_only(monkeypatch):
     """A show run inside a longer-lived process gives it back as it found it: policy,
     priority and CPUs (SCHED_FIFO left behind starves the host once the process busy-waits)."""
-    from hilsim import realtime as realtime_mod
+    from hilsim.show import realtime as realtime_mod
 
     state = {"sched": (0, 0), "cpus": {0, 1}}
     monkeypatch.setattr(realtime_mod.os, "sched_getscheduler", lambda _p: state["sched"][0])
@@ -484,16 +484,16 @@ def test_only_a_real_clock_show_is_warmed_and_its_numbers_are_the_same(
     warm, cold or with a warm-up that reports a failure (said in an event), the show is the
     same: every number recorded and every goal on the wire. (Its time, which the clock here
     does not see, is bounded in tests/hilsim/test_warm_up.py: no animation copied, a budget.)"""
-    import hilsim.loop as loop_mod
-    import hilsim.warm_up as warm_mod
+    import hilsim.show.loop as loop_mod
+    import hilsim.show.warm_up as warm_mod
 
     real, calls, how = warm_mod.warm_up, [], [""]
 
-    def spy(loop):
-        calls.append(loop.telemetry.stats._i)  # ticks recorded when it runs: none
+    def spy(stepper, jmap, telemetry, rec):
+        calls.append(telemetry.stats._i)  # ticks recorded when it runs: none
         if how[0] == "failing":
             return "TypeError: cannot pickle 'socket' object"
-        return None if how[0] == "cold" else real(loop)
+        return None if how[0] == "cold" else real(stepper, jmap, telemetry, rec)
 
     monkeypatch.setattr(loop_mod, "warm_up", spy)
     shows = {}

@@ -7,7 +7,7 @@ import math
 import pytest
 
 from drivers.servo_bus import HealthPart
-from hilsim.monitors import (
+from hilsim.show.monitors import (
     MIN_FAILED_READS,
     STALL_ALLOWANCE_S,
     FollowingMonitor,

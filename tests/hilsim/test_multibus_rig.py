@@ -13,7 +13,7 @@ import pytest
 
 from hilsim.cli import main
 from hilsim.rig import RigError, load_rig, load_rigs
-from hilsim.show_group import bus_outcome, bus_row, child_argv, format_rows, worst_code
+from hilsim.show.group import bus_outcome, bus_row, child_argv, format_rows, worst_code
 
 CONFIGS = pathlib.Path(__file__).resolve().parents[2] / "configs"
 

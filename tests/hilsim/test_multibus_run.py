@@ -227,7 +227,7 @@ def test_a_bus_that_cannot_start_keeps_every_bus_still(tmp_path):
 def test_a_bus_that_ends_after_saying_ready_calls_the_start_off(tmp_path, monkeypatch):
     """A child that said "ready" and then died (a crash, a telemetry refusal) cannot play its
     part: the others are told to stand down instead of being sent the start instant."""
-    import hilsim.show_group as group
+    import hilsim.show.group as group
 
     marker = tmp_path / "a-pid"
     dies = (

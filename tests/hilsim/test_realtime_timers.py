@@ -1,5 +1,5 @@
 """A show's loop thread runs with precise timers (issue 12: waiting costs nothing): inside
-``hilsim.realtime.realtime`` the thread's timer slack is 1 ns, so its sleep can end close to
+``hilsim.show.realtime.realtime`` the thread's timer slack is 1 ns, so its sleep can end close to
 the deadline and the clock's spin window can be short; afterwards it is what it was, also
 when the block raises. Where the OS has no timer slack the show runs as before."""
 
@@ -8,7 +8,7 @@ from __future__ import annotations
 import pytest
 
 import drivers.clock as clock_mod
-import hilsim.realtime as rt
+import hilsim.show.realtime as rt
 
 
 @pytest.mark.skipif(clock_mod.timer_slack_ns() is None, reason="no timer slack (not Linux)")

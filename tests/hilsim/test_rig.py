@@ -441,7 +441,7 @@ def test_binary_rig_file_is_one_line_naming_the_file(tmp_path):
 
 
 def test_binary_csv_names_the_csv_file_and_line(tmp_path):
-    from hilsim.session import build_targets
+    from hilsim.show.parts import build_targets
 
     (tmp_path / "anim.csv").write_bytes(b"time_s,pan\n0,0\n1,\xff\xfe\n")
     text = BASE.replace(

@@ -1,4 +1,4 @@
-"""hilsim.session: a rig into running parts — the spin window reaching the clock, the port's
+"""hilsim.show.session: a rig into running parts — the spin window reaching the clock, the port's
 clock, and the joint map every conversion goes through."""
 
 from __future__ import annotations
@@ -13,9 +13,10 @@ from hypothesis import strategies as st
 
 from drivers.clock import DEFAULT_SPIN_S, MonotonicClock, VirtualClock
 from drivers.dxlsim.url import DxlsimUrl
-from hilsim.joint_map import JointMap
 from hilsim.rig import load_rig
-from hilsim.session import build_parts, expectations, port_for, real_clock
+from hilsim.rig.joint_map import JointMap
+from hilsim.show.parts import build_parts
+from hilsim.show.session import expectations, port_for, real_clock
 
 RIG = """
 name = "s"

@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 
 import hilsim
-from hilsim.simulate import simulate
-from hilsim.springs import Spring
+from hilsim.dynamics.simulate import simulate
+from hilsim.dynamics.springs import Spring
 
 # the paper's snapshot table: t, x, v for m = 1, k = 10, x0 = 1, v0 = 0
 PAPER_TABLE = [

@@ -10,8 +10,8 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from hilsim.integrators import make_integrator
-from hilsim.springs import Spring
+from hilsim.dynamics.integrators import make_integrator
+from hilsim.dynamics.springs import Spring
 
 
 def test_a_single_spring_holds_scalars() -> None:

@@ -9,16 +9,16 @@ import pytest
 from hypothesis import assume, example, given, settings
 from hypothesis import strategies as st
 
-from hilsim.integrators import INTEGRATORS, make_integrator
-from hilsim.springs import Spring
-from hilsim.stability import (
+from hilsim.dynamics.integrators import INTEGRATORS, make_integrator
+from hilsim.dynamics.springs import Spring
+from hilsim.dynamics.stability import (
     GROWTH_FLOOR,
     MAX_SUBSTEPS,
     check_stability,
     critical_step,
     stability_boundary,
 )
-from hilsim.stability_algebra import spectral_growth
+from hilsim.dynamics.stability_algebra import spectral_growth
 
 
 def test_rk4_limits_on_the_axes() -> None:

@@ -41,7 +41,7 @@ def test_the_first_tick_of_the_demo_comes_without_matplotlib(tmp_path):
     plotting process meanwhile), stopped at its first tick: what this process has loaded."""
     code = (
         "import json, os, sys\n"
-        "import hilsim.loop as loop\n"
+        "import hilsim.show.loop as loop\n"
         "def first_tick(self, *args):\n"
         "    seen = {m: m in sys.modules for m in json.loads(sys.argv[1])}\n"
         "    print(json.dumps(seen), flush=True)\n"

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from hilsim.cli import main
-from hilsim.springs import Spring
+from hilsim.dynamics.springs import Spring
 from hilsim.targets import SpecError, track_from_spec
 from hilsim.targets.formats.common import FormatError
 

@@ -336,7 +336,7 @@ def test_the_rig_key(tmp_path: Path) -> None:
 
 
 def test_parquet_without_pyarrow_refuses_the_show_in_one_line(tmp_path, monkeypatch) -> None:
-    from hilsim import session
+    from hilsim.show import session
     from hilsim.telemetry import format as tf
 
     text = BASE.replace("[loop]", '[telemetry]\nformat = "parquet"\n[loop]')

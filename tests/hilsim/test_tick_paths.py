@@ -14,10 +14,10 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from hilsim.integrators import INTEGRATORS, make_integrator
-from hilsim.joint_map import JointMap
-from hilsim.monitors import STALL_ALLOWANCE_S, HostStalls, SilenceBudget
-from hilsim.springs import Spring
+from hilsim.dynamics.integrators import INTEGRATORS, make_integrator
+from hilsim.dynamics.springs import Spring
+from hilsim.rig.joint_map import JointMap
+from hilsim.show.monitors import STALL_ALLOWANCE_S, HostStalls, SilenceBudget
 from hilsim.targets import Keyframes, Sine, Step, TargetSet
 from hilsim.telemetry.format import TickRecord, csv_columns
 from hilsim.telemetry.ring import TickRing
@@ -35,7 +35,7 @@ floats = st.floats(-1e3, 1e3, allow_nan=False)
     method=st.sampled_from(list(INTEGRATORS)),
 )
 def test_the_held_step_is_each_methods_staged_step(n, seed, kind, method):
-    # the loop's step (the method's step as a matrix, hilsim.rk_lists.HeldStep) against the
+    # the loop's step (the method's step as a matrix, hilsim.dynamics.held_step.HeldStep) against the
     # method's own stages: the same map, so the same numbers to rounding (not the same bits)
     rng = np.random.default_rng(seed)
     b = rng.uniform(-1, 1, n) if rng.random() < 0.7 else 0.0

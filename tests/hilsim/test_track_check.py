@@ -10,10 +10,10 @@ import numpy as np
 import pytest
 
 from hilsim.rig import load_rig
-from hilsim.session import build_targets
+from hilsim.show.parts import build_targets
 from hilsim.targets import Hold, Keyframes, Sine, TargetSet
+from hilsim.targets.check import TrackWarning, _sample, check_tracks
 from hilsim.targets.csv_file import CsvCurve
-from hilsim.track_check import TrackWarning, _sample, check_tracks
 
 CONFIGS = Path(__file__).resolve().parents[2] / "configs"
 PERIOD = 1.0 / 64.0  # exact in binary: tick times k/64 are exact, so the counts are too
@@ -102,7 +102,7 @@ def test_endless_generators_are_checked_over_the_horizon_and_say_so():
 
 def test_chunks_join_up(monkeypatch):
     # the speed across a chunk border is the one between the chunks' samples
-    import hilsim.track_check as tc
+    import hilsim.targets.check as tc
 
     track = Keyframes([0.0, 2.0, 2.0 + PERIOD, 4.0], [0.0, 0.0, rad(20.0), rad(20.0)])
     (whole,) = check(track)

@@ -12,8 +12,8 @@ import pytest
 
 from hilsim.cli import main
 from hilsim.rig import load_rig
-from hilsim.session import build_parts
-from hilsim.track_preview import preview, targets_at
+from hilsim.show.parts import build_parts
+from hilsim.show.preview import preview, targets_at
 
 RIG = """
 name = "t"

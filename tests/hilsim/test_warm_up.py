@@ -1,4 +1,4 @@
-"""The warm-up before a real-time show's tick 0 (hilsim.warm_up): the tick's stages but the
+"""The warm-up before a real-time show's tick 0 (hilsim.show.warm_up): the tick's stages but the
 bus run on copies, the show's own parts untouched and its animation never copied, a part
 that cannot be copied left out, a failure said, the runs within a budget."""
 
@@ -9,9 +9,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-import hilsim.warm_up as warm_mod
+import hilsim.show.stepper as stepper_mod
+import hilsim.show.warm_up as warm_mod
 from hilsim.bench.tick import HilsimTick
-from hilsim.safety import SafetyFilter
+from hilsim.safety.filter import SafetyFilter
 from hilsim.targets import TargetSet, Track
 from hilsim.telemetry.stats import RunStats
 
@@ -44,10 +45,16 @@ def _assert_untouched(loop, before: dict) -> None:
 
 
 @pytest.fixture
-def tick(tmp_path: Path):
+def tick(tmp_path: Path, monkeypatch):
+    # the runs' count is asserted, not their speed: no budget unless a test sets one
+    monkeypatch.setattr(warm_mod, "BUDGET_S", 1e9)
     t = HilsimTick(4, tmp_path)
     yield t
     t.close()
+
+
+def _warm(loop, n: int = warm_mod.WARM_UP_TICKS) -> str | None:
+    return warm_mod.warm_up(loop.stepper, loop.map, loop.telemetry, loop.rec, n)
 
 
 def _spy(monkeypatch, cls, name: str, seen: list, show_part):
@@ -70,13 +77,12 @@ def test_every_stage_runs_n_times_on_copies_and_the_show_keeps_nothing(tick, mon
     _spy(monkeypatch, TargetSet, "sample_into", seen["sample"], loop.targets)
     _spy(monkeypatch, RunStats, "add", seen["stats"], loop.telemetry.stats)
     copied = []
-    deepcopy = warm_mod.copy.deepcopy
+    deepcopy = stepper_mod.copy.deepcopy
     monkeypatch.setattr(
-        warm_mod.copy, "deepcopy", lambda o, m=None: copied.append(o) or deepcopy(o, m)
+        stepper_mod.copy, "deepcopy", lambda o, m=None: copied.append(o) or deepcopy(o, m)
     )
-    loop.safety.filter = lambda *a: pytest.fail("an instance's own override was called")
     before = _state(loop)
-    assert warm_mod.warm_up(loop, 7) is None
+    assert _warm(loop, 7) is None
     assert seen == {k: [False] * 7 for k in seen}  # seven times each, never the show's own
     _assert_untouched(loop, before)
     # the animation is never copied (its size is the show's, not the joints')
@@ -85,18 +91,18 @@ def test_every_stage_runs_n_times_on_copies_and_the_show_keeps_nothing(tick, mon
 
 def test_a_part_that_cannot_be_copied_is_left_out_and_the_rest_warmed(tick, monkeypatch):
     loop = tick.loop
-    deepcopy, filtered, stepped = warm_mod.copy.deepcopy, [], []
+    deepcopy, filtered, stepped = stepper_mod.copy.deepcopy, [], []
 
     def refuse_springs(obj, memo=None):
         if obj is loop.integrator:
             raise TypeError("cannot pickle '_thread.lock' object")
         return deepcopy(obj, memo)
 
-    monkeypatch.setattr(warm_mod.copy, "deepcopy", refuse_springs)
+    monkeypatch.setattr(stepper_mod.copy, "deepcopy", refuse_springs)
     _spy(monkeypatch, SafetyFilter, "filter", filtered, loop.safety)
     _spy(monkeypatch, type(loop.integrator), "step", stepped, loop.integrator)
     before = _state(loop)
-    assert warm_mod.warm_up(loop, 5) is None
+    assert _warm(loop, 5) is None
     assert filtered == [False] * 5 and stepped == []
     _assert_untouched(loop, before)
 
@@ -106,8 +112,8 @@ def test_a_shows_targets_are_not_sampled_and_the_springs_follow_a_held_target(ti
     sampled, stepped = [], []
     _spy(monkeypatch, TargetSet, "sample_into", sampled, loop.targets)
     _spy(monkeypatch, type(loop.integrator), "step", stepped, loop.integrator)
-    monkeypatch.setattr(loop, "director", object())  # a show: live inputs behind the targets
-    assert warm_mod.warm_up(loop, 3) is None
+    monkeypatch.setattr(loop.stepper, "live_targets", True)  # a show: live inputs behind them
+    assert _warm(loop, 3) is None
     assert sampled == [] and stepped == [False] * 3
 
 
@@ -116,7 +122,7 @@ def test_the_runs_stop_at_the_budget(tick, monkeypatch):
     filtered = []
     _spy(monkeypatch, SafetyFilter, "filter", filtered, loop.safety)
     monkeypatch.setattr(warm_mod, "BUDGET_S", -1.0)  # past it from the start: one run
-    assert warm_mod.warm_up(loop, 16) is None
+    assert _warm(loop, 16) is None
     assert filtered == [False]
 
 
@@ -128,6 +134,6 @@ def test_a_warm_up_that_fails_does_nothing_and_says_what(tick, monkeypatch):
 
     monkeypatch.setattr(type(loop.map), "to_servo_list", broken)
     before = _state(loop)
-    assert warm_mod.warm_up(loop) == "ValueError: 3 joint angles for 2 joints"
+    assert _warm(loop) == "ValueError: 3 joint angles for 2 joints"
     monkeypatch.undo()
     _assert_untouched(loop, before)

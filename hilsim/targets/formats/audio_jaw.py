@@ -23,7 +23,7 @@ delay at 0 Hz) is ``(c - b)/k`` - in the animators' form 2ζ/ωn - r·ζ/ωn = (
 it; pass it as ``lead_s`` and the *commanded* jaw, not only the target, is in time with the
 sound (exactly for a ramp; for the fast edges of speech to within the spring's own rise).
 A speed limit adds a lag of its own on a fast opening that no constant lead can cancel;
-:mod:`hilsim.track_check` names a target faster than the joint.
+:mod:`hilsim.targets.check` names a target faster than the joint.
 
 Files. PCM WAV (8-bit unsigned, 16/24/32-bit signed), IEEE-float WAV (32/64-bit) and
 WAVE_FORMAT_EXTENSIBLE of those are read here with numpy, from a RIFF chunk walk that names the
@@ -51,7 +51,7 @@ from pathlib import Path
 
 import numpy as np
 
-from hilsim.springs import Spring
+from hilsim.dynamics.springs import Spring
 from hilsim.targets.formats.common import FormatError, SampledTrack, UnitMap, read_bytes
 
 #: channel choices besides a 0-based index

@@ -1,7 +1,8 @@
 """Load-time track checks: where a joint's target goes beyond its limits or its speed limit.
 
-The safety filter (:mod:`hilsim.safety`) makes such a target safe on the wire, silently, tick by
-tick. :func:`check_tracks` says so before the show: it samples every joint's target at the loop's
+The safety filter (:mod:`hilsim.safety.filter`) makes such a target safe on the wire,
+silently, tick by tick. :func:`check_tracks` says so before the show: it samples every
+joint's target at the loop's
 tick times ``t_k = k·period`` (as the loop does), over the show, and returns one
 :class:`TrackWarning` per joint and kind of excess, e.g.::
 
@@ -174,7 +175,7 @@ def check_tracks(
     """Sample each joint's target at the tick times and report where it leaves its limits.
 
     Args:
-        targets: one track per joint, in joint order (:func:`hilsim.session.build_targets`).
+        targets: one track per joint, in joint order (:func:`hilsim.show.parts.build_targets`).
         joints: the rig's joints in the same order (``rig.joints``): name, min_rad, max_rad,
             max_speed_rad_s, joint frame.
         period_s: the loop's tick period (``rig.loop.period_s``), > 0.

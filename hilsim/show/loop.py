@@ -11,7 +11,7 @@ One tick (k = 0, 1, ...; t_k = k·period of simulation time)::
     joint_map.to_joint, targets.sample     present back in the joint frame; u(t_k)
     telemetry.record(TickRecord)           queued; a writer thread owns the disk
     reads, following error                 faults that stop the show, raised once recorded
-                                           (hilsim.servo_watch)
+                                           (hilsim.show.servo_watch)
     integrator.step                        x_k -> x_{k+1} (substeps; target held over each step)
     one health read                        round robin, only if the tick has time to spare
 
@@ -21,11 +21,11 @@ next deadline is an overrun: counted, and (``overrun_policy = "stop"``) a fault.
 loop has fallen more than a whole period behind, the missed ticks are simulated without bus
 traffic so the figure stays in step with the show (counted as ``skipped_ticks``).
 
-The loop runs the :class:`~hilsim.session.Parts` a session built from the rig (targets,
+The loop runs the :class:`~hilsim.show.parts.Parts` a session built from the rig (targets,
 joint map, safety filter, integrator); what a servo failure is, and how a tripped watchdog
-is recovered, is decided in :mod:`hilsim.servo_watch`.
+is recovered, is decided in :mod:`hilsim.show.servo_watch`.
 
-**The show goes on through a host stall** (:mod:`hilsim.monitors`): the host's own stalls
+**The show goes on through a host stall** (:mod:`hilsim.show.monitors`): the host's own stalls
 are measured and logged (``host_stall`` events, the ``host_stall_us`` column) and never
 counted as servo silence. A stall long enough for the servos' Bus Watchdog to trip is
 followed by a health check of every servo; a tripped watchdog is cleared, the goal set to
@@ -51,30 +51,28 @@ import time
 import traceback
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING
 
 import numpy as np
 
 from drivers.fill import Packed
 from drivers.servo_bus import PresentReading, ServoBus, ServoBusError
 from hilsim.exit_codes import ExitCode, for_signal
-from hilsim.monitors import STALL_EVENT_S, WATCHDOG_GAP_FRACTION, HostStalls
-from hilsim.realtime import REALTIME_SWITCH_INTERVAL_S, realtime
 from hilsim.rig import OverrunPolicy, TelemetryFailurePolicy
-from hilsim.servo_watch import LoopFaultError, ServoWatch
-from hilsim.show_log import ShowLog
+from hilsim.show.events import ShowLog
+from hilsim.show.monitors import STALL_EVENT_S, WATCHDOG_GAP_FRACTION, HostStalls
+from hilsim.show.parts import Parts
+from hilsim.show.realtime import REALTIME_SWITCH_INTERVAL_S, realtime
+from hilsim.show.servo_watch import LoopFaultError, ServoWatch
+from hilsim.show.stepper import Stepper, TickBuffers
+from hilsim.show.warm_up import warm_up
 from hilsim.telemetry import TelemetryWriter, WriterFailedError
 from hilsim.telemetry.format import TickRecord
-from hilsim.warm_up import warm_up
-
-if TYPE_CHECKING:
-    from hilsim.session import Parts
 
 #: the loop stops when integrating one tick has cost more than this share of the period on
 #: every tick for INTEGRATION_BEHIND_S of wall time: it can never catch up
 INTEGRATION_SHARE = 0.9
 INTEGRATION_BEHIND_S = 0.5
-#: with a shared start (several buses, hilsim.show_group): a bus begins its start-up (first
+#: with a shared start (several buses, hilsim.show.group): a bus begins its start-up (first
 #: read, torque on, Bus Watchdog armed) this long before the shared tick 0, and at most 0.4 of
 #: its watchdog period, so its servos never wait out their watchdog before the first tick
 SHARED_START_LEAD_S = 0.1
@@ -131,7 +129,7 @@ class HilLoop:
 
     Parameters
     ----------
-    parts: what :func:`hilsim.session.build_parts` made from the rig (joints in bus order).
+    parts: what :func:`hilsim.show.parts.build_parts` made from the rig (joints in bus order).
     bus: an open :class:`~drivers.servo_bus.ServoBus` whose IDs are the rig's servo IDs.
     telemetry: the run's writer; closed by the caller after :meth:`run` returns.
     duration_s: stop after this much show time; None = the animation's length (or forever).
@@ -175,20 +173,19 @@ class HilLoop:
         self.duration_s = parts.targets.duration if duration_s is None else duration_s
         self.period = rig.loop.period_s
         n = len(rig.joints)
-        # Preallocated per-tick buffers (joint frame unless named servo_*); the recorded ones
-        # are consecutive views of one block in the row's order, copied at once
-        block = np.zeros(5 * n)
-        self.u, self.x, self.v, self.cmd, self.present = (
-            block[k * n : (k + 1) * n] for k in range(5)
-        )
-        self.du = np.zeros(n)
+        # the tick's arrays (joint frame); the recorded ones are one block, copied at once
+        buffers = TickBuffers.zeros(n)
+        block = buffers.block
+        self.u, self.x, self.v = buffers.u, buffers.x, buffers.v
+        self.cmd, self.present, self.du = buffers.cmd, buffers.present, buffers.du
+        #: the bus-free half of the tick: safety filter, targets, springs
+        self.stepper = Stepper.of(parts, buffers)
         self.reading = PresentReading.empty(rig.servo_ids)
         # the tick reads and writes these through views (drivers.fill: no numpy call)
         self._cmd_view, self._present_view = Packed(self.cmd), Packed(self.present)
         self._positions_view = Packed(self.reading.positions)
         self._status_view = Packed(self.reading.status)
-        self._h, self._substeps = rig.loop.h_s, rig.loop.substeps
-        self.integrator.held_step(self._h)  # now: in tick 0 it overran a 1 kHz show
+        self.integrator.held_step(rig.loop.h_s)  # now: in tick 0 it overran a 1 kHz show
         self.rec = TickRecord(
             target=self.u,
             sim_x=self.x,
@@ -377,7 +374,11 @@ class HilLoop:
         if shared:
             clock.idle = slack  # type: ignore[attr-defined]
         try:
-            if not clock.virtual and (cold := warm_up(self)):  # tick 0 as warm as later ones
+            # tick 0 as warm as later ones
+            cold = (
+                None if clock.virtual else warm_up(self.stepper, self.map, self.telemetry, self.rec)
+            )
+            if cold:
                 self.log.event("warm_up", f"tick 0 runs cold: the warm-up failed ({cold})")
             t0 = self._begin()
             k = 0
@@ -431,7 +432,7 @@ class HilLoop:
         self._prev, self._excluded = (t_actual, waited), 0.0
         t_sim = k * self.period
         c0 = perf()
-        event = self.safety.filter(self.x, self.cmd)  # the only way to the wire
+        event = self.stepper.command()  # the only way to the wire
         if event is not None:
             # a fatal one never reaches the wire (no row: nothing was sent or read); the
             # simulation state that caused it is kept in the event
@@ -479,7 +480,7 @@ class HilLoop:
                     self.x[i], self.v[i] = p, 0.0
                     self.safety.rejoin(i, p)
         # u(t_k) recorded; u and u' as tuples for the springs (u' needs no array of its own)
-        target = self.targets.sample_into(t_sim, self.u)
+        target = self.stepper.sample(t_sim)
         c3 = perf()
         # the host's own stall in or just before this tick: a late wake-up, the last
         # iteration's host work beyond its usual cost, and what the driver saw of the host
@@ -512,10 +513,7 @@ class HilLoop:
         watch.check_following(present, cmd)
         # -- advance the springs to the next tick (target held over each step)
         t_int = clock.now()
-        if self._substeps == 1:  # _integrate's one step, without its call
-            self.integrator.step(self.x, self.v, self._h, t_sim, target)
-        else:
-            self._integrate(t_sim, target)
+        self.stepper.advance(t_sim, target)
         integ_s = clock.now() - t_int
         if integ_s < self._integ_s:  # the least one tick has cost (min() parses keywords)
             self._integ_s = integ_s
@@ -589,21 +587,6 @@ class HilLoop:
         self.safety.rejoin(i, joint_rad)
         self.cmd[i] = joint_rad
 
-    def _integrate(self, t_sim: float, first: tuple | None = None) -> None:
-        """Advance the springs one tick from ``t_sim`` (the target held over each substep).
-        ``first``: u(t_sim), u'(t_sim) if the tick has sampled them already."""
-        h, substeps = self._h, self._substeps
-        x, v, u, du = self.x, self.v, self.u, self.du
-        targets, integ = self.targets, self.integrator
-        if first is None:
-            targets.sample(t_sim, u, du)
-            first = (u, du)
-        integ.step(x, v, h, t_sim, first)
-        for j in range(1, substeps):
-            ts = t_sim + j * h
-            targets.sample(ts, u, du)
-            integ.step(x, v, h, ts, (u, du))
-
     def _catch_up(self, k: int, t0: float, t_end: float, n_ticks: int | None) -> int:
         """After an overrun of more than a whole period, simulate the missed ticks without bus
         traffic so the show stays in time; returns the next tick to run. Stops early on a
@@ -613,7 +596,7 @@ class HilLoop:
         for _ in range(max(0, behind)):
             if (n_ticks is not None and k >= n_ticks) or self._stopping():
                 break
-            self._integrate(k * period)
+            self.stepper.advance(k * period)
             k += 1
             self.loop_stats["skipped_ticks"] += 1
         return k

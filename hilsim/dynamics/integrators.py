@@ -1,6 +1,7 @@
 """Fixed-step integrators that advance a bank of damped springs in place: how to step.
 
-Each joint obeys x' = v, v' = a with a = (k·(u − x) + b·u' − c·v) / m (see :mod:`hilsim.springs`).
+Each joint obeys x' = v, v' = a with a = (k·(u − x) + b·u' − c·v) / m
+(see :mod:`hilsim.dynamics.springs`).
 Four methods, chosen by name (:data:`INTEGRATORS`; each class has its ``order`` and
 ``evals_per_step``): "euler" (explicit Euler, order 1), "semi_implicit_euler" (symplectic Euler,
 order 1), "midpoint" (explicit midpoint, order 2) and "rk4" (classical Runge–Kutta, order 4).
@@ -8,7 +9,8 @@ order 1), "midpoint" (explicit midpoint, order 2) and "rk4" (classical Runge–K
 The explicit Runge–Kutta methods are data: a Butcher tableau (class attributes ``A``, ``B``, ``C``,
 ``order``) drives one generic step. Semi-implicit Euler is not a Runge–Kutta method and has its
 own step. Their stability (how much a step amplifies a free spring) is
-:mod:`hilsim.stability_algebra`; tableaux, orders and stability boundaries: ``docs/numerics.md``.
+:mod:`hilsim.dynamics.stability_algebra`. Tableaux, orders and stability boundaries:
+``docs/numerics.md``.
 
 State is two float64 arrays shaped ``(n,)``, positions x and velocities v, updated in place; all
 buffers are allocated when the integrator is built, none in :meth:`Integrator.step`. A small bank
@@ -31,12 +33,12 @@ import numpy.typing as npt
 
 from drivers.fill import Packed
 from hilsim._types import FloatArray
-from hilsim.rk_lists import Combo as _Combo
-from hilsim.rk_lists import HeldStep, kick_drift_matrix, solve_tableau, tableau_matrix
-from hilsim.rk_lists import as_list as _as_list
-from hilsim.rk_lists import combo as _combo
-from hilsim.rk_lists import scale as _scale
-from hilsim.springs import Spring
+from hilsim.dynamics.held_step import Combo as _Combo
+from hilsim.dynamics.held_step import HeldStep, kick_drift_matrix, solve_tableau, tableau_matrix
+from hilsim.dynamics.held_step import as_list as _as_list
+from hilsim.dynamics.held_step import combo as _combo
+from hilsim.dynamics.held_step import scale as _scale
+from hilsim.dynamics.springs import Spring
 
 #: u(t), u'(t) for every joint at time t (floats or arrays broadcastable to ``(n,)``; rad, rad/s).
 Target = Callable[[float], tuple[npt.ArrayLike, npt.ArrayLike]]
@@ -94,7 +96,7 @@ class Integrator(ABC):
             x: positions, float64 array shaped ``(n,)`` (rad), updated in place.
             v: velocities, float64 array shaped ``(n,)`` (rad/s), updated in place.
             h: step (s), > 0. Not checked here: this is the real-time hot path; check the rig once
-                with :func:`hilsim.stability.check_stability`.
+                with :func:`hilsim.dynamics.stability.check_stability`.
             t: time at the start of the step (s); only a callable target reads it.
             target: ``None`` (u = u' = 0), a pair ``(u, du)`` held over the step (the real-time
                 loop's case: targets sampled once per tick), or a callable ``t -> (u, du)`` sampled
@@ -153,7 +155,7 @@ class Integrator(ABC):
         """One step of each spring with the target held, as a matrix: shaped ``(n, 3, 3)``,
         mapping (x, v, g) to (x', v', g), g = w2·u + bm·u' the forcing (the last row is
         (0, 0, 1)). The method's own step on a linear system is linear, so this is exactly
-        what it computes (:class:`hilsim.rk_lists.HeldStep`)."""
+        what it computes (:class:`hilsim.dynamics.held_step.HeldStep`)."""
         M = np.zeros((self.n, 3, 3))  # d/dt (x, v, g) = M·(x, v, g)
         M[:, 0, 1], M[:, 1, 0], M[:, 1, 1], M[:, 1, 2] = 1.0, self._neg_w2, self._neg_cm, 1.0
         return self._step_matrix(M, float(h))
@@ -377,7 +379,7 @@ class SemiImplicitEuler(Integrator):
     energy but keeps it within O(h·ω) of the true value for ever, which is why game engines
     (Bullet, Box2D) use it. It is not a Runge–Kutta method (it treats x and v differently), so it
     has no scalar stability function; see
-    :func:`hilsim.stability_algebra.semi_implicit_euler_amplification`.
+    :func:`hilsim.dynamics.stability_algebra.semi_implicit_euler_amplification`.
     """
 
     name = "semi_implicit_euler"
@@ -452,7 +454,8 @@ def rk_solve(
     t0: float = 0.0,
 ) -> tuple[FloatArray, FloatArray]:
     """y' = f(t, y) integrated with a Runge–Kutta method's tableau: a plain reference
-    (:func:`hilsim.rk_lists.solve_tableau`), not for the real-time loop. Returns (t, y)."""
+    (:func:`hilsim.dynamics.held_step.solve_tableau`), not for the real-time loop.
+    Returns (t, y)."""
     cls = get_method(method)
     if not issubclass(cls, RungeKutta):
         raise ValueError(f"method must be a Runge–Kutta method, got {cls.name!r}")

@@ -3,11 +3,11 @@ the safety filter, offline (``hilsim tracks``).
 
 :func:`targets_at` gives every joint's target (degrees, before the spring) at chosen show
 times. :func:`preview` runs the show's own parts - targets, integrator, safety filter - tick by
-tick as :class:`~hilsim.loop.HilLoop` does, with no bus: the target, the spring's position, the
+tick as :class:`~hilsim.show.loop.HilLoop` does, with no bus: the target, the spring's position, the
 command the filter lets through and where the filter changed it. The figure starts where the
 rig's ``initial_deg`` puts each joint, else at its target at t = 0 (a real show starts from the
 pose the servos report, through the soft start). :func:`plot_preview` draws it;
-:func:`hilsim.track_check.check_tracks` names the limits the targets break.
+:func:`hilsim.targets.check.check_tracks` names the limits the targets break.
 """
 
 from __future__ import annotations
@@ -16,14 +16,12 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 import numpy as np
 
 from hilsim._types import FloatArray
-
-if TYPE_CHECKING:
-    from hilsim.session import Parts
+from hilsim.show.parts import Parts
+from hilsim.show.stepper import Stepper, TickBuffers
 
 #: a command this far (rad) from the spring's position was changed by the safety filter
 CLAMP_TOLERANCE_RAD = 1e-9
@@ -79,27 +77,25 @@ def preview(parts: Parts, duration_s: float) -> Preview:
             f"at most {MAX_PREVIEW_TICKS} (give a shorter --duration)"
         )
     n = len(rig.joints)
-    x, v, u, du, cmd = (np.zeros(n) for _ in range(5))
-    parts.targets.sample(0.0, u, du)
+    buffers = TickBuffers.zeros(n)
+    stepper = Stepper.of(parts, buffers)
+    x, u = buffers.x, buffers.u
+    parts.targets.sample(0.0, u, buffers.du)
     for i, jt in enumerate(rig.joints):
         x[i] = u[i] if jt.initial_rad is None else jt.initial_rad
-    safety = parts.safety
-    safety.start(np.clip(x, [j.min_rad for j in rig.joints], [j.max_rad for j in rig.joints]))
-    integ, h, substeps = parts.integrator, rig.loop.h_s, rig.loop.substeps
+    lo, hi = [j.min_rad for j in rig.joints], [j.max_rad for j in rig.joints]
+    parts.safety.start(np.clip(x, lo, hi))
     target = np.empty((ticks, n))
     spring = np.empty((ticks, n))
     out = np.empty((ticks, n))
-    for k in range(ticks):
+    for k in range(ticks):  # the loop's tick without the bus
         t = k * period
-        safety.filter(x, cmd)  # the only way to the wire, as in the loop
+        stepper.command()
         spring[k] = x
-        out[k] = cmd
-        parts.targets.sample(t, u, du)
+        out[k] = buffers.cmd
+        first = stepper.sample(t)
         target[k] = u
-        for j in range(substeps):
-            if j:
-                parts.targets.sample(t + j * h, u, du)
-            integ.step(x, v, h, t + j * h, (u, du))
+        stepper.advance(t, first)
     clamped = np.abs(out - spring) > CLAMP_TOLERANCE_RAD
     soft = math.ceil(rig.safety.soft_start_s / period - 1e-9)
     clamped[:soft] = False  # the soft start's blend, not a limit

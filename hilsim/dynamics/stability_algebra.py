@@ -1,8 +1,9 @@
 """Stability algebra of the integrators: how much one free step amplifies a spring's modes.
 
-Functions of a method (a name or an :class:`~hilsim.integrators.Integrator` class), kept apart
-from the stepping code in :mod:`hilsim.integrators`; :mod:`hilsim.stability` builds the rig's
-stability guard on them. All of them describe the free spring (u = 0); the derivations and the
+Functions of a method (a name or an :class:`~hilsim.dynamics.integrators.Integrator` class),
+kept apart from the stepping code in :mod:`hilsim.dynamics.integrators`.
+:mod:`hilsim.dynamics.stability` builds the rig's stability guard on them.
+All of them describe the free spring (u = 0); the derivations and the
 resulting boundaries are collected in ``docs/numerics.md``.
 
 * An explicit Runge–Kutta method multiplies each eigen-mode e^(λt) by its stability function
@@ -23,8 +24,8 @@ import numpy as np
 import numpy.typing as npt
 
 from hilsim._types import FloatArray
-from hilsim.integrators import Integrator, RungeKutta, SemiImplicitEuler, get_method
-from hilsim.springs import oscillator_eigenvalues
+from hilsim.dynamics.integrators import Integrator, RungeKutta, SemiImplicitEuler, get_method
+from hilsim.dynamics.springs import oscillator_eigenvalues
 
 MethodLike = str | type[Integrator]
 
@@ -171,8 +172,9 @@ def spectral_growth(
 ) -> npt.NDArray[np.float64]:
     """ρ(M)² − 1 of the one-step update matrix M for the free spring x'' = −w2·x − cm·x'.
 
-    Broadcasts over h (s), w2 = k/m (1/s², :attr:`Spring.w2 <hilsim.springs.Spring.w2>`) and
-    cm = c/m (1/s, :attr:`Spring.cm <hilsim.springs.Spring.cm>`). ≤ 0: no mode grows.
+    Broadcasts over h (s),
+    w2 = k/m (1/s², :attr:`Spring.w2 <hilsim.dynamics.springs.Spring.w2>`) and
+    cm = c/m (1/s, :attr:`Spring.cm <hilsim.dynamics.springs.Spring.cm>`). ≤ 0: no mode grows.
 
     Rounding floor: the value is computed in float64 from terms of size ~(h·|λ|)², so it
     is resolved to about 1e-16·(h·|λ|)². Where the true growth is smaller than that (an

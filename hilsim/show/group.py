@@ -9,8 +9,8 @@ reads. This module is the parent (``docs/buses.md``):
   moved). When every child is ready the parent sends each one instant on CLOCK_MONOTONIC
   (``time.monotonic()``, system-wide on Linux, the clock every show's loop keeps time with):
   ``START_MARGIN_S`` ahead, time for every child's soft-start reads and torque-on. Each child's
-  tick 0 waits for it, its start-up just before (:data:`hilsim.loop.SHARED_START_LEAD_S`;
-  :func:`hilsim.session.run_show`'s ``start_at``). A child that refuses
+  tick 0 waits for it, its start-up just before (:data:`hilsim.show.loop.SHARED_START_LEAD_S`;
+  :func:`hilsim.show.session.run_show`'s ``start_at``). A child that refuses
   (exit 2) calls the start off: the others are told (their stdin closes) and nothing moves.
   With ``--virtual-time`` each child keeps its own virtual clock (show time is k·period, so
   each bus's numbers are deterministic) and the instant is only the signal to go.

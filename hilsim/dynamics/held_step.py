@@ -1,6 +1,6 @@
 """A Runge–Kutta tableau as the list path steps it, and every method's step with a held target.
 
-:class:`hilsim.integrators.RungeKutta` keeps each row of its tableau (and its weights) as a
+:class:`hilsim.dynamics.integrators.RungeKutta` keeps each row of its tableau (and its weights) as a
 :data:`Combo`: the non-zero terms of Σ a_j·K_j, scaled by the step with :func:`scale` once
 per step size.
 
@@ -9,7 +9,7 @@ loop samples it once per tick), a damped spring is a linear system in (x, v, g),
 bm·u' the forcing, and so is any of the methods' steps on it: one step *is* a 3×3 matrix
 per spring, the method's own (for RK4 the degree-4 Taylor polynomial of h·M, its stability
 function; ``docs/numerics.md``). :meth:`Integrator.held_matrix
-<hilsim.integrators.Integrator.held_matrix>` works it out once per step size from the
+<hilsim.dynamics.integrators.Integrator.held_matrix>` works it out once per step size from the
 method's tableau; a step is then two dot products of three per spring instead of RK4's four
 stages. Exact arithmetic gives the same numbers as the staged step; floating point differs
 from it in the last bits (``tests/hilsim/test_tick_paths.py`` holds them within 1e-13).

@@ -8,7 +8,7 @@ h·|λ| ≤ r* for every spring; otherwise n substeps of h/n are needed, n = the
 h/n ≤ r*/|λ|.
 
 Boundaries are computed numerically from each method's growth function
-(:mod:`hilsim.stability_algebra`), so they are right for damped
+(:mod:`hilsim.dynamics.stability_algebra`), so they are right for damped
 springs, whose rays are not the axes the textbooks tabulate: a scan of r on a grid finds the first
 unstable radius, and bisection pins the crossing to rounding. The growth is evaluated as
 |R|² − 1 = 2·Re(R − 1) + |R − 1|², which keeps its sign even when |R| is within 1e-15 of 1.
@@ -32,9 +32,9 @@ import numpy as np
 import numpy.typing as npt
 
 from hilsim._types import FloatArray
-from hilsim.integrators import Integrator, get_method
-from hilsim.springs import Spring
-from hilsim.stability_algebra import growth, spectral_growth
+from hilsim.dynamics.integrators import Integrator, get_method
+from hilsim.dynamics.springs import Spring
+from hilsim.dynamics.stability_algebra import growth, spectral_growth
 
 #: scan limit in h·|λ|: explicit methods with up to four stages are unstable well before 10
 R_MAX = 10.0
@@ -96,7 +96,7 @@ def stability_boundary(method: str | type[Integrator], angle: npt.ArrayLike) -> 
         r* (same shape as ``angle``); 0.0 when the method is unstable arbitrarily close to 0 along
         the ray, inf when stable out to :data:`R_MAX`. RK4: 2√2 ≈ 2.8284 at π/2, ≈ 2.7853 at π.
         For semi-implicit Euler the ray is read as an underdamped spring's eigenvalue pair
-        (see :func:`hilsim.stability_algebra.growth`): 2 at π/2.
+        (see :func:`hilsim.dynamics.stability_algebra.growth`): 2 at π/2.
     """
     cls = get_method(method)
     angle_arr = np.asarray(angle, dtype=np.float64)

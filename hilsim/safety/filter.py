@@ -66,7 +66,7 @@ bus that beats numpy, whose ~0.6 µs per call adds up over the dozen-plus calls 
 needs (measured: ~2.5 µs per tick for 4 joints and ~4 µs for 8 when nothing is limited, ~3 and
 ~5 µs with every limit working, against ~9 µs for 13 bare numpy calls on 8 joints).
 
-The parameters, events and counters are data types in :mod:`hilsim.safety_types`, re-exported
+The parameters, events and counters are data types in :mod:`hilsim.safety.limits`, re-exported
 here; this module is the filter.
 """
 
@@ -80,7 +80,7 @@ import numpy.typing as npt
 
 from drivers.fill import Packed
 from hilsim._types import FloatArray
-from hilsim.safety_types import (
+from hilsim.safety.limits import (
     COUNTER_KINDS,
     SafetyCounters,
     SafetyEvent,

@@ -1,7 +1,7 @@
 """``simulate``: integrate a spring (or a bank) over a time span and return the whole trajectory.
 
 The offline entry point (studies, plots, tests). The real-time loop instead keeps one
-:class:`~hilsim.integrators.Integrator` and calls ``step`` once per tick.
+:class:`~hilsim.dynamics.integrators.Integrator` and calls ``step`` once per tick.
 """
 
 from __future__ import annotations
@@ -14,8 +14,8 @@ import numpy as np
 import numpy.typing as npt
 
 from hilsim._types import FloatArray
-from hilsim.integrators import TargetLike, get_method
-from hilsim.springs import Spring
+from hilsim.dynamics.integrators import TargetLike, get_method
+from hilsim.dynamics.springs import Spring
 
 #: a run longer than this many steps is almost surely a unit slip in h (ms for s)
 MAX_STEPS = 50_000_000

@@ -1,7 +1,7 @@
 """What a show writes to ``events.jsonl`` besides its start and its end, rate-limited.
 
 The loop says what happened; :class:`ShowLog` decides how often it is worth a line: a host
-stall at most once per :data:`~hilsim.monitors.STALL_EVENT_INTERVAL_S` (the rest counted into
+stall at most once per :data:`~hilsim.show.monitors.STALL_EVENT_INTERVAL_S` (the rest counted into
 the next line), the safety filter's clamps and a corrupt reply once a second of show at most.
 Writing an event never raises: it may run while a failure is being handled.
 """
@@ -13,8 +13,8 @@ import math
 import time
 
 from drivers.servo_bus import ServoBus
-from hilsim.monitors import STALL_EVENT_INTERVAL_S
-from hilsim.safety import SafetyFilter
+from hilsim.safety.filter import SafetyFilter
+from hilsim.show.monitors import STALL_EVENT_INTERVAL_S
 from hilsim.telemetry import TelemetryWriter
 
 

@@ -1,7 +1,7 @@
 """The safety filter's data: the parameters it validates, the events and counters it reports.
 
-The filter itself, the per-tick hot path, is :mod:`hilsim.safety`, which re-exports every name
-here; import them from there.
+The filter itself, the per-tick hot path, is :mod:`hilsim.safety.filter`. The package
+:mod:`hilsim.safety` exports every name here; import them from there.
 """
 
 from __future__ import annotations
@@ -16,6 +16,9 @@ import numpy.typing as npt
 
 from hilsim._types import FloatArray, IntArray
 
+#: the rig's default soft start (s): a ramp from where the figure is to where the show starts
+DEFAULT_SOFT_START_S = 1.0
+
 
 class SafetyFault(StrEnum):
     NONFINITE = "nonfinite_desired"  # NaN or inf in the desired positions: all joints hold
@@ -27,8 +30,8 @@ class SafetyEvent:
     """Something the loop should log; ``fatal`` says whether it should stop the show.
 
     ``joints`` names the joints concerned and ``values`` gives their offending positions (rad);
-    ``tick`` counts :meth:`~hilsim.safety.SafetyFilter.filter` calls since
-    :meth:`~hilsim.safety.SafetyFilter.start` (−1: start).
+    ``tick`` counts :meth:`~hilsim.safety.filter.SafetyFilter.filter` calls since
+    :meth:`~hilsim.safety.filter.SafetyFilter.start` (−1: start).
     """
 
     kind: SafetyFault

@@ -2,7 +2,7 @@
 
 :class:`ServoWatch` takes what each tick saw and turns it into a :class:`LoopFaultError`
 naming the servo and the cause, or into a recovery. The rules and their numbers are in
-:mod:`hilsim.monitors` (pure bookkeeping); this module adds the bus reads they need:
+:mod:`hilsim.show.monitors` (pure bookkeeping); this module adds the bus reads they need:
 
 * **reads** (:meth:`ServoWatch.check_reads`): an Alert bit stops the show at once; a servo
   silent beyond the comm budget, host stalls not counted, stops it naming the servo.
@@ -35,8 +35,8 @@ from drivers.servo_bus import (
     ServoBusError,
     ServoHealth,
 )
-from hilsim.joint_map import JointMap
-from hilsim.monitors import FollowingMonitor, HealthSchedule, SilenceBudget
+from hilsim.rig.joint_map import JointMap
+from hilsim.show.monitors import FollowingMonitor, HealthSchedule, SilenceBudget
 
 #: a health read runs only when the tick has its expected time, times this, plus
 #: HEALTH_SPARE_S (the SDK's own time) to spare: it must never make the tick late. Its
