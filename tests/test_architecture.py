@@ -167,6 +167,45 @@ def test_the_package_walk_sees_a_package_circle() -> None:
     assert _cycles(_rooms(g)) == [["hilsim.rig", "hilsim.telemetry"]]
 
 
+def test_the_cycle_finder_finds_a_circle() -> None:
+    g = {"a": frozenset({"b"}), "b": frozenset({"c"}), "c": frozenset({"a"}), "d": frozenset()}
+    assert _cycles(g) == [["a", "b", "c"]]
+
+
+@pytest.mark.parametrize(
+    ("importer", "forbidden"),
+    [
+        ("drivers.dynamixel", "drivers.dxlsim"),  # the driver stands without the emulator
+        ("drivers.dxlsim", "drivers.dynamixel"),  # the emulator speaks protocol2, not the SDK
+        ("drivers.protocol2", "drivers.dynamixel"),
+        ("drivers.protocol2", "drivers.dxlsim"),
+        ("drivers", "hilsim"),
+    ],
+)
+def test_package_boundaries(importer: str, forbidden: str) -> None:
+    bad = sorted(
+        f"{m} -> {d}"
+        for m, deps in _graph().items()
+        if m == importer or m.startswith(importer + ".")
+        for d in deps
+        if d == forbidden or d.startswith(forbidden + ".")
+    )
+    assert bad == []
+
+
+def test_hilsim_run_does_not_reach_the_bench() -> None:
+    reached = _reach("hilsim.cli.run")
+    assert "hilsim.show.session" in reached and "hilsim.show.loop" in reached
+    assert sorted(m for m in reached if m.startswith("hilsim.bench")) == []
+
+
+def test_protocol2_imports_no_sdk() -> None:
+    for name, path in _modules().items():
+        if name.startswith("drivers.protocol2"):
+            code = path.read_text(encoding="utf-8")
+            assert not re.search(r"^\s*(from|import) dynamixel_sdk", code, re.M), name
+
+
 def test_no_module_is_over_the_limit() -> None:
     """A module does one job a reader can name; past MAX_LINES it does several. Function
     size and branching are ruff's (C901, PLR0912, PLR0915 in pyproject.toml)."""
