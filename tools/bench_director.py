@@ -20,9 +20,9 @@ import time
 from pathlib import Path
 
 from hilsim.rig import load_rig
-from hilsim.show.loop import StopFlag
 from hilsim.show.parts import build_parts, with_show
 from hilsim.show.session import open_bus, open_telemetry, port_for, run_show
+from hilsim.show.stop import StopFlag
 
 REPO = Path(__file__).resolve().parents[1]
 

@@ -268,7 +268,7 @@ class HilsimTick:
         safety, integ = copy.deepcopy(loop.safety), copy.deepcopy(loop.integrator)
         targets, jmap = copy.deepcopy(loop.targets), loop.map
         x, v, cmd, u, du = (a.copy() for a in (loop.x, loop.v, loop.cmd, loop.u, loop.du))
-        present, reading, bus, h = loop.present.copy(), loop.reading, self.bus, loop._h
+        present, reading, bus, h = loop.present.copy(), loop.reading, self.bus, loop.stepper.h
         sampled = targets.sample_into(0.0, u, du)
         workdir = Path(self.telemetry.run_dir).parent
         tel = _RowsOnly(workdir / f"stages{len(x)}", loop.rig.joint_names, queue_size=1 << 14)

@@ -22,12 +22,17 @@ import select
 import signal
 import sys
 import threading
-import time
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from hilsim.cli._args import add_port
 from hilsim.cli._report import StatusLine, print_stats, verdict
 from hilsim.exit_codes import ExitCode, for_signal
+from hilsim.show.run_dir import RunDir, RunDirError, make_run_dir
+
+if TYPE_CHECKING:
+    from hilsim.rig import Rig
+    from hilsim.show import Show, ShowResult
 
 HELP = "run a rig: springs follow the animation, streamed to the servos (or the emulator)"
 
@@ -77,73 +82,6 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--shared-start", action="store_true", help=argparse.SUPPRESS)
 
 
-#: run directories this process created (and may remove again if the run never starts)
-_CREATED: set[Path] = set()
-#: run directories whose show began (a Ctrl-C after it is not "before the show")
-_SHOWN: set[Path] = set()
-
-
-class UsageError(Exception):
-    """A command-line or file-system problem, said in one line (exit 2)."""
-
-
-def make_run_dir(out: str | None, out_dir: str, name: str) -> Path:
-    """Create the run directory before anything touches the bus.
-
-    ``--out``: a new directory, or an existing empty one. Default: ``<out_dir>/<name>-<time>``,
-    with ``-2``, ``-3`` ... added if that exists (two runs started in the same second).
-    Raises :class:`UsageError` naming the path and the problem.
-    """
-    if out is not None:
-        path = _home(Path(out))
-        if path.exists() and not path.is_dir():
-            raise UsageError(f"--out {out}: exists and is not a directory")
-        if path.is_dir() and any(path.iterdir()):
-            raise UsageError(
-                f"--out {out}: the directory is not empty (a run directory holds one run)"
-            )
-        existed = path.is_dir()
-        _mkdir(path, exist_ok=True)
-        if not existed:
-            _CREATED.add(path)
-        return path
-    stem = _home(Path(out_dir)) / f"{name}-{time.strftime('%Y%m%d-%H%M%S')}"
-    for n in range(1, 1000):
-        path = stem if n == 1 else stem.with_name(f"{stem.name}-{n}")
-        try:
-            _mkdir(path, exist_ok=False)
-        except FileExistsError:
-            continue
-        _CREATED.add(path)
-        return path
-    raise UsageError(f"{stem}: too many runs with this name in one second")
-
-
-def _home(path: Path) -> Path:
-    """``~`` as the user's home; ``~user`` of no such user refused in one line."""
-    try:
-        return path.expanduser()
-    except RuntimeError:
-        raise UsageError(f"{path}: no such user's home directory") from None
-
-
-def _mkdir(path: Path, *, exist_ok: bool) -> None:
-    try:
-        path.mkdir(parents=True, exist_ok=exist_ok)
-    except FileExistsError:
-        if not exist_ok:
-            raise
-        raise UsageError(
-            f"{path}: cannot create the run directory (a file is in the way)"
-        ) from None
-    except OSError as exc:
-        raise UsageError(
-            f"{path}: cannot create the run directory: {exc.strerror or exc}"
-        ) from None
-    if not os.access(path, os.W_OK | os.X_OK):
-        raise UsageError(f"{path}: the run directory is not writable")
-
-
 def _say(message: str) -> None:
     print(f"hilsim run: {message}", file=sys.stderr)
 
@@ -154,6 +92,7 @@ def run(args: argparse.Namespace) -> int:
 
         prestart()
     from hilsim.rig import RigError, load_rigs, select_bus
+    from hilsim.show.api import Show, endless_in_virtual_time
     from hilsim.show.parts import build_parts
     from hilsim.show.session import port_for
 
@@ -173,30 +112,29 @@ def run(args: argparse.Namespace) -> int:
                 port_for(each, args.virtual_time)
                 build_parts(each)
             return _run_group(args, rigs)
-        rig = select_bus(rigs, args.bus)
-        port = port_for(rig, args.virtual_time)
-        parts = build_parts(rig)
-        if args.show is not None or args.live:
-            from hilsim.show.parts import with_show
-
-            parts = with_show(parts, args.show, args.live, virtual=args.virtual_time)
+        show = Show(
+            select_bus(rigs, args.bus),
+            duration=args.duration,
+            virtual_time=args.virtual_time,
+            show=args.show,
+            live=args.live,
+            on_note=_say,
+        )
     except (RigError, ValueError) as exc:
         _say(str(exc))
         return EXIT_USAGE
+    rig, parts = show.rig, show.parts
     if parts.director is not None:
         for note in parts.director.spec.notes:
             _say(f"note: {note}")
-        if parts.targets.duration is None and args.duration is None:
-            if args.virtual_time:
-                _say("a live show never ends by itself: give --duration with --virtual-time")
-                return EXIT_USAGE
-            _say("the show runs until stopped: Ctrl-C, or a stop command (exit policy applied)")
-    elif args.duration is None and parts.targets.duration is None:
+    if problem := endless_in_virtual_time(parts, args.duration):
         if args.virtual_time:  # it would rehearse as fast as it can, filling the disk
-            _say("the animation never ends (generators only): give --duration with --virtual-time")
+            _say(problem)
             return EXIT_USAGE
         _say(
-            "the animation never ends (generators only); running until Ctrl-C. "
+            "the show runs until stopped: Ctrl-C, or a stop command (exit policy applied)"
+            if parts.director is not None
+            else "the animation never ends (generators only); running until Ctrl-C. "
             "Give --duration to stop by itself."
         )
     for note in parts.targets.notes:  # what the animation files say (Bottango's playback
@@ -206,18 +144,19 @@ def run(args: argparse.Namespace) -> int:
     for line in _track_warnings(rig, checked, args.duration):
         _say(f"warning: {line}")
     try:
-        run_dir = make_run_dir(args.out, rig.telemetry.out_dir, rig.name)
-    except UsageError as exc:
+        made = make_run_dir(args.out, rig.telemetry.out_dir, rig.name)
+    except RunDirError as exc:
         _say(str(exc))
         return EXIT_USAGE
+    shown = [False]
     try:
-        return _open_and_run(args, parts, port, run_dir)
+        return _run_show(args, show, made, shown)
     except KeyboardInterrupt:  # outside the signal handlers: before the show, or after it
-        if run_dir in _SHOWN:
+        if shown[0]:
             _say("interrupted after the show (its record is written)")
         else:
             _say("interrupted before the show started: nothing moved")
-            _remove_if_empty(run_dir)
+            made.remove_if_empty()
         return int(ExitCode.SIGINT)
 
 
@@ -230,10 +169,11 @@ def _run_group(args: argparse.Namespace, rigs) -> int:
         _say("--shared-start needs --bus")
         return EXIT_USAGE
     try:
-        run_dir = make_run_dir(args.out, rig.telemetry.out_dir, rig.name)
-    except UsageError as exc:
+        made = make_run_dir(args.out, rig.telemetry.out_dir, rig.name)
+    except RunDirError as exc:
         _say(str(exc))
         return EXIT_USAGE
+    run_dir = made.path
     names = [r.bus_name for r in rigs]
     _say(
         f"{rig.name}: {len(rigs)} buses ({', '.join(names)}), one process each, "
@@ -256,16 +196,16 @@ def _run_group(args: argparse.Namespace, rigs) -> int:
         print(f"  {row['bus']}: {row['reason']}", file=sys.stderr)
     print(f"  telemetry: {run_dir}/<bus>/", file=sys.stderr)
     if not any(run_dir.iterdir()):
-        _remove_if_empty(run_dir)
+        made.remove_if_empty()
     _say(f"exit code {result.exit_code} (the worst bus's)")
     return result.exit_code
 
 
-def _await_start(stop) -> float | None:
+def _await_start(show: Show) -> float | None:
     """A child of a group: say ready, wait for the shared instant of tick 0. None: the start
     was called off (a signal, or the parent closed the pipe: another bus cannot start)."""
     print("ready", flush=True)
-    while stop.signum is None:
+    while not show.stopping:
         if select.select([sys.stdin], [], [], 0.05)[0]:
             line = sys.stdin.readline().strip()
             return float(line) if line else None
@@ -285,89 +225,65 @@ def _watch_parent() -> None:
     threading.Thread(target=watch, daemon=True).start()
 
 
-def _open_and_run(args, parts, port: str, run_dir: Path) -> int:
-    from hilsim.show.session import ShowRefusedError, open_bus
+def _run_show(args: argparse.Namespace, show: Show, made: RunDir, shown: list[bool]) -> int:
+    """Open and check the bus, run the show, print how it went. ``shown[0]``: the show began."""
+    from hilsim.show.session import ShowRefusedError
 
-    try:
-        bus = open_bus(parts.rig, port)
-    except ShowRefusedError as exc:
-        _say(str(exc))
-        _remove_if_empty(run_dir)
-        return EXIT_USAGE
-    try:
-        return _run_on_bus(args, parts, bus, run_dir)
-    finally:
-        bus.close()
-
-
-def _run_on_bus(args, parts, bus, run_dir: Path) -> int:
-    from hilsim.show.loop import StopFlag
-    from hilsim.show.session import (
-        ShowRefusedError,
-        check_bus,
-        check_teach,
-        open_telemetry,
-        run_show,
-    )
-
-    rig = parts.rig
-    virtual = bus.clock.virtual
-    stop = StopFlag()
+    rig, run_dir = show.rig, made.path
+    show.out = run_dir
     previous = {
-        s: signal.signal(s, lambda signum, _f: stop.request(signum))
+        s: signal.signal(s, lambda signum, _f: show.stop(signum))
         for s in (signal.SIGINT, signal.SIGTERM)
     }
     try:
         try:
-            notes = check_bus(rig, bus, _say)
-            start_at = None
-            if args.shared_start and stop.signum is None:
-                start_at = _await_start(stop)
-                if start_at is None and stop.signum is None:
-                    _say("another bus of the figure could not start: nothing moved")
-                    _remove_if_empty(run_dir)
-                    return EXIT_USAGE
-            if stop.signum is not None:
-                _say(f"stopped by signal {stop.signum} during the start-up check: nothing moved")
-                _remove_if_empty(run_dir)
-                return for_signal(stop.signum)
-            if parts.director is not None:  # its ports, before anything moves
-                check_teach(rig, bus, parts.director)
-                _open_inputs(parts.director, bus.clock)
-            telemetry = open_telemetry(rig, run_dir, virtual)
+            show.open()
         except ShowRefusedError as exc:
-            if parts.director is not None:
-                parts.director.close_inputs()
             _say(str(exc))
-            _remove_if_empty(run_dir)
+            made.remove_if_empty()
             return EXIT_USAGE
-        for note in notes:  # what the start-up found and changed, in the run's record too
-            telemetry.event("startup", note)
-        _say(
-            f"{rig.name}: {len(rig.joints)} joints on {rig.bus.port} at "
-            f"{rig.loop.rate_hz:g} Hz ({'virtual' if virtual else 'real'} time) -> {run_dir}"
-        )
-        if args.shared_start:
-            _watch_parent()
-        _SHOWN.add(run_dir)
-        status = None if virtual else StatusLine(rig.loop.rate_hz)
-        try:
-            show = run_show(
-                parts,
-                bus,
-                telemetry,
-                duration_s=args.duration,
-                stop=stop,
-                on_status=status,
-                start_at=start_at,
+        with show:
+            start_at = None
+            if args.shared_start and not show.stopping:
+                start_at = _await_start(show)
+                if start_at is None and not show.stopping:
+                    _say("another bus of the figure could not start: nothing moved")
+                    made.remove_if_empty()
+                    return EXIT_USAGE
+            if (signum := show.stop_signal) is not None:
+                _say(f"stopped by signal {signum} during the start-up check: nothing moved")
+                made.remove_if_empty()
+                return for_signal(signum)
+            virtual = show.bus.clock.virtual
+            _say(
+                f"{rig.name}: {len(rig.joints)} joints on {rig.bus.port} at "
+                f"{rig.loop.rate_hz:g} Hz ({'virtual' if virtual else 'real'} time) -> {run_dir}"
             )
-        finally:
-            if status is not None:
-                status.close()
+            if args.shared_start:
+                _watch_parent()
+            status = None if virtual else StatusLine(rig.loop.rate_hz)
+            try:
+                shown[0] = True
+                result = show.run(on_status=status, start_at=start_at)
+            except ShowRefusedError as exc:  # the telemetry could not be opened
+                shown[0] = False
+                _say(str(exc))
+                made.remove_if_empty()
+                return EXIT_USAGE
+            finally:
+                if status is not None:
+                    status.close()
     finally:
         if not args.shared_start:  # a group's child keeps them: the parent's stop is late
             for s, handler in previous.items():
                 signal.signal(s, handler)
+    return _report(args, rig, result, run_dir, virtual)
+
+
+def _report(
+    args: argparse.Namespace, rig: Rig, show: ShowResult, run_dir: Path, virtual: bool
+) -> int:
+    """What the show did, on stderr; the plots; returns its exit code."""
     if show.telemetry_error is not None:
         _say(f"telemetry could not be written to {run_dir}: {show.telemetry_error}")
         if show.telemetry_traceback:
@@ -402,27 +318,9 @@ def _run_on_bus(args, parts, bus, run_dir: Path) -> int:
     return show.exit_code
 
 
-def _open_inputs(director, clock) -> None:
-    """The show's inputs opened (sockets, ports, threads); a refusal is one line, exit 2."""
-    from hilsim.show.session import ShowRefusedError
-
-    try:
-        director.open(clock, _say)
-    except (OSError, ValueError, RuntimeError, ImportError) as exc:
-        where = director.spec.path or "--live"
-        raise ShowRefusedError(f"{where}: cannot open the show's inputs: {exc}") from None
-
-
 def _track_warnings(rig, targets, duration_s: float | None) -> list[str]:
     """Targets beyond a joint's limits or speed, found at load (joint, time, value)."""
     from hilsim.targets.check import check_tracks
 
     warnings = check_tracks(targets, rig.joints, rig.loop.period_s, duration_s=duration_s)
     return [str(w) for w in warnings]
-
-
-def _remove_if_empty(path: Path) -> None:
-    """A run directory this process made for a run that never started is removed again."""
-    if path in _CREATED:
-        with contextlib.suppress(OSError):
-            path.rmdir()

@@ -30,6 +30,7 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
+from hilsim.live.controls import Controls
 from hilsim.live.inbox import MAX_LIVE_DEG, LiveEvent
 from hilsim.live.showfile import ShowSpec
 from hilsim.targets.tracks import TargetSet, Track
@@ -121,6 +122,9 @@ class Director:
                 )
         self.osc = self.midi = self.midi_triggers = self.chase = None
         self.bottango = self.gamepad = self.keyboard = self.teach = self.audio = None
+        cues = () if self.runtime is None else tuple(self.runtime.spec.cues)
+        #: cues and joint values from the program running the show (hilsim.Show)
+        self.api = Controls(self.names, cues)
         if spec.osc is not None:
             from hilsim.live.osc import OscInput
 
@@ -254,7 +258,7 @@ class Director:
                 self._set(joint, deg, tm)
         if self.midi_triggers is not None:
             triggers += [key for _, key in self.midi_triggers.poll(t)]
-        for part in (self.gamepad, self.bottango):
+        for part in (self.gamepad, self.bottango, self.api):
             if part is not None:
                 self._poll_part(part, t, events, triggers)
         if self.keyboard is not None:

@@ -45,7 +45,7 @@ from datetime import datetime, timedelta
 from typing import Any
 
 from hilsim.live.inbox import LiveEvent
-from hilsim.live.show_spec import CUE_ADDRESS, Clip, CueSpec, RuntimeSpec
+from hilsim.live.show_spec import API_CUE, CUE_ADDRESS, Clip, CueSpec, RuntimeSpec
 from hilsim.live.triggers import Timers, day_seconds, normalise_key
 from hilsim.targets.tracks import Track
 
@@ -126,7 +126,10 @@ class ShowRuntime:
         }
         self._cues_by_key: dict[str, list[CueSpec]] = {}
         for cue in spec.cues.values():
-            keys = {t.key for t in cue.triggers} | {f"osc:{CUE_ADDRESS}{cue.name}"}
+            keys = {t.key for t in cue.triggers} | {
+                f"osc:{CUE_ADDRESS}{cue.name}",
+                f"{API_CUE}{cue.name}",  # Show.cue(name)
+            }
             for key in sorted(keys):
                 self._cues_by_key.setdefault(key, []).append(cue)
         timers = [trig for cue in spec.cues.values() for trig in cue.triggers]

@@ -64,6 +64,8 @@ MAX_SHOW_S = 7 * 86400.0
 MIN_REPEAT_S = 0.1
 #: the OSC address prefix every cue answers to (``/hilsim/cue/<name>``)
 CUE_ADDRESS = "/hilsim/cue/"
+#: the trigger key every cue answers from the program running the show (``Show.cue``)
+API_CUE = "api:cue/"
 
 
 @dataclass(frozen=True)

@@ -10,3 +10,8 @@
 ``group``        several buses of one figure: one process each, one start, one stop
 ``preview``      the targets through the springs and safety filter, no bus (hilsim tracks)
 """
+
+from hilsim.show.api import Show, ShowError, ShowRefusedError, ShowResult
+from hilsim.show.stop import StopFlag
+
+__all__ = ["Show", "ShowError", "ShowRefusedError", "ShowResult", "StopFlag"]

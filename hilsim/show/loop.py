@@ -64,6 +64,7 @@ from hilsim.show.parts import Parts
 from hilsim.show.realtime import REALTIME_SWITCH_INTERVAL_S, realtime
 from hilsim.show.servo_watch import LoopFaultError, ServoWatch
 from hilsim.show.stepper import Stepper, TickBuffers
+from hilsim.show.stop import StopFlag
 from hilsim.show.warm_up import warm_up
 from hilsim.telemetry import TelemetryWriter, WriterFailedError
 from hilsim.telemetry.format import TickRecord
@@ -82,26 +83,7 @@ EXIT_FAULT = ExitCode.FAULT
 EXIT_SIGINT = ExitCode.SIGINT
 EXIT_SIGTERM = ExitCode.SIGTERM
 
-__all__ = ["HilLoop", "LoopFaultError", "RunResult", "StopFlag"]
-
-
-@dataclass
-class StopFlag:
-    """Set from a signal handler, or by a stop command from the show's control (OSC
-    ``/hilsim/stop``, Bottango's ``STOP``: :mod:`hilsim.live.director`); the loop looks at it
-    once per tick (and during start-up). The first request wins."""
-
-    signum: int | None = None
-    #: what sent the stop command (e.g. "OSC /hilsim/stop"), None: none was sent
-    command: str | None = None
-
-    def request(self, signum: int) -> None:
-        if self.signum is None and self.command is None:
-            self.signum = signum
-
-    def request_command(self, what: str) -> None:
-        if self.signum is None and self.command is None:
-            self.command = what
+__all__ = ["HilLoop", "LoopFaultError", "RunResult"]
 
 
 @dataclass

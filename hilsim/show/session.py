@@ -34,8 +34,9 @@ from drivers.protocol2.wire_time import cycle_bytes, cycle_time_s
 from hilsim.exit_codes import ExitCode
 from hilsim.rig import Rig, TelemetryFailurePolicy
 from hilsim.rig.joint_map import JointMap
-from hilsim.show.loop import HilLoop, StopFlag
+from hilsim.show.loop import HilLoop
 from hilsim.show.parts import Parts
+from hilsim.show.stop import StopFlag
 
 if TYPE_CHECKING:
     from drivers.dynamixel.bus import DynamixelBus
@@ -250,6 +251,8 @@ class ShowResult:
     wall_s: float
     exit_policy: str
     summary: dict[str, Any] = field(default_factory=dict)
+    #: the run directory (its telemetry, events, summary.json)
+    run_dir: Path | None = None
     #: why summary.json could not be written (the writer's error), else None
     telemetry_error: BaseException | None = None
     telemetry_traceback: str | None = None

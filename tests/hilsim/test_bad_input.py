@@ -200,15 +200,15 @@ def test_plot_window_without_ticks_says_what_the_run_covers(run_dir, capsys):
 
 def test_a_home_relative_path_is_the_users_home(tmp_path, monkeypatch, capsys):
     """``~/anim.csv`` in a rig, ``out_dir = "~/runs"``: the user's home, as in a shell."""
-    from hilsim.cli.run import make_run_dir
+    from hilsim.show.run_dir import make_run_dir
     from hilsim.targets.sources import rig_file
 
     monkeypatch.setenv("HOME", str(tmp_path))
     assert rig_file(pathlib.Path("/elsewhere"), "~/anim.csv") == tmp_path / "anim.csv"
     assert rig_file(tmp_path / "rigs", "anim.csv") == tmp_path / "rigs" / "anim.csv"
-    run = make_run_dir(None, "~/runs", "demo")
+    run = make_run_dir(None, "~/runs", "demo").path
     assert run.parent == tmp_path / "runs" and run.is_dir()
-    assert make_run_dir("~/out", "runs", "demo") == tmp_path / "out"
+    assert make_run_dir("~/out", "runs", "demo").path == tmp_path / "out"
     rig = tmp_path / "rig.toml"
     rig.write_text(BASE)
     argv = ["run", str(rig), "--virtual-time", "--duration", "0.1", "--no-plots"]

@@ -14,9 +14,9 @@ import pytest
 
 from hilsim.exit_codes import ExitCode
 from hilsim.rig import load_rig
-from hilsim.show.loop import StopFlag
 from hilsim.show.parts import build_parts, with_show
 from hilsim.show.session import open_bus, open_telemetry, port_for, run_show
+from hilsim.show.stop import StopFlag
 from hilsim.telemetry.reader import read_run
 
 RIG = """

@@ -1,0 +1,308 @@
+"""A show from Python: one figure's rig on its bus, from the start-up check to the exit policy.
+
+::
+
+    import hilsim
+
+    with hilsim.Show("configs/demo.toml", virtual_time=True, duration=2.0) as show:
+        result = show.run()          # blocks; show.stop() from another thread ends it safely
+    print(result.exit_code, result.run_dir, result.summary["ticks"])
+
+Building a :class:`Show` reads the rig and builds its parts (targets, springs, safety filter);
+a bad rig raises :class:`~hilsim.rig.RigError` (one line naming the file and the key).
+Entering it makes the run directory, opens the bus and runs the start-up check, which
+cannot be skipped: a mismatch raises :class:`ShowRefusedError` before anything moves.
+:meth:`Show.run` runs the show once; every way out of it applies the rig's exit policy.
+Leaving the ``with`` block stops a show still running and closes the bus.
+
+While it runs, other threads talk to it through :meth:`Show.stop`, :meth:`Show.cue` and
+:meth:`Show.set_joint`, and read :attr:`Show.status`.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import os
+import threading
+from collections.abc import Callable
+from pathlib import Path
+from types import TracebackType
+from typing import TYPE_CHECKING, Any, Self
+
+from hilsim.live.controls import Controls
+from hilsim.rig import Rig, load_rigs, select_bus
+from hilsim.show.parts import Parts, build_parts, with_show
+from hilsim.show.run_dir import RunDir, RunDirError, make_run_dir
+from hilsim.show.session import (
+    ShowRefusedError,
+    ShowResult,
+    check_bus,
+    check_teach,
+    open_bus,
+    open_telemetry,
+    port_for,
+    run_show,
+)
+from hilsim.show.stop import StopFlag
+
+if TYPE_CHECKING:
+    from drivers.dynamixel.bus import DynamixelBus
+
+__all__ = ["Show", "ShowError", "ShowRefusedError", "ShowResult", "endless_in_virtual_time"]
+
+log = logging.getLogger("hilsim.show")
+
+PathLike = str | os.PathLike[str]
+
+
+class ShowError(RuntimeError):
+    """A :class:`Show` used out of order (run twice, run before entering, a cue without a
+    show file)."""
+
+
+def endless_in_virtual_time(parts: Parts, duration_s: float | None) -> str | None:
+    """Why a virtual-time rehearsal would never end (it would run flat out and fill the
+    disk), or None."""
+    if duration_s is not None or parts.targets.duration is not None:
+        return None
+    if parts.director is not None:
+        return "a live show never ends by itself: give --duration with --virtual-time"
+    return "the animation never ends (generators only): give --duration with --virtual-time"
+
+
+class Show:
+    """One figure's show on one bus.
+
+    Args:
+        rig: a rig file (TOML) or a loaded :class:`~hilsim.rig.Rig`.
+        port: overrides the rig's ``bus.port`` (``/dev/ttyUSB0``, a pty, ``dxlsim://...``).
+        bus: which of a rig's ``[buses.<name>]`` (a rig with several needs it).
+        duration: stop after this much show time (s); None: the animation's length.
+        out: the run directory (new, or an existing empty one); None:
+            ``<telemetry.out_dir>/<name>-<time>``.
+        virtual_time: run on the emulator's virtual clock (same numbers, no waiting).
+        show: a show file (clips, cues, live inputs); ``live``: OSC on 127.0.0.1.
+        on_note: called with each thing the start-up found or changed (a line of text);
+            default: logged on the ``hilsim.show`` logger.
+
+    Raises RigError (the rig or show file) or ValueError (an option) at once.
+    """
+
+    def __init__(
+        self,
+        rig: PathLike | Rig,
+        *,
+        port: str | None = None,
+        bus: str | None = None,
+        duration: float | None = None,
+        out: PathLike | None = None,
+        virtual_time: bool = False,
+        show: PathLike | None = None,
+        live: bool = False,
+        on_note: Callable[[str], None] | None = None,
+    ) -> None:
+        if duration is not None and not (math.isfinite(duration) and duration > 0):
+            raise ValueError(f"duration must be a finite number of seconds > 0, got {duration!r}")
+        if isinstance(rig, Rig):
+            if port is not None or bus is not None:
+                raise ValueError("port and bus apply to a rig file; this rig is loaded already")
+            self.rig = rig
+        else:
+            self.rig = select_bus(load_rigs(rig, port=port), bus)
+        self.port = port_for(self.rig, virtual_time)
+        parts = build_parts(self.rig)
+        if show is not None or live:
+            parts = with_show(
+                parts, None if show is None else str(show), live, virtual=virtual_time
+            )
+        #: what the show runs: targets, joint map, safety filter, springs, director
+        self.parts = parts
+        self.duration = duration
+        self.virtual_time = virtual_time
+        self.out = out
+        self._note = on_note or (lambda line: log.info("%s", line))
+        #: what the start-up check found and changed, in order
+        self.notes: list[str] = []
+        self._stop = StopFlag()
+        self._lock = threading.Lock()
+        self._bus: DynamixelBus | None = None
+        self._run_dir: RunDir | None = None
+        self._running = threading.Event()
+        self._done = threading.Event()
+        self._result: ShowResult | None = None
+        self._closed = False
+
+    # ------------------------------------------------------------------ entering, leaving
+    def __enter__(self) -> Self:
+        return self.open()
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        self.close()
+
+    def open(self) -> Self:
+        """Make the run directory, open the bus, check the servos, open the show's inputs.
+
+        Raises :class:`ShowRefusedError` (nothing moved; the directory made here is removed
+        again). ``with Show(...)`` calls it."""
+        with self._lock:
+            if self._closed:
+                raise ShowError("this show is closed; make a new Show")
+            if self._bus is not None:
+                return self
+        rig = self.rig
+        try:
+            self._run_dir = make_run_dir(self.out, rig.telemetry.out_dir, rig.name, what="out")
+        except RunDirError as exc:
+            raise ShowRefusedError(str(exc)) from None
+        try:
+            bus = open_bus(rig, self.port)
+        except ShowRefusedError:
+            self._run_dir.remove_if_empty()
+            raise
+        try:
+            self.notes += check_bus(rig, bus, self._say)
+            director = self.parts.director
+            if director is not None:  # its ports, before anything moves
+                check_teach(rig, bus, director)
+                try:
+                    director.open(bus.clock, self._say)
+                except (OSError, ValueError, RuntimeError, ImportError) as exc:
+                    where = director.spec.path or "--live"
+                    raise ShowRefusedError(
+                        f"{where}: cannot open the show's inputs: {exc}"
+                    ) from None
+        except BaseException:
+            if self.parts.director is not None:
+                self.parts.director.close_inputs()
+            bus.close()
+            self._run_dir.remove_if_empty()
+            raise
+        self._bus = bus
+        return self
+
+    def close(self) -> None:
+        """Stop a show still running (through its exit policy), then close the bus. Safe to
+        call twice."""
+        with self._lock:
+            if self._closed:
+                return
+            self._closed = True
+        if self._running.is_set() and not self._done.is_set():
+            self.stop()
+            self._done.wait()
+        director = self.parts.director
+        if director is not None and self._result is None:
+            director.close_inputs()
+        if self._bus is not None:
+            self._bus.close()
+        if self._result is None and self._run_dir is not None:
+            self._run_dir.remove_if_empty()
+
+    # ------------------------------------------------------------------ running
+    def run(
+        self,
+        *,
+        on_status: Callable[[dict[str, Any]], None] | None = None,
+        start_at: float | None = None,
+    ) -> ShowResult:
+        """Run the show to its end, a stop or a fault; returns how it ended (its exit code,
+        reason, run directory and summary). Every way out applies the exit policy.
+
+        ``on_status``: called about twice a second (real time) with the live figures.
+        ``start_at``: tick 0 at this ``time.monotonic()`` instant (several buses, one figure).
+        Runs once; raises :class:`ShowError` if the show is not open or ran already."""
+        with self._lock:
+            if self._bus is None or self._closed:
+                raise ShowError("open the show first: with hilsim.Show(...) as show: show.run()")
+            if self._running.is_set():
+                raise ShowError("a Show runs once; make a new Show for the next run")
+            self._running.set()
+        try:
+            problem = endless_in_virtual_time(self.parts, self.duration)
+            if problem and self._bus.clock.virtual:
+                raise ValueError(problem)
+            assert self._run_dir is not None
+            run_dir = self._run_dir.path
+            telemetry = open_telemetry(self.rig, run_dir, self._bus.clock.virtual)
+            for note in self.notes:  # what the start-up found and changed, in the record too
+                telemetry.event("startup", note)
+            self._result = run_show(
+                self.parts,
+                self._bus,
+                telemetry,
+                duration_s=self.duration,
+                stop=self._stop,
+                on_status=on_status,
+                start_at=start_at,
+            )
+            self._result.run_dir = run_dir
+            return self._result
+        finally:
+            self._done.set()
+
+    def stop(self, signum: int | None = None) -> None:
+        """End the show through the rig's exit policy (exit code 5; with ``signum``, the
+        signal's code: 130 for SIGINT, 143 for SIGTERM). Safe from any thread or a signal
+        handler; a stop before :meth:`run` makes the run end at once, nothing moved."""
+        if signum is None:
+            self._stop.request_command("Show.stop()")
+        else:
+            self._stop.request(signum)
+
+    @property
+    def stop_signal(self) -> int | None:
+        """The signal that asked the show to stop (via :meth:`stop`), or None."""
+        return self._stop.signum
+
+    @property
+    def stopping(self) -> bool:
+        """A stop was asked (a signal, a stop command, :meth:`stop`)."""
+        return self._stop.signum is not None or self._stop.command is not None
+
+    # ------------------------------------------------------------------ live control
+    def cue(self, name: str) -> None:
+        """Fire the show file's cue ``name`` at the next tick (as OSC ``/hilsim/cue/<name>``
+        would). Thread-safe. Raises ShowError without a show file, KeyError for an unknown
+        cue."""
+        self._controls().cue(name)
+
+    def set_joint(self, joint: str, deg: float) -> None:
+        """Drive ``joint`` live at ``deg`` degrees (its spring and the safety filter apply, as
+        for every input) from the next tick on. Thread-safe. Raises ShowError without a show
+        file or ``live=True``, KeyError for an unknown joint, ValueError for a value that is
+        not finite."""
+        self._controls().set_joint(joint, deg)
+
+    def _controls(self) -> Controls:
+        director = self.parts.director
+        if director is None:
+            raise ShowError("cues and live joints need a show file or live=True")
+        controls: Controls = director.api
+        return controls
+
+    # ------------------------------------------------------------------ facts
+    @property
+    def bus(self) -> DynamixelBus:
+        """The open bus (after entering)."""
+        if self._bus is None:
+            raise ShowError("the show is not open")
+        return self._bus
+
+    @property
+    def run_dir(self) -> Path | None:
+        """The run directory, once the show is open."""
+        return None if self._run_dir is None else self._run_dir.path
+
+    @property
+    def result(self) -> ShowResult | None:
+        """How the run ended, once it has."""
+        return self._result
+
+    def _say(self, line: str) -> None:
+        self._note(line)

@@ -1,0 +1,91 @@
+"""The run directory: one run's record (telemetry, events, summary.json, plots).
+
+It is made before anything touches the bus, so a path that cannot be written is refused
+while nothing has moved. A directory made for a run that never started is removed again.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+__all__ = ["RunDir", "RunDirError", "make_run_dir"]
+
+
+class RunDirError(ValueError):
+    """The run directory cannot be used; the message is one line naming the path."""
+
+
+@dataclass(frozen=True)
+class RunDir:
+    """A run directory and whether this call made it."""
+
+    path: Path
+    #: made here (not an existing empty directory): removed again if the run never starts
+    created: bool
+
+    def remove_if_empty(self) -> None:
+        """Remove the directory if this call made it and nothing was written into it."""
+        if self.created:
+            with contextlib.suppress(OSError):
+                self.path.rmdir()
+
+
+def make_run_dir(
+    out: str | os.PathLike[str] | None, out_dir: str | os.PathLike[str], name: str,
+    *, what: str = "--out",
+) -> RunDir:  # fmt: skip
+    """Create the run directory.
+
+    ``out``: a new directory, or an existing empty one (``what`` names it in messages).
+    Default: ``<out_dir>/<name>-<time>``, with ``-2``, ``-3`` ... added if that exists (two
+    runs started in the same second). ``~`` is the user's home. Raises :class:`RunDirError`.
+    """
+    if out is not None:
+        path = _home(Path(out))
+        if path.exists() and not path.is_dir():
+            raise RunDirError(f"{what} {out}: exists and is not a directory")
+        if path.is_dir() and any(path.iterdir()):
+            raise RunDirError(
+                f"{what} {out}: the directory is not empty (a run directory holds one run)"
+            )
+        existed = path.is_dir()
+        _mkdir(path, exist_ok=True)
+        return RunDir(path, created=not existed)
+    stem = _home(Path(out_dir)) / f"{name}-{time.strftime('%Y%m%d-%H%M%S')}"
+    for n in range(1, 1000):
+        path = stem if n == 1 else stem.with_name(f"{stem.name}-{n}")
+        try:
+            _mkdir(path, exist_ok=False)
+        except FileExistsError:
+            continue
+        return RunDir(path, created=True)
+    raise RunDirError(f"{stem}: too many runs with this name in one second")
+
+
+def _home(path: Path) -> Path:
+    """``~`` as the user's home; ``~user`` of no such user refused in one line."""
+    try:
+        return path.expanduser()
+    except RuntimeError:
+        raise RunDirError(f"{path}: no such user's home directory") from None
+
+
+def _mkdir(path: Path, *, exist_ok: bool) -> None:
+    try:
+        path.mkdir(parents=True, exist_ok=exist_ok)
+    except FileExistsError:
+        if not exist_ok:
+            raise
+        raise RunDirError(
+            f"{path}: cannot create the run directory (a file is in the way)"
+        ) from None
+    except OSError as exc:
+        raise RunDirError(
+            f"{path}: cannot create the run directory: {exc.strerror or exc}"
+        ) from None
+    if not os.access(path, os.W_OK | os.X_OK):
+        raise RunDirError(f"{path}: the run directory is not writable")
