@@ -16,9 +16,11 @@ bench or the integrator study just to list them.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import importlib
+import logging
 import sys
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 
 from hilsim.exit_codes import ExitCode
 
@@ -48,16 +50,26 @@ def build_parser(only: str | None = None) -> argparse.ArgumentParser:
     for name, module_name in SUBCOMMANDS.items():
         if only is not None and name != only:
             continue
-        try:
-            module = importlib.import_module(module_name)
-        except ModuleNotFoundError as exc:  # a subcommand still being written
-            if exc.name != module_name:
-                raise
-            continue
+        module = importlib.import_module(module_name)
         p = sub.add_parser(name, help=module.HELP, description=module.HELP)
         module.add_arguments(p)
         p.set_defaults(_run=module.run)
     return parser
+
+
+@contextlib.contextmanager
+def _library_log(command: str) -> Iterator[None]:
+    """The library logs (``hilsim`` loggers); the command prints its warnings on stderr, in
+    its own words: ``hilsim run: ...``."""
+    handler = logging.StreamHandler(sys.stderr)
+    handler.setFormatter(logging.Formatter(f"hilsim {command}: %(message)s"))
+    handler.setLevel(logging.WARNING)
+    root = logging.getLogger("hilsim")
+    root.addHandler(handler)
+    try:
+        yield
+    finally:
+        root.removeHandler(handler)
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -70,7 +82,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         if getattr(args, "_run", None) is None:
             parser.print_help()
             return int(ExitCode.USAGE)
-        return int(args._run(args))
+        with _library_log(args.command):
+            return int(args._run(args))
     except KeyboardInterrupt:  # Ctrl-C before a command took over SIGINT: nothing had moved
         print("hilsim: interrupted", file=sys.stderr)
         return int(ExitCode.SIGINT)

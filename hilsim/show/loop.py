@@ -44,6 +44,7 @@ was energised; exit codes are in :mod:`hilsim.exit_codes`.
 
 from __future__ import annotations
 
+import logging
 import math
 import signal
 import sys
@@ -82,6 +83,8 @@ EXIT_OK = ExitCode.OK
 EXIT_FAULT = ExitCode.FAULT
 EXIT_SIGINT = ExitCode.SIGINT
 EXIT_SIGTERM = ExitCode.SIGTERM
+
+log = logging.getLogger(__name__)
 
 __all__ = ["HilLoop", "LoopFaultError", "RunResult"]
 
@@ -553,14 +556,13 @@ class HilLoop:
     # ------------------------------------------------------------------ per-tick parts
     def _telemetry_failed(self, exc: WriterFailedError) -> None:
         """The writer died recording the tick's row: stop the show or, with
-        ``telemetry.on_failure = "continue"``, only the recording (said once, on stderr)."""
+        ``telemetry.on_failure = "continue"``, only the recording (a warning, once)."""
         if self.rig.telemetry.on_failure is not TelemetryFailurePolicy.CONTINUE:
             raise exc
         self._recording = False
-        print(
-            f"hilsim run: telemetry stopped ({exc.__cause__ or exc}); the show goes on "
-            "(telemetry.on_failure = 'continue')",
-            file=sys.stderr,
+        log.warning(
+            "telemetry stopped (%s); the show goes on (telemetry.on_failure = 'continue')",
+            exc.__cause__ or exc,
         )
 
     def _rejoin(self, i: int, joint_rad: float) -> None:
