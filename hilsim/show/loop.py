@@ -3,43 +3,29 @@
 One tick (k = 0, 1, ...; t_k = k·period of simulation time)::
 
     clock.wait_until(t0 + t_k)             sleep, then spin the last stretch (virtual: jump)
-    after a long silence on the bus        check every servo's health; recover tripped watchdogs
-    safety.filter                          finite? within limits, speed, acceleration? soft start
+    after a long silence on the bus        check every servo; recover tripped watchdogs
+    stepper.command                        the safety filter: the only way to the wire
     joint_map.to_servo                     servo angle = home + direction · joint angle
-    bus.write_goals                        one Sync Write
-    bus.read_present                       one (Fast) Sync Read, per-servo status
-    joint_map.to_joint, targets.sample     present back in the joint frame; u(t_k)
+    bus.write_goals, bus.read_present      one Sync Write, one (Fast) Sync Read
+    director.tick, stepper.sample          live inputs and cues; u(t_k)
     telemetry.record(TickRecord)           queued; a writer thread owns the disk
-    reads, following error                 faults that stop the show, raised once recorded
-                                           (hilsim.show.servo_watch)
-    integrator.step                        x_k -> x_{k+1} (substeps; target held over each step)
+    servo_watch                            faults that stop the show, raised once recorded
+    stepper.advance                        the springs to t_{k+1} (substeps)
     one health read                        round robin, only if the tick has time to spare
 
-Simulation time is ``k·period``, never the clock, so the commanded numbers are the same
-whether the loop runs on the real clock or the virtual one. A tick that finishes after the
-next deadline is an overrun: counted, and (``overrun_policy = "stop"``) a fault. When the
-loop has fallen more than a whole period behind, the missed ticks are simulated without bus
-traffic so the figure stays in step with the show (counted as ``skipped_ticks``).
+Simulation time is ``k·period``, never the clock, so the numbers are the same on the real
+clock and the virtual one. A tick that ends after the next deadline is an overrun: counted,
+and with ``overrun_policy = "stop"`` a fault. A loop more than a period behind simulates the
+missed ticks without bus traffic (``skipped_ticks``) so the figure stays in step.
 
-The loop runs the :class:`~hilsim.show.parts.Parts` a session built from the rig (targets,
-joint map, safety filter, integrator); what a servo failure is, and how a tripped watchdog
-is recovered, is decided in :mod:`hilsim.show.servo_watch`.
+The show goes on through a host stall: the host's own stalls are measured (:mod:`.monitors`)
+and never counted as servo silence. A stall long enough to trip the servos' Bus Watchdog is
+followed by a check of every servo; a tripped one is recovered and rejoins through the speed
+and acceleration limits. The show never ends on a frozen figure: health reads and a
+following-error monitor (:mod:`.servo_watch`) stop it, naming the servo and the cause.
 
-**The show goes on through a host stall** (:mod:`hilsim.show.monitors`): the host's own stalls
-are measured and logged (``host_stall`` events, the ``host_stall_us`` column) and never
-counted as servo silence. A stall long enough for the servos' Bus Watchdog to trip is
-followed by a health check of every servo; a tripped watchdog is cleared, the goal set to
-where the servo stopped, and the joint rejoins the show through the speed and acceleration
-limits (a ``recovered`` event).
-
-**The show never ends on a frozen figure.** Health reads (torque, hardware error, watchdog,
-RAM reset) spread over ticks with time to spare, and a following-error monitor, stop the
-show naming the servo and the cause.
-
-Stops: the end of the show or ``duration``, a stop request (SIGINT/SIGTERM), or a fault
-(naming the servo and the cause: a servo, the bus, the host, the telemetry, or an internal
-error). Every way out applies the rig's exit policy (``hold`` or ``relax``) once anything
-was energised; exit codes are in :mod:`hilsim.exit_codes`.
+Every way out (the end, ``duration``, a stop request, a fault) applies the rig's exit policy
+once anything was energised; exit codes are in :mod:`hilsim.exit_codes`.
 """
 
 from __future__ import annotations
@@ -407,7 +393,10 @@ class HilLoop:
     # ------------------------------------------------------------------ one tick
     def _tick(self, k: int, t_sched: float, t_top: float, t_actual: float) -> None:
         """Tick k: safety filter, Sync Write + Sync Read, telemetry, the checks, the springs
-        to tick k+1. Its stage times go into the tick record."""
+        to tick k+1. Its stage times go into the tick record.
+
+        ``p_*`` are perf_counter stamps where each stage starts (the stage columns' edges);
+        ``t_*`` are the bus clock's times the servos' watchdog and the checks need."""
         clock, bus, rec, watch, perf = self.clock, self.bus, self.rec, self.watch, time.perf_counter
         # late from a sleep it had to take: the host was not running (else it was behind)
         sleep_late = t_actual - t_sched if t_top < t_sched else 0.0
@@ -416,7 +405,7 @@ class HilLoop:
         work = None if prev is None else t_top - prev[0] - (waited - prev[1]) - self._excluded
         self._prev, self._excluded = (t_actual, waited), 0.0
         t_sim = k * self.period
-        c0 = perf()
+        p_safety = perf()
         event = self.stepper.command()  # the only way to the wire
         if event is not None:
             # a fatal one never reaches the wire (no row: nothing was sent or read); the
@@ -431,27 +420,27 @@ class HilLoop:
             )
             if event.fatal:
                 raise LoopFaultError(f"safety: {event}")
-        tb = clock.now()  # (a microsecond before the Sync Write: early, never late)
+        t_goals = clock.now()  # (a microsecond before the Sync Write: early, never late)
         checks = 0.0  # the servo checks after a bus silence: bus time, not the filter's
         if watch.watchdog_s:  # a long silence on the bus: have the servos stopped?
-            gap = tb - watch.last_bus_t
+            gap = t_goals - watch.last_bus_t
             if gap >= WATCHDOG_GAP_FRACTION * watch.watchdog_s:
                 c_checks = perf()
                 watch.after_bus_silence(gap, k)
                 checks = perf() - c_checks
-                tb = clock.now()
+                t_goals = clock.now()
         # the joint map on Python floats: a few joints cost less than numpy's calls
         jmap, cmd = self.map, self._cmd_view.tolist()
         goals = jmap.to_servo_list(cmd)
-        c1 = perf()
+        p_bus = perf()
         try:  # one Sync Write, one (Fast) Sync Read
             bus.write_goals(goals)
             reading = bus.read_present(self.reading)
         except ServoBusError as exc:
             raise LoopFaultError(f"bus: {exc}") from exc
-        c2 = perf()
-        tc = clock.now()
-        watch.last_bus_t = tb  # the servos' watchdog counts from the last packet they got
+        p_bus_end = perf()
+        t_read = clock.now()
+        watch.last_bus_t = t_goals  # the servos' watchdog counts from the last packet they got
         view = self._positions_view
         if view.arr is not reading.positions:  # another reading (not the loop's own)
             view = self._positions_view = Packed(reading.positions)
@@ -466,7 +455,7 @@ class HilLoop:
                     self.safety.rejoin(i, p)
         # u(t_k) recorded; u and u' as tuples for the springs (u' needs no array of its own)
         target = self.stepper.sample(t_sim)
-        c3 = perf()
+        p_record = perf()
         # the host's own stall in or just before this tick: a late wake-up, the last
         # iteration's host work beyond its usual cost, and what the driver saw of the host
         # not running inside its bus calls (the health read's too)
@@ -480,7 +469,8 @@ class HilLoop:
         all_ok = not any(view.tolist())  # OK is 0; no numpy reduction
         rec.tick, rec.t_sched, rec.t_actual, rec.status = k, t_sim, t_actual - self._t0, status
         rec.t_sim_us, rec.t_telemetry_us, rec.overrun = math.nan, math.nan, False
-        rec.t_safety_us, rec.t_bus_us = (c1 - c0 - checks) * 1e6, (c2 - c1 + checks) * 1e6
+        rec.t_safety_us = (p_bus - p_safety - checks) * 1e6
+        rec.t_bus_us = (p_bus_end - p_bus + checks) * 1e6
         rec.comm_errors = watch.comm_errors + (0 if all_ok else int(np.count_nonzero(status)))
         rec.host_stall_us = stall * 1e6
         if self._recording:
@@ -488,23 +478,24 @@ class HilLoop:
                 self.telemetry.record(rec)
             except WriterFailedError as exc:
                 self._telemetry_failed(exc)
-        c4 = perf()
+        p_checks = perf()
         # -- faults that stop the show, raised once the tick is in telemetry
         if stall >= STALL_EVENT_S:
             self.log.host_stall(stall, k, t_sim)
             if stall >= WATCHDOG_GAP_FRACTION * watch.watchdog_s:
-                watch.last_long_gap_t = tc  # explains a watchdog trip found later
-        watch.check_reads(reading, tc, self.stalls.total_s, stall > 0.0, all_ok)
+                watch.last_long_gap_t = t_read  # explains a watchdog trip found later
+        watch.check_reads(reading, t_read, self.stalls.total_s, stall > 0.0, all_ok)
         watch.check_following(present, cmd)
         # -- advance the springs to the next tick (target held over each step)
-        t_int = clock.now()
+        t_springs = clock.now()
         self.stepper.advance(t_sim, target)
-        integ_s = clock.now() - t_int
+        integ_s = clock.now() - t_springs
         if integ_s < self._integ_s:  # the least one tick has cost (min() parses keywords)
             self._integ_s = integ_s
-        c5 = perf()
-        rec.t_sim_us, rec.t_telemetry_us = (c5 - c4 + c3 - c2) * 1e6, (c4 - c3) * 1e6
-        self._integ_share = (c5 - c4) / self.period
+        p_end = perf()
+        rec.t_sim_us = (p_end - p_checks + p_record - p_bus_end) * 1e6
+        rec.t_telemetry_us = (p_checks - p_record) * 1e6
+        self._integ_share = (p_end - p_checks) / self.period
 
     def _after_tick(self, k: int, t_sched: float, t_actual: float, n_ticks: int | None) -> int:
         """The end of tick k-1 (``k`` is the next): overrun and its policy, the catch-up or a
