@@ -236,8 +236,8 @@ class TelemetryWriter:
         and its buffers: arrays shaped ``(n_joints,)``; ``target``, ``sim_x``, ``cmd``,
         ``present`` in rad, ``sim_v`` in rad/s, ``present`` NaN where there was no valid read,
         ``status`` :class:`ReadStatus` codes; times in s since run start; stage times in µs
-        (NaN if not known yet: see :meth:`amend`); ``comm_errors`` cumulative;
-        ``host_stall_us`` the host's own stall in this tick. Never blocks with
+        (NaN if not known yet: see :meth:`amend`); ``comm_errors`` and ``skipped_ticks``
+        cumulative; ``host_stall_us`` the host's own stall in this tick. Never blocks with
         ``overflow="drop"``; a dropped row still counts in :attr:`stats`.
 
         Raises :class:`WriterFailedError` if the writer thread has died, and
