@@ -181,3 +181,16 @@ def test_rows_without_skipped_ticks_still_read_and_say_what_is_unknown(tmp_path:
     _v1_run(tmp_path / "c", -1, None)  # no overrun: no catch-up, every gap is rows lost
     said = [m for m in read_run(tmp_path / "c").warnings if m.startswith(TELEMETRY_CSV_GZ)]
     assert len(said) == 1 and "5 tick(s) missing" in said[0], said
+
+
+def test_every_warning_about_the_rows_names_the_file_read(tmp_path: Path) -> None:
+    lines = [",".join(csv_columns(["a"]))]
+    for k in (0, 1, 5, 3):  # a gap after an on-time tick (rows lost), then back in time
+        lines.append(f"{k},{k * 4e-3},{k * 4e-3},0,0,0,0,0,0,0,1,1,1,1,0,0,0,0")
+    lines.insert(2, "garbage,,")
+    with gzip.open(tmp_path / TELEMETRY_CSV_GZ, "wt") as f:
+        f.write("\n".join(lines) + "\n")
+    run = read_run(tmp_path)
+    about_rows = [m for m in run.warnings if "summary" not in m and "events" not in m]
+    assert len(about_rows) == 3, run.warnings  # unparsable, not increasing, rows lost
+    assert all(m.startswith(f"{TELEMETRY_CSV_GZ}: ") for m in about_rows), about_rows
