@@ -271,8 +271,9 @@ MODEL_DATA: dict[str, dict] = {
         "add": (_STARTUP, _BACKUP_READY),
     },
     # docs/kr/dxl/x/xh430-v210.md @ 01ba9719: the stored English pages (b6bee155 and older)
-    # are all the old layout, without Startup Configuration(60) and Backup Ready(147); the
-    # Korean page in the current layout has both, as the other XH430 pages do
+    # are all the old layout, without Startup Configuration(60) and Backup Ready(147), and
+    # print Velocity Limit 380; the Korean page in the current layout has both rows, as the
+    # other XH430 pages do, and 230 (about the no-load speed, as on the other XH430s)
     "XH430-V210": {
         "model_number": 1050,
         "no_load_speed_rpm": 52.0,
@@ -287,7 +288,7 @@ MODEL_DATA: dict[str, dict] = {
             **_DRIVE_MODE,
             **_24V,
             "current_limit": (689, 0, 689),
-            "velocity_limit": (380, 0, 1023),
+            "velocity_limit": (230, 0, 1023),
         },
         "add": (_STARTUP, _BACKUP_READY),
     },
