@@ -667,11 +667,19 @@ class DxlBus:
         return end
 
     def _byte_steps(self, bt: float, n: int) -> list[float]:
-        """``[k * bt for k in 1..]``, at least ``n`` long, kept while the baud rate holds."""
+        """``[k * bt for k in 1..]``, at least ``n`` long, kept while the baud rate holds.
+
+        It doubles only to hold a longer burst; a new baud rate refills it at the same length
+        (doubling there too made each rate change cost twice the last)."""
         steps = self._steps
-        if bt != self._steps_bt or len(steps) < n:
-            steps = self._steps = [k * bt for k in range(1, max(n, 2 * len(steps), 256) + 1)]
-            self._steps_bt = bt
+        if bt != self._steps_bt:
+            size = max(n, len(steps), 256)
+        elif len(steps) < n:
+            size = max(n, 2 * len(steps))
+        else:
+            return steps
+        self._steps = steps = [k * bt for k in range(1, size + 1)]
+        self._steps_bt = bt
         return steps
 
     def _update_visibility(self, even: bool) -> None:

@@ -211,7 +211,8 @@ MODEL_DATA: dict[str, dict] = {
         "modes": _ALL_MODES,
         "table": {**_DRIVE_MODE, "velocity_limit": (330, 0, 1023)},
     },
-    # xh430-w350.md @ 6aca77e9 (Maxon coreless; TTL or RS-485)
+    # xh430-w350.md @ 028a13d2 (Maxon coreless; TTL or RS-485; the layout with Startup
+    # Configuration(60) and Backup Ready(147), as on the XL430; 6aca77e9 was the one before)
     "XH430-W350": {
         "model_number": 1000,
         "no_load_speed_rpm": 30.0,
@@ -228,8 +229,9 @@ MODEL_DATA: dict[str, dict] = {
             "velocity_limit": (130, 0, 1023),
             "position_p_gain": (900, 0, 16383),
         },
+        "add": (_STARTUP, _BACKUP_READY),
     },
-    # xh430-w210.md @ 1cf2abe6
+    # xh430-w210.md @ 028a13d2 (Startup Configuration and Backup Ready; 1cf2abe6 had neither)
     "XH430-W210": {
         "model_number": 1010,
         "no_load_speed_rpm": 50.0,
@@ -246,8 +248,10 @@ MODEL_DATA: dict[str, dict] = {
             "velocity_limit": (210, 0, 1023),
             "position_p_gain": (900, 0, 16383),
         },
+        "add": (_STARTUP, _BACKUP_READY),
     },
-    # xh430-v350.md @ 6058d277 (24 V, RS-485 only; current unit 1.34 mA)
+    # xh430-v350.md @ 7f0be97a (24 V, RS-485 only; current unit 1.34 mA; Startup Configuration
+    # and Backup Ready, which 6058d277 lacked)
     "XH430-V350": {
         "model_number": 1040,
         "no_load_speed_rpm": 31.0,
@@ -264,10 +268,12 @@ MODEL_DATA: dict[str, dict] = {
             "current_limit": (689, 0, 689),
             "velocity_limit": (135, 0, 1023),
         },
+        "add": (_STARTUP, _BACKUP_READY),
     },
-    # xh430-v210.md: every stored version is the old layout (Velocity Limit 380 there; newer
-    # firmware lowered the other XH430s' default to about the no-load speed); the voltage
-    # range as on the V350 page (both include control_table_volt_limit_24v.md)
+    # docs/kr/dxl/x/xh430-v210.md @ 01ba9719: the stored English pages (b6bee155 and older)
+    # are all the old layout, without Startup Configuration(60) and Backup Ready(147), and
+    # print Velocity Limit 380; the Korean page in the current layout has both rows, as the
+    # other XH430 pages do, and 230 (about the no-load speed, as on the other XH430s)
     "XH430-V210": {
         "model_number": 1050,
         "no_load_speed_rpm": 52.0,
@@ -282,8 +288,9 @@ MODEL_DATA: dict[str, dict] = {
             **_DRIVE_MODE,
             **_24V,
             "current_limit": (689, 0, 689),
-            "velocity_limit": (380, 0, 1023),
+            "velocity_limit": (230, 0, 1023),
         },
+        "add": (_STARTUP, _BACKUP_READY),
     },
     # xl430-w250.md @ 00a4b781 (no current sensing: addr 126 is Present Load)
     "XL430-W250": {

@@ -3,11 +3,12 @@
 Writes ``joints.png`` (target, spring, commanded and present position per joint, degrees),
 ``lateness.png`` (tick lateness histogram and time series, µs) and ``timing.png`` (per-stage wall
 time, µs) into ``RUN_DIR/plots/`` or ``--out``, and prints each path written. Warnings about the
-run (a truncated last line, dropped rows, no summary) go to stderr. Exit codes: 0 written,
-1 the run has no ticks (in the ``--start``/``--end`` window), 2 RUN_DIR is not a run directory
-(or its CSV header is not telemetry), or an option is unusable: ``--dpi`` outside
-:data:`DPI_RANGE`, ``--start`` not before ``--end``, ``--out`` not a directory that can be
-written. Every problem is one line on stderr.
+run (a truncated last line, ticks caught up without a row, rows lost, no summary; each naming
+the file it is about) go to stderr. Exit codes: 0 written, 1 the run has no ticks (in the
+``--start``/``--end`` window), 2 RUN_DIR is not a run directory (or its CSV header is not
+telemetry), or an option is unusable: ``--dpi`` outside :data:`DPI_RANGE`, ``--start`` not
+before ``--end``, ``--out`` not a directory that can be written. Every problem is one line on
+stderr.
 """
 
 from __future__ import annotations

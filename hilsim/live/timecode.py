@@ -2,10 +2,12 @@
 
 **Quarter frames.** Running forward, a sender sends 4 per frame, pieces 0–7: frame, seconds,
 minutes and hours, low nibble then high; piece 7's bits 1–2 are the rate (0 = 24, 1 = 25,
-2 = 29.97 drop-frame, 3 = 30 fps). Piece 0 leaves at the coded instant, so when piece 7 arrives
-the time is the code + 7/4 frames, and the next piece 0 lands on the code + 2 frames (the
-"+2 frames a full code takes"). The chase anchors there and runs the show time on the loop's
-clock until the next full code re-anchors it (every 2 frames).
+2 = 29.97 drop-frame, 3 = 30 fps). Pieces 0 and 4 arrive where frames start, piece 0 at the
+coded instant, so when piece 7 arrives the time is the code + 7/4 frames, and the next piece 0
+lands on the code + 2 frames (the "+2 frames a full code takes"). The chase locks on piece 7:
+its arrival is the anchor, at the code + 7/4 frames, and the show time runs on the loop's clock
+from there until the next full code re-anchors it (every 2 frames). ``timecode_locked`` names
+the quarter frame (``quarter_frame``: 7) and is stamped with its arrival.
 
 **Stop, freewheel, hold.** When quarter frames stop, the show time runs on for ``freewheel_s``
 after the last one (at least one frame, the normal spacing being a quarter of that), then holds;
@@ -264,6 +266,8 @@ class MtcChase:
         new = code.to_seconds() + frames_late * self._frame_s - self.offset_s
         before = self.show_time(tm)
         detail = {"timecode": str(code), "rate": RATE_NAMES[code.rate], "show_time_s": new}
+        if cause == "quarter_frames":
+            detail["quarter_frame"] = 7  # the piece that completed the code: the anchor
         if self.timecode is not None and code.rate != self.timecode.rate:
             detail["rate_was"] = RATE_NAMES[self.timecode.rate]
         if before is not None and abs(new - before) > self.jump_s:

@@ -130,8 +130,8 @@ TARGET_TYPES: dict[str, tuple[str, str]] = {
         "degrees = [-90, 90] }",
     ),
     "fseq": (
-        "A channel (8-bit) or coarse/fine pair (16-bit) of an xLights/FPP `.fseq` v2 "
-        "sequence (plain, zstd or zlib; sparse ranges), frames held.",
+        "A channel (8-bit) or coarse/fine pair (16-bit) of an xLights/FPP `.fseq` sequence "
+        "(v2: plain, zstd or zlib, sparse ranges; v1), frames held.",
         '{ type = "fseq", file = "show.fseq", channel = 1, fine = 2, degrees = [-90, 90] }',
     ),
     "audio": (
@@ -228,11 +228,14 @@ TARGET_KEYS: dict[str, Key] = {
         default_doc="the file's (required where it has none)",
     ),
     "channel": Key(
-        "integer", "fseq: the channel, 1-based as xLights shows it (16-bit: the coarse one)."
+        "integer",
+        "fseq: the channel, 1-based as xLights shows it (16-bit: the coarse one). Absolute in "
+        "a sparse file too: the channel's number in the show, not its place among the "
+        "channels the file stores (a file holding only 501-548 has channel 501, not 1).",
     ),
     "fine": Key(
         "integer",
-        "fseq: the fine channel of a 16-bit pair (1-based).",
+        "fseq: the fine channel of a 16-bit pair (1-based, absolute as `channel`).",
         default_doc="none: an 8-bit channel",
     ),
     "audio_channel": Key(

@@ -574,6 +574,9 @@ class HilLoop:
             self.stepper.advance(k * period)
             k += 1
             self.loop_stats["skipped_ticks"] += 1
+        # the next row carries the count, so a reader tells these ticks (no row by design) from
+        # rows lost; the late tick's row keeps the count before (amend rewrites only its times)
+        self.rec.skipped_ticks = self.loop_stats["skipped_ticks"]
         return k
 
     def _check_integration_keeps_up(self, share: float, t_end: float) -> None:

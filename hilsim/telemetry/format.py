@@ -39,6 +39,14 @@ A run directory (written by :class:`hilsim.telemetry.TelemetryWriter`, read back
                                was not running: a GC pause, a busy neighbour, SIGSTOP), µs;
                                0 on a healthy tick. A tick with a stall is "host-late": its read
                                failures are not blamed on a servo.
+    skipped_ticks              ticks the loop simulated without bus traffic (and without a row)
+                               to catch up after overruns, cumulative, up to this tick: a gap
+                               in the ticks that it does not account for is rows lost (dropped
+                               while recording, or unreadable)
+
+The columns' layout has a version (:data:`ROWS_SCHEMA_VERSION`), told by the columns themselves
+(a crash leaves no summary to say it): version 1 had no ``skipped_ticks``; the reader reads
+both.
 
 Times, targets, spring state, commands and present positions are written with ``%.17g`` (every
 float64 round-trips exactly); µs columns with ``%.3f`` (ns resolution); integer columns as integers;
@@ -49,9 +57,9 @@ integers in a unit that says their precision, named with it (:func:`parquet_colu
 ns (``t_sched_ns``, ``t_actual_ns``, ``lateness_ns``, ``t_<stage>_ns``, ``host_stall_ns``),
 angles in µrad (``target_<j>_urad``, ``sim_x_``, ``cmd_``, ``present_``; 1 µrad is 1/1534 of a
 servo tick), velocities in µrad/s (``sim_v_<j>_urad_s``); ``tick``, ``status_<j>``, ``overrun``,
-``comm_errors`` as they are. NaN is null; +-inf (and beyond +-2**62 units) is +-(2**63 - 1).
-A part is written whole (temporary name, fsync, rename) at each fsync point of the writer, so a
-crash or power cut leaves only complete parts: what was fsync-ed is readable.
+``comm_errors``, ``skipped_ticks`` as they are. NaN is null; +-inf (and beyond +-2**62 units)
+is +-(2**63 - 1). A part is written whole (temporary name, fsync, rename) at each fsync point of
+the writer, so a crash or power cut leaves only complete parts: what was fsync-ed is readable.
 
 :class:`TelemetryError` is the base of the errors raised writing or reading a run directory.
 """
@@ -87,15 +95,17 @@ TAIL_COLUMNS: tuple[str, ...] = (
     "overrun",
     "comm_errors",
     "host_stall_us",
+    "skipped_ticks",
 )
 
 #: the TickRecord attributes behind TAIL_COLUMNS, in column order
-TAIL_FIELDS: tuple[str, ...] = (
-    *(f"t_{s}_us" for s in STAGES),
-    "overrun",
-    "comm_errors",
-    "host_stall_us",
-)
+TAIL_FIELDS: tuple[str, ...] = TAIL_COLUMNS
+
+#: the rows' column layout written now; raised when a column is added, removed or changes meaning
+ROWS_SCHEMA_VERSION = 2
+#: each version's tail columns (the head and per-joint blocks have not changed): version 1 had
+#: no ``skipped_ticks``, so a gap in its rows after an overrun cannot be told from lost rows
+TAILS: dict[int, tuple[str, ...]] = {1: TAIL_COLUMNS[:-1], 2: TAIL_COLUMNS}
 
 
 def _nan_array() -> npt.NDArray[np.float64]:
@@ -130,6 +140,7 @@ class TickRecord:
     overrun: bool = False
     comm_errors: int = 0  # cumulative
     host_stall_us: float = 0.0
+    skipped_ticks: int = 0  # cumulative: ticks caught up without a row before this one
     #: optional: one float64 array of which ``target`` … ``present`` are consecutive views,
     #: in that order (the loop's buffers are): the ring then copies it in one step
     joint_block: npt.NDArray[np.float64] | None = None
@@ -165,13 +176,14 @@ class TelemetryError(Exception):
     (:mod:`hilsim.telemetry.reader`) a run directory."""
 
 
-def csv_columns(joint_names: Sequence[str]) -> list[str]:
-    """The CSV header for these joints: head, one block per :data:`JOINT_FIELDS` entry, tail."""
+def csv_columns(joint_names: Sequence[str], version: int = ROWS_SCHEMA_VERSION) -> list[str]:
+    """The CSV header for these joints: head, one block per :data:`JOINT_FIELDS` entry, tail
+    (of that :data:`ROWS_SCHEMA_VERSION`: the reader reads the older ones too)."""
     names = list(joint_names)
     return [
         *HEAD_COLUMNS,
         *(f"{f}_{j}" for f in JOINT_FIELDS for j in names),
-        *TAIL_COLUMNS,
+        *TAILS[version],
     ]
 
 
@@ -258,11 +270,13 @@ class ParquetColumn:
     dtype: str
 
 
-def parquet_columns(joint_names: Sequence[str]) -> list[ParquetColumn]:
+def parquet_columns(
+    joint_names: Sequence[str], version: int = ROWS_SCHEMA_VERSION
+) -> list[ParquetColumn]:
     """The Parquet columns for these joints, in CSV column order (see the module docstring)."""
     out = []
-    for c in csv_columns(joint_names):
-        if c in ("tick", "comm_errors"):
+    for c in csv_columns(joint_names, version):
+        if c in ("tick", "comm_errors", "skipped_ticks"):
             out.append(ParquetColumn(c, c, 1.0, "int64"))
         elif c == "overrun" or c.startswith("status_"):
             out.append(ParquetColumn(c, c, 1.0, "int8"))

@@ -198,11 +198,15 @@ def window_note(start: float | None, end: float | None) -> str:
 def tick_count(run: Run, n: int, start: float | None, end: float | None) -> str:
     """``N ticks`` for a title's ``n`` rows, with `` + K caught up without a row`` for a
     whole run whose loop skipped K ticks' rows to catch up after overruns (its summary's
-    ``loop.skipped_ticks``, a positive int), so the count adds up to the end line's (unless
-    rows were dropped); a window (``start``/``end``) counts its rows only."""
+    ``loop.skipped_ticks``, a positive int; without a summary, as after a crash, what the rows
+    count: :attr:`Run.caught_up`), so the count adds up to the end line's (unless rows were
+    dropped); a window (``start``/``end``) counts its rows only."""
+    if start is not None or end is not None:
+        return f"{n} ticks"
     loop = run.summary.get("loop") if isinstance(run.summary, dict) else None
-    whole = start is None and end is None
-    skipped = loop.get("skipped_ticks") if isinstance(loop, dict) and whole else None
+    skipped = loop.get("skipped_ticks") if isinstance(loop, dict) else None
+    if run.summary is None:
+        skipped = run.caught_up
     more = f" + {skipped} caught up without a row" if type(skipped) is int and skipped > 0 else ""
     return f"{n} ticks{more}"
 

@@ -4,7 +4,8 @@ The directory's format is in :mod:`hilsim.telemetry.format`: its rows in ``telem
 ``telemetry.csv.gz`` or ``telemetry.parquet/`` (whichever is there), read into the same columns
 (CSV names and units) whatever the format. A run being written, or cut short by a crash, still
 loads: what was tolerated is listed in ``Run.warnings`` (a gzip stream cut off: everything up to
-the cut; a Parquet part that does not read: skipped).
+the cut; a Parquet part that does not read: skipped). A gap in the ticks is told apart from the
+rows themselves (their ``skipped_ticks``): ticks the loop caught up on without a row, or rows lost.
 """
 
 from __future__ import annotations
@@ -26,8 +27,9 @@ from hilsim.telemetry.format import (
     EVENTS_JSONL,
     HEAD_COLUMNS,
     JOINT_FIELDS,
+    ROWS_SCHEMA_VERSION,
     SUMMARY_JSON,
-    TAIL_COLUMNS,
+    TAILS,
     TELEMETRY_CSV,
     TELEMETRY_CSV_GZ,
     TELEMETRY_PARQUET,
@@ -52,8 +54,10 @@ class Run:
     """One run directory, loaded. Columns are float64 arrays shaped ``(ticks,)`` by CSV name.
 
     ``warnings`` lists what was tolerated: a truncated last line (crash mid-write), unparsable
-    lines, tick gaps (dropped rows), a missing or corrupt summary. ``truncated`` is True when the
-    CSV's last line was cut off.
+    lines, tick gaps (caught up by the loop, or rows lost), a missing or corrupt summary.
+    ``truncated`` is True when the CSV's last line was cut off. ``rows_file`` names what the rows
+    were read from (``telemetry.parquet`` ...), ``rows_version`` their columns' layout
+    (:data:`~hilsim.telemetry.format.ROWS_SCHEMA_VERSION`; 1 has no ``skipped_ticks``).
     """
 
     path: Path
@@ -64,6 +68,8 @@ class Run:
     config_text: str | None = None
     warnings: list[str] = field(default_factory=list)
     truncated: bool = False
+    rows_file: str = TELEMETRY_CSV
+    rows_version: int = ROWS_SCHEMA_VERSION
 
     @property
     def n_ticks(self) -> int:
@@ -93,6 +99,16 @@ class Run:
     def comm_errors(self) -> np.ndarray:
         return self.columns["comm_errors"].astype(np.int64)
 
+    @property
+    def caught_up(self) -> int | None:
+        """Ticks the loop caught up on without a row before the last row (its ``skipped_ticks``);
+        None when the rows do not say (layout 1, or no readable count)."""
+        skipped = self.columns.get("skipped_ticks")
+        if skipped is None:
+            return None
+        known = skipped[np.isfinite(skipped)]
+        return int(known[-1]) if known.size and known[-1] >= 0 else None
+
     def joint(self, quantity: str) -> np.ndarray:
         """``(ticks, n_joints)`` array of one :data:`JOINT_FIELDS` quantity (``status``: int8)."""
         if quantity not in JOINT_FIELDS:
@@ -106,30 +122,32 @@ class Run:
         return self.columns[f"t_{stage}_us"]
 
 
-def _parse_header(line: str) -> tuple[list[str], tuple[str, ...]]:
+def _parse_header(line: str) -> tuple[list[str], tuple[str, ...], int]:
+    """The header's names, its joints and its layout's version."""
     names = line.rstrip("\r\n").split(",")
-    head, tail = len(HEAD_COLUMNS), len(TAIL_COLUMNS)
-    middle = names[head : len(names) - tail]
-    ok = (
-        len(names) >= head + tail + len(JOINT_FIELDS)
-        and tuple(names[:head]) == HEAD_COLUMNS
-        and tuple(names[len(names) - tail :]) == TAIL_COLUMNS
-        and len(middle) % len(JOINT_FIELDS) == 0
-    )
-    if ok:
-        n = len(middle) // len(JOINT_FIELDS)
-        prefix = JOINT_FIELDS[0] + "_"
-        joints = tuple(c[len(prefix) :] for c in middle[:n])
+    for version, tail_columns in sorted(TAILS.items(), reverse=True):
+        head, tail = len(HEAD_COLUMNS), len(tail_columns)
+        middle = names[head : len(names) - tail]
         ok = (
-            all(c.startswith(prefix) for c in middle[:n])
-            and middle == csv_columns(joints)[head : len(names) - tail]
+            len(names) >= head + tail + len(JOINT_FIELDS)
+            and tuple(names[:head]) == HEAD_COLUMNS
+            and tuple(names[len(names) - tail :]) == tail_columns
+            and len(middle) % len(JOINT_FIELDS) == 0
         )
         if ok:
-            return names, joints
+            n = len(middle) // len(JOINT_FIELDS)
+            prefix = JOINT_FIELDS[0] + "_"
+            joints = tuple(c[len(prefix) :] for c in middle[:n])
+            ok = (
+                all(c.startswith(prefix) for c in middle[:n])
+                and middle == csv_columns(joints, version)[head : len(names) - tail]
+            )
+            if ok:
+                return names, joints, version
     raise RunFormatError(f"not a telemetry header: {line[:120]!r}")
 
 
-def _parse_rows(lines: list[str], ncols: int, warnings: list[str]) -> np.ndarray:
+def _parse_rows(lines: list[str], ncols: int, warnings: list[str], name: str) -> np.ndarray:
     if not lines:
         return np.empty((0, ncols))
     try:
@@ -151,7 +169,7 @@ def _parse_rows(lines: list[str], ncols: int, warnings: list[str]) -> np.ndarray
             bad.append(i + 2)  # 1-based file line, after the header
     if bad:
         shown = ", ".join(map(str, bad[:10])) + (" ..." if len(bad) > 10 else "")
-        warnings.append(f"{TELEMETRY_CSV}: skipped {len(bad)} unparsable line(s): {shown}")
+        warnings.append(f"{name}: skipped {len(bad)} unparsable line(s): {shown}")
     return np.array(rows, dtype=np.float64).reshape(-1, ncols)
 
 
@@ -198,16 +216,16 @@ def _read_lines(path: Path, warnings: list[str]) -> tuple[list[str], bool]:
     return [ln for ln in lines if ln.strip()], bool(partial)
 
 
-def _read_csv(csv_path: Path, warnings: list[str]) -> tuple[dict, tuple[str, ...], bool]:
+def _read_csv(csv_path: Path, warnings: list[str]) -> tuple[dict, tuple[str, ...], bool, int]:
     lines, truncated = _read_lines(csv_path, warnings)
     if not lines:
         raise RunFormatError(f"{csv_path} has no header")
-    names, joints = _parse_header(lines[0])
-    data = _parse_rows(lines[1:], len(names), warnings)
-    return {name: data[:, k].copy() for k, name in enumerate(names)}, joints, truncated
+    names, joints, version = _parse_header(lines[0])
+    data = _parse_rows(lines[1:], len(names), warnings, csv_path.name)
+    return {name: data[:, k].copy() for k, name in enumerate(names)}, joints, truncated, version
 
 
-def _read_parquet(pq_dir: Path, warnings: list[str]) -> tuple[dict, tuple[str, ...], bool]:
+def _read_parquet(pq_dir: Path, warnings: list[str]) -> tuple[dict, tuple[str, ...], bool, int]:
     """Parquet parts -> CSV columns in CSV units (format.py: the Parquet columns)."""
     try:
         import pyarrow.parquet as pq
@@ -231,9 +249,11 @@ def _read_parquet(pq_dir: Path, warnings: list[str]) -> tuple[dict, tuple[str, .
     joints = tuple(
         c[len(prefix) : -len(suffix)] for c in first if c.startswith(prefix) and c.endswith(suffix)
     )
-    cols = parquet_columns(joints) if joints else []
-    if [c.name for c in cols] != first:
+    layouts = {v: parquet_columns(joints, v) for v in TAILS} if joints else {}
+    version = next((v for v, cols in layouts.items() if [c.name for c in cols] == first), None)
+    if version is None:
         raise RunFormatError(f"{pq_dir}: not telemetry columns: {first[:6]!r} ...")
+    cols = layouts[version]
     columns: dict[str, np.ndarray] = {}
     for c in cols:
         parts = []
@@ -247,7 +267,7 @@ def _read_parquet(pq_dir: Path, warnings: list[str]) -> tuple[dict, tuple[str, .
             x[inf] = np.copysign(math.inf, q[inf])
             parts.append(x)
         columns[c.csv] = np.concatenate(parts)
-    return columns, joints, False
+    return columns, joints, False, version
 
 
 def read_run(run_dir: str | os.PathLike[str]) -> Run:
@@ -259,24 +279,19 @@ def read_run(run_dir: str | os.PathLike[str]) -> Run:
     path = Path(run_dir)
     warnings: list[str] = []
     if (path / TELEMETRY_CSV).is_file():
-        columns, joints, truncated = _read_csv(path / TELEMETRY_CSV, warnings)
+        rows_file, read = TELEMETRY_CSV, _read_csv
     elif (path / TELEMETRY_CSV_GZ).is_file():
-        columns, joints, truncated = _read_csv(path / TELEMETRY_CSV_GZ, warnings)
+        rows_file, read = TELEMETRY_CSV_GZ, _read_csv
     elif (path / TELEMETRY_PARQUET).is_dir():
-        columns, joints, truncated = _read_parquet(path / TELEMETRY_PARQUET, warnings)
+        rows_file, read = TELEMETRY_PARQUET, _read_parquet
     else:
         raise NotARunError(
             f"{path} is not a run directory (no {TELEMETRY_CSV}, {TELEMETRY_CSV_GZ} "
             f"or {TELEMETRY_PARQUET})"
         )
-
-    tick = columns["tick"]
-    missing = 0
-    if tick.size > 1:
-        steps = np.diff(tick)
-        missing = int(np.sum(steps[steps > 1] - 1))
-        if np.any(steps < 1):
-            warnings.append(f"{TELEMETRY_CSV}: tick numbers are not increasing")
+    columns, joints, truncated, version = read(path / rows_file, warnings)
+    if columns["tick"].size > 1 and np.any(np.diff(columns["tick"]) < 1):
+        warnings.append(f"{rows_file}: tick numbers are not increasing")
 
     events: list[dict[str, Any]] = []
     ev_path = path / EVENTS_JSONL
@@ -308,18 +323,7 @@ def read_run(run_dir: str | os.PathLike[str]) -> Run:
             warnings.append(f"{SUMMARY_JSON}: unreadable ({exc})")
     else:
         warnings.append(f"no {SUMMARY_JSON} (the run did not close cleanly, or is still running)")
-    if missing:
-        # ticks the loop caught up on after an overrun have no row (nothing was sent or read)
-        loop = (summary or {}).get("loop") or {}
-        skipped = loop.get("skipped_ticks") if isinstance(loop, dict) else None
-        dropped = missing - skipped if isinstance(skipped, int) else missing
-        if isinstance(skipped, int) and skipped:
-            warnings.append(
-                f"{TELEMETRY_CSV}: {min(skipped, missing)} tick(s) skipped by the loop "
-                "(simulated without bus traffic to catch up after overruns)"
-            )
-        if dropped > 0:
-            warnings.append(f"{TELEMETRY_CSV}: {dropped} tick(s) missing (rows dropped?)")
+    warnings.extend(gap_warnings(rows_file, columns, summary))
     tel = summary.get("telemetry") if summary else None
     if isinstance(tel, dict):
         if tel.get("rows_dropped"):
@@ -343,4 +347,61 @@ def read_run(run_dir: str | os.PathLike[str]) -> Run:
         config_text=config_text,
         warnings=warnings,
         truncated=truncated,
+        rows_file=rows_file,
+        rows_version=version,
     )
+
+
+def tick_gaps(columns: dict[str, np.ndarray]) -> tuple[int, int, int]:
+    """The ticks between rows that have no row: ``(caught_up, lost, unknown)``.
+
+    Caught up: the loop simulated them without bus traffic after an overrun (no row by design),
+    as the rows' cumulative ``skipped_ticks`` says across each gap. Lost: the loop ran them but
+    their rows are not here (dropped while recording, or unreadable). Unknown: rows without a
+    ``skipped_ticks`` (layout 1, or a value not readable) after an overrun, which the loop may
+    have caught up on; after a tick that was on time there is no catch-up, so those are lost.
+    """
+    tick = columns["tick"]
+    if tick.size < 2:
+        return 0, 0, 0
+    at = np.flatnonzero(np.diff(tick) > 1)
+    missing = (tick[at + 1] - tick[at] - 1).astype(np.int64)
+    skipped = columns.get("skipped_ticks")
+    said = np.full(at.size, np.nan) if skipped is None else skipped[at + 1] - skipped[at]
+    known = np.isfinite(said) & (said >= 0)
+    caught = np.minimum(np.where(known, said, 0), missing).astype(np.int64)
+    after_overrun = columns["overrun"][at] != 0
+    unknown = np.where(~known & after_overrun, missing, 0)
+    lost = missing - caught - unknown
+    return int(caught.sum()), int(lost.sum()), int(unknown.sum())
+
+
+def gap_warnings(
+    rows_file: str, columns: dict[str, np.ndarray], summary: dict[str, Any] | None
+) -> list[str]:
+    """What :func:`tick_gaps` found, one line each, naming the rows' file. Rows without a
+    ``skipped_ticks`` column fall back on the summary's ``loop.skipped_ticks`` if there is one."""
+    caught, lost, unknown = tick_gaps(columns)
+    loop = (summary or {}).get("loop")
+    skipped = loop.get("skipped_ticks") if isinstance(loop, dict) else None
+    if unknown and "skipped_ticks" not in columns and type(skipped) is int and skipped >= 0:
+        # the summary counts every tick caught up on (some perhaps after the last row)
+        caught = min(skipped, unknown)
+        lost, unknown = lost + unknown - caught, 0
+    out = []
+    if caught:
+        out.append(
+            f"{rows_file}: {caught} tick(s) caught up by the loop without a row "
+            "(simulated without bus traffic after overruns)"
+        )
+    if unknown:
+        out.append(
+            f"{rows_file}: {unknown} tick(s) without a row after overruns: caught up by the loop "
+            "or rows lost (these rows do not count the ticks caught up, and no summary says it)"
+        )
+    if lost > 0:
+        out.append(
+            f"{rows_file}: {lost} tick(s) missing: the loop ran them but their rows were lost "
+            "(dropped while recording, or unreadable)"
+        )
+    return out

@@ -71,6 +71,7 @@ def row_format(n: int) -> str:
         _EXACT,  # overrun
         _EXACT,  # comm_errors
         _MICROS,  # host_stall_us
+        _EXACT,  # skipped_ticks
     ]
     return ",".join(fields) + "\n"
 

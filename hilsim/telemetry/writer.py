@@ -128,7 +128,7 @@ class TelemetryWriter:
     pyarrow is a ``ValueError``). ``joint_names`` become column suffixes (no commas, quotes or
     newlines); ``servo_ids`` (same order) name the servos in the summary's ``comm_errors``.
     ``queue_size`` ring rows absorb a disk stall of ``queue_size / rate`` seconds (16384 rows:
-    16 s at 1 kHz; ``8 * (11 + 6 * n_joints)`` bytes a row, 7.6 MB for 8 joints). ``overflow``
+    16 s at 1 kHz; ``8 * (12 + 6 * n_joints)`` bytes a row, 7.9 MB for 8 joints). ``overflow``
     picks what a full ring does: ``"drop"`` (count the row, return False: never blocks) or
     ``"block"`` (wait for the writer: lossless, for virtual-time runs). ``config_text`` is
     copied to ``run_dir/config_name``.
@@ -236,8 +236,8 @@ class TelemetryWriter:
         and its buffers: arrays shaped ``(n_joints,)``; ``target``, ``sim_x``, ``cmd``,
         ``present`` in rad, ``sim_v`` in rad/s, ``present`` NaN where there was no valid read,
         ``status`` :class:`ReadStatus` codes; times in s since run start; stage times in µs
-        (NaN if not known yet: see :meth:`amend`); ``comm_errors`` cumulative;
-        ``host_stall_us`` the host's own stall in this tick. Never blocks with
+        (NaN if not known yet: see :meth:`amend`); ``comm_errors`` and ``skipped_ticks``
+        cumulative; ``host_stall_us`` the host's own stall in this tick. Never blocks with
         ``overflow="drop"``; a dropped row still counts in :attr:`stats`.
 
         Raises :class:`WriterFailedError` if the writer thread has died, and

@@ -141,6 +141,29 @@ def test_servo_on_another_baud_rate_never_answers(opened):
     assert s.ph.ping(s.port, 1)[1] == OK
 
 
+def test_changing_the_host_baud_rate_100_times_costs_nothing_cumulative(opened):
+    """A baud scan, or the SDK's factory_reset example, switches the host's rate again and
+    again: each reply still takes its wire time, and the emulator's byte-time table (one
+    entry per byte of the longest burst) does not grow with the number of changes."""
+    from drivers.clock import VirtualClock
+    from drivers.dxlsim import DxlBus, VirtualServo
+
+    rates = {1: 57_600, 2: 1_000_000}  # one servo at each rate
+    servos = [VirtualServo("XM430-W350", i, baud=b, return_delay_us=0.0) for i, b in rates.items()]
+    bus = DxlBus(servos, baud=57_600, clock=VirtualClock(), turnaround_us=20.0)
+    s = opened(bus)
+    sizes = set()
+    for change in range(100):
+        sid = 1 + change % 2
+        s.port.setBaudRate(rates[sid])
+        t0 = bus.clock.now()
+        assert s.ph.ping(s.port, sid)[1] == OK
+        # Ping 10 B + its status 14 B, then the turnaround: the same on the 100th change
+        assert bus.clock.now() - t0 == pytest.approx(10 * 24 / rates[sid] + 20e-6, abs=1e-9)
+        sizes.add(len(bus._steps))
+        assert sizes == {256}, f"byte-time table after {change + 1} changes: {sorted(sizes)}"
+
+
 def test_inter_byte_gap_over_1_5_ms_drops_the_packet():
     from drivers.dxlsim.protocol import Instruction, encode_instruction
 

@@ -304,6 +304,44 @@ def test_xl430_startup_configuration_and_backup_ready_rows():
     assert servo.write(STARTUP_CONFIGURATION, b"\x01", 0.1) == StatusError.ACCESS  # EEPROM
 
 
+#: The current XH430 pages list both rows, as the XL430's does: ``docs/en/dxl/x/xh430-w350.md``
+#: and ``xh430-w210.md`` @ 028a13d2, ``xh430-v350.md`` @ 7f0be97a, ``docs/kr/dxl/x/
+#: xh430-v210.md`` @ 01ba9719 (no English page in that layout is stored for the V210).
+XH430 = ("XH430-W350", "XH430-W210", "XH430-V350", "XH430-V210")
+
+
+@pytest.mark.parametrize("name", XH430)
+def test_xh430_startup_configuration_and_backup_ready(name):
+    """Startup Configuration(60): EEPROM, RW, initial 0, range 3 (bits 0-1); Backup Ready(147):
+    RAM, R, 0-1. On the wire: a write of 60 is taken (not an Access Error), Backup Ready
+    follows the Control Table Backup, and a Reboot applies RAM Restore and Startup Torque On."""
+    bus = make_bus((1,), model=name)
+
+    def reply(inst: int, params: bytes = b""):
+        (status,) = transact(bus, 1, inst, params)
+        return status.error, status.params
+
+    assert reply(Instruction.WRITE, bytes((STARTUP_CONFIGURATION, 0, 3))) == (OK, b"")
+    assert reply(Instruction.WRITE, bytes((STARTUP_CONFIGURATION, 0, 4)))[0] == (
+        StatusError.DATA_RANGE
+    )
+    assert reply(Instruction.WRITE, bytes((BACKUP_READY, 0, 1)))[0] == StatusError.ACCESS
+    assert reply(Instruction.WRITE, bytes((PROFILE_VELOCITY, 0)) + le(77, 4)) == (OK, b"")
+    read_ready = bytes((BACKUP_READY, 0, 1, 0))
+    assert reply(Instruction.READ, read_ready) == (OK, b"\x00")
+    assert reply(Instruction.BACKUP, BACKUP_STORE) == (OK, b"")
+    assert reply(Instruction.READ, read_ready) == (OK, b"\x01")
+    assert reply(Instruction.REBOOT) == (OK, b"")
+    bus.clock.advance(1.0)
+    assert reply(Instruction.READ, read_ready) == (OK, b"\x01")  # the backup is in flash
+    assert reply(Instruction.READ, bytes((PROFILE_VELOCITY, 0, 4, 0))) == (OK, le(77, 4))
+    assert reply(Instruction.READ, bytes((TORQUE, 0, 1, 0))) == (OK, b"\x01")
+    m = MODELS[name]
+    sc, br = m.field(STARTUP_CONFIGURATION), m.field(BACKUP_READY)
+    assert (sc.size, sc.access, sc.default, sc.lo, sc.hi, sc.eeprom) == (1, "RW", 0, 0, 3, True)
+    assert (br.size, br.access, br.lo, br.hi, br.eeprom) == (1, "R", 0, 1, False)
+
+
 def test_startup_configuration_restores_ram_and_turns_torque_on_at_boot():
     """control_table_60_startup_configuration.md: bit 1 RAM Restore (RAM area restored
     from the backup on boot), bit 0 Startup Torque On; protocol2.md lists what the backup

@@ -367,10 +367,12 @@ def assert_wire_is_telemetry(emu: Emu, run: Run, wire: Wire, *, extra_writes: in
 def assert_rows_complete(run: Run) -> None:
     """Telemetry holds a row for every tick that went to the bus, from tick 0 on, the last line
     whole. The only gaps are ticks the loop simulated without bus traffic to catch up after an
-    overrun (a read timeout takes longer than a tick), counted as ``skipped_ticks``."""
+    overrun (a read timeout takes longer than a tick), counted as ``skipped_ticks`` (the
+    summary's, and across each gap the rows')."""
     assert not run.truncated and run.tick[0] == 0
     gaps = np.diff(run.tick) - 1
     assert gaps.min(initial=0) >= 0 and gaps.sum() == run.summary["loop"]["skipped_ticks"]
+    np.testing.assert_array_equal(gaps, np.diff(run.columns["skipped_ticks"]))  # the rows say it
     t = run.summary["telemetry"]
     assert t["rows_lost"] == 0 and t["rows_dropped"] == 0
 

@@ -1,10 +1,11 @@
-"""FSEQ v2 -> tracks: the worked 16-bit numbers, uncompressed / zlib / zstd / sparse alike,
-8-bit channels, "0 means hold", the extended block count, bad inputs, fuzzing."""
+"""FSEQ -> tracks: the worked 16-bit numbers, uncompressed / zlib / zstd / sparse alike,
+8-bit channels, "0 means hold", the extended block count, v1 files, bad inputs, fuzzing."""
 
 from __future__ import annotations
 
 import importlib.util
 import math
+import struct
 import sys
 import zlib
 from pathlib import Path
@@ -116,6 +117,58 @@ def test_the_shipped_samples_are_the_generators():
     assert (zstd.compression, zstd.frame_count, zstd.channel_count) == ("zstd", 50, 4)
 
 
+# ------------------------------------------------------------------------------ v1
+def v1_bytes(frames: np.ndarray, step_ms: int = 25, media: bytes = b"", magic=b"PSEQ") -> bytes:
+    """An FSEQ v1 file written field by field from the published v1 layout: a 28-byte fixed
+    header (flags 0, no universes, gamma 1, colour encoding 2 as xLights wrote them), an
+    optional ``mf`` variable header, zeros to a multiple of 4, then the raw frames."""
+    n, width = frames.shape
+    var = struct.pack("<H2s", 4 + len(media) + 1, b"mf") + media + b"\0" if media else b""
+    offset = -(-(28 + len(var)) // 4) * 4
+    head = struct.pack(
+        "<4sHBBHIIBBHHBB2x", magic, offset, 0, 1, 28, width, n, step_ms, 0, 0, 0, 1, 2
+    )
+    assert len(head) == 28
+    return head + var + bytes(offset - 28 - len(var)) + frames.astype(np.uint8).tobytes()
+
+
+#: 40 frames of 25 ms, 3 channels: 1 = 6·frame, 2 = 100 (a 16-bit pair), 3 = 250 - 5·frame
+K40 = np.arange(40)
+V1_FRAMES = np.stack([6 * K40, np.full(40, 100), 250 - 5 * K40], axis=1)
+V1 = v1_bytes(V1_FRAMES, media=b"skull.mp3")
+
+
+def test_v1_file_is_read_with_the_hand_computed_numbers():
+    """Frame 20 (0.5 s): 120·256 + 100 = 30820 over -90..+90° -> -5.3491°; channel 3 at frame 8
+    (0.2 s) is 210 -> 74.1176° over 0..90°; 40 frames of 25 ms last 1.0 s."""
+    seq = parse_fseq(V1, "old.fseq")
+    h = seq.header
+    assert (h.major, h.minor, h.compression, h.sparse_ranges, h.unique_id) == (1, 0, "none", (), 0)
+    assert (h.channel_count, h.frame_count, h.step_ms, h.duration) == (3, 40, 25, 1.0)
+    assert h.channel_data_offset == 44 and h.media_file == "skull.mp3"  # 28 + 14, padded to 44
+    pan = seq.track(PAN)
+    assert deg(pan, 0.5) == pytest.approx(-5.3491, abs=5e-4)
+    assert deg(pan, 0.524) == deg(pan, 0.5)  # held for its 25 ms
+    tail = seq.track(FseqChannel(3, dmx_unit_map((0, 90), bits=8)))
+    assert deg(tail, 0.2) == pytest.approx(74.1176, abs=5e-4)
+    assert seq.values(FseqChannel(3, dmx_unit_map((0, 90), bits=8)))[39] == 55  # 250 - 195
+
+
+def test_v1_and_v2_of_the_same_frames_give_identical_tracks(tmp_path):
+    v2 = parse_fseq(gen.fseq_bytes(V1_FRAMES.astype(np.uint8), 25))
+    (tmp_path / "old.fseq").write_bytes(v1_bytes(V1_FRAMES, magic=b"FSEQ"))  # the oldest magic
+    v1 = read_fseq(tmp_path / "old.fseq")
+    assert v1.header.media_file == ""
+    times = np.linspace(-0.1, 1.2, 261)
+    for spec in (PAN, FseqChannel(3, dmx_unit_map((0, 90), bits=8), interpolation="linear")):
+        for a, b in zip(v1.track(spec).sample_array(times), v2.track(spec).sample_array(times),
+                        strict=True):  # fmt: skip
+            assert np.array_equal(a, b)
+    with pytest.raises(FormatError, match=r"old\.fseq:channel 4: beyond the file: it holds "
+                       r"channels 1-3"):  # fmt: skip
+        v1.track(FseqChannel(4, PAN.unit_map))
+
+
 def test_8_bit_channel_and_zero_means_hold():
     seq = parse_fseq(PLAIN)
     tail_map = dmx_unit_map((0, 90), bits=8)
@@ -193,7 +246,23 @@ BAD = [
     (b"RIFF" + PLAIN[4:], r"x:byte 0: not an FSEQ file: starts with b'RIFF', not b'PSEQ'"),
     (b"ESEQ" + PLAIN[4:], r"x:byte 0: an ESEQ effect sequence"),
     (PLAIN[:20], r"x:byte 20: truncated: 20 bytes, the FSEQ header alone is 32"),
-    (patch(PLAIN, 7, b"\x01"), r"x:byte 7: FSEQ version 1\.0: only version 2"),
+    (PLAIN[:6], r"x:byte 6: truncated: 6 bytes, the FSEQ header alone is 32"),
+    (patch(PLAIN, 7, b"\x03"), r"x:byte 7: FSEQ version 3\.0: versions 1 and 2 are read"),
+    (V1[:27], r"x:byte 27: truncated: 27 bytes, the FSEQ header alone is 28"),
+    (
+        patch(V1, 4, b"\x18\x00"),
+        r"x:byte 4: channel data offset 24 is not between the end "
+        r"of the v1 header \(28\) and the file's end \(164\)",
+    ),
+    (patch(V1, 10, u32(0)), r"x:byte 10: 0 channels per frame"),
+    (patch(V1, 18, b"\x00"), r"x:byte 18: a frame step of 0 ms"),
+    (
+        V1[:-2],
+        r"x:byte 162: truncated: 40 frames of 3 channels need 120 bytes from byte 44, "
+        r"the file has 118 \(frame 39 is incomplete\)",
+    ),
+    (V1 + b"\0" * 3, r"x:byte 164: 3 bytes after the last of 40 frames"),
+    (patch(V1, 28, b"\x40\x00"), r"x:byte 28: variable header of 64 bytes does not fit"),
     (patch(PLAIN, 20, b"\x03"), r"x:byte 20: compression type 3"),
     (patch(PLAIN, 10, u32(0)), r"x:byte 10: 0 channels per frame"),
     (patch(PLAIN, 14, u32(0)), r"x:byte 14: 0 frames"),
@@ -284,9 +353,9 @@ def test_random_bytes_give_a_format_error_or_values(data):
     _only_format_errors(b"PSEQ" + data)
 
 
-@given(st.sampled_from(["plain", "zlib", "sparse"]), st.data())
+@given(st.sampled_from(["plain", "zlib", "sparse", "v1"]), st.data())
 def test_mangled_files_give_a_format_error_or_values(form, draw):
-    data = bytearray({"plain": PLAIN, "zlib": ZLIB, "sparse": SPARSE}[form])
+    data = bytearray({"plain": PLAIN, "zlib": ZLIB, "sparse": SPARSE, "v1": V1}[form])
     for _ in range(draw.draw(st.integers(1, 4))):
         i = draw.draw(st.integers(0, len(data) - 1))
         op = draw.draw(st.sampled_from(["set", "set", "cut", "insert"]))

@@ -253,7 +253,9 @@ def test_mtc_chase_locks_the_show_time_then_freewheels_and_holds(tmp_path):
     locked = t[np.argmax(target > 0.5)]  # the first tick after the 8th quarter frame
     assert 1.0 + 7 / 120 <= locked <= 1.0 + 7 / 120 + PERIOD + 1e-9
     show_t = target[t == locked][0] / 2.0
-    assert show_t == pytest.approx(2 + 15 / 30 + 2 / 30, abs=1 / 30)  # 2.5667 s
+    assert show_t == pytest.approx(2 + 15 / 30 + 2 / 30, abs=1 / 30)  # 2.5667 s, the review's
+    # exactly: the code + 7/4 frames at the 8th quarter frame, run on to this tick
+    assert show_t == pytest.approx(2.5 + 1.75 / 30 + locked - (1.0 + 7 / 120), abs=1e-6)
     held = target[t > locked + 0.5 + 1 / 30 + PERIOD]
     assert np.all(held == held[0])  # freewheel over, the show time holds
     assert held[0] == pytest.approx(target[t == locked][0] + 2.0 * 0.5, abs=2.0 / 30 + 0.01)

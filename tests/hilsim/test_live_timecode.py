@@ -1,16 +1,22 @@
-"""MTC chase: the issue's acceptance (00:00:02:15 at 30 fps locks to 2.5667 s; 500 ms freewheel
-then hold), SMPTE arithmetic at every rate, jumps, full-frame locates, reverse and broken
-streams. Quarter frames are injected with timestamps; nothing waits on real time."""
+"""MTC chase: the issue's acceptance (00:00:02:15 at 30 fps locks on the 8th quarter frame at
+2.5583 s and is at 2.5667 s, the +2 frames, when the next piece 0 lands; 500 ms freewheel then
+hold), docs/live.md saying the same, SMPTE arithmetic at every rate, jumps, full-frame locates,
+reverse and broken streams. Quarter frames are injected with timestamps; nothing waits on real
+time."""
 
 from __future__ import annotations
 
 import json
+import re
+from pathlib import Path
 
 import pytest
 
 from hilsim.live.timecode import MtcChase, Smpte
 
 mido = pytest.importorskip("mido")
+
+REPO = Path(__file__).resolve().parents[2]
 
 RATE_HZ = 250
 FPS = {0: 24, 1: 25, 2: 30000 / 1001, 3: 30}
@@ -68,6 +74,27 @@ def test_acceptance_quarter_frames_lock_to_2_5667_s() -> None:
     assert polled.show_time_s == pytest.approx(2.5 + 1.75 / 30)  # piece 7 is 7/4 frames late
     assert chase.poll(8 / 120).show_time_s == pytest.approx(2.5 + 2 / 30)  # the +2 frames
     assert [e.kind for e in polled.events] == ["timecode_locked"]
+    locked = polled.events[0]
+    assert locked.t == 7 / 120 and locked.detail["quarter_frame"] == 7  # the one it locked on
+    assert locked.detail["show_time_s"] == pytest.approx(2.5 + 1.75 / 30)
+
+
+def test_live_md_lock_time_is_the_chases() -> None:
+    """docs/live.md's worked example: the show time at the lock (the 8th quarter frame) and at
+    the code + 2 frames a quarter frame later are the chase's, and the event detail it names."""
+    text = " ".join((REPO / "docs" / "live.md").read_text(encoding="utf-8").split())
+    at_lock = float(re.search(r"30 fps lock the show at ([\d.]+) s", text)[1])
+    plus_2 = float(re.search(r"the code \+ 2 frames \(([\d.]+) s\)", text)[1])
+    assert '`"quarter_frame": 7`' in text
+    data = [0x0F, 0x10, 0x22, 0x30, 0x40, 0x50, 0x60, 0x76]
+    chase = MtcChase()
+    for k, b in enumerate(data):
+        chase.feed(mido.Message("quarter_frame", frame_type=b >> 4, frame_value=b & 15), k / 120)
+    polled = chase.poll(7 / 120)
+    assert polled.events[0].kind == "timecode_locked"
+    assert polled.events[0].detail["quarter_frame"] == 7
+    assert polled.show_time_s == pytest.approx(at_lock, abs=5e-5)  # the doc's 4 decimals
+    assert chase.poll(8 / 120).show_time_s == pytest.approx(plus_2, abs=5e-5)
 
 
 def test_acceptance_freewheel_500_ms_after_the_timecode_stops_then_hold() -> None:

@@ -24,6 +24,9 @@ _spec = importlib.util.spec_from_file_location(
 )
 samples_audio = importlib.util.module_from_spec(_spec)
 _spec.loader.exec_module(samples_audio)
+_spec = importlib.util.spec_from_file_location("samples_fseq", REPO / "tools" / "samples_fseq.py")
+samples_fseq = importlib.util.module_from_spec(_spec)
+_spec.loader.exec_module(samples_fseq)
 
 
 def deg(track, t: float) -> float:
@@ -92,6 +95,22 @@ def test_fseq_forms_and_zero_hold():
     assert deg(plain, 0.5) == pytest.approx(-2.108, abs=1e-3)
     eight = build({"type": "fseq", "file": "fseq/r51.fseq", "channel": 1, "degrees": [0, 255]})
     assert deg(eight, 0.5) == pytest.approx(125.0)  # frame 25: 5 * 25, 8-bit full range
+
+
+def test_fseq_channels_of_a_sparse_file_are_absolute_as_the_rig_doc_says(tmp_path):
+    """A file storing only show channels 501-502 (one sparse range): the rig names 502, not 2;
+    channel 1 is outside the file, and docs/rig.md says so on the channel key."""
+    k = np.arange(10)
+    frames = np.stack([5 * k, 255 - 5 * k], axis=1).astype(np.uint8)  # channels 501, 502
+    (tmp_path / "s.fseq").write_bytes(samples_fseq.fseq_bytes(frames, sparse_ranges=[(500, 2)]))
+    spec = {"type": "fseq", "file": "s.fseq", "degrees": [0, 255]}
+    assert deg(build({**spec, "channel": 502}, tmp_path), 0.1) == pytest.approx(230.0)  # frame 5
+    with pytest.raises(FormatError, match=r"s\.fseq:channel 2: outside every sparse range: it "
+                       r"holds channels 501-502"):  # fmt: skip
+        build({**spec, "channel": 2}, tmp_path)
+    section = (REPO / "docs" / "rig.md").read_text(encoding="utf-8").split('`type = "fseq"`')[1]
+    row = next(line for line in section.splitlines() if line.startswith("| `channel` |"))
+    assert "Absolute in a sparse file too" in row and "has channel 501, not 1" in row
 
 
 # ------------------------------------------------------------------ audio, lip-sync

@@ -148,8 +148,10 @@ def test_columns_are_grouped_by_quantity() -> None:
         "target_a", "target_b", "sim_x_a", "sim_x_b", "sim_v_a", "sim_v_b",
         "cmd_a", "cmd_b", "present_a", "present_b", "status_a", "status_b",
         "t_sim_us", "t_safety_us", "t_bus_us", "t_telemetry_us", "overrun", "comm_errors",
-        "host_stall_us",
+        "host_stall_us", "skipped_ticks",
     ]  # fmt: skip
+    # layout 1, still read, had no skipped_ticks
+    assert csv_columns(["a", "b"], 1) == cols[:-1]
 
 
 def test_round_trip_is_exact(tmp_path: Path) -> None:
@@ -546,7 +548,7 @@ def test_nul_tail_and_bad_middle_line(tmp_path: Path) -> None:
 
 def test_empty_fields_read_as_nan(tmp_path: Path) -> None:
     header = ",".join(csv_columns(["a"]))
-    row = "0,0,0,0,1,2,3,4,,1,5,6,7,8,0,0,0"
+    row = "0,0,0,0,1,2,3,4,,1,5,6,7,8,0,0,0,0"
     (tmp_path / TELEMETRY_CSV).write_text(header + "\n" + row + "\n")
     run = read_run(tmp_path)
     assert math.isnan(run.joint("present")[0, 0]) and run.joint("cmd")[0, 0] == 4.0

@@ -69,6 +69,7 @@ def _rows(n: int, seed: int = 3) -> list[dict]:
                 "overrun": i % 11 == 0,
                 "comm": i // 5,
                 "stall": 0.0 if i % 13 else 1234.5678,
+                "skipped": i // 97,
             }
         )
     return out
@@ -85,7 +86,7 @@ def _record_all(w: TelemetryWriter, rows: list[dict]) -> None:
         rec = tick_record(r["tick"], r["t_sched"], r["t_actual"], r["target"], r["sim_x"],
                           r["sim_v"], r["cmd"], r["present"], r["status"], *r["stages"][:3],
                           math.nan, r["overrun"], r["comm"])  # fmt: skip
-        rec.host_stall_us = r["stall"]
+        rec.host_stall_us, rec.skipped_ticks = r["stall"], r["skipped"]
         w.record(rec)
         rec.t_telemetry_us = r["stages"][3]
         w.amend(rec)
@@ -100,6 +101,7 @@ def _expected(rows: list[dict]) -> dict[str, np.ndarray]:
         "overrun": [float(r["overrun"]) for r in rows],
         "comm_errors": [r["comm"] for r in rows],
         "host_stall_us": [r["stall"] for r in rows],
+        "skipped_ticks": [r["skipped"] for r in rows],
     }
     for s, name in enumerate(("sim", "safety", "bus", "telemetry")):
         cols[f"t_{name}_us"] = [r["stages"][s] for r in rows]
@@ -114,7 +116,7 @@ def _tolerance(column: str) -> float:
         return TIME_TOL
     if column.endswith("_us"):
         return MICROS_TOL
-    if column.startswith(("tick", "status", "overrun", "comm")):
+    if column.startswith(("tick", "status", "overrun", "comm", "skipped")):
         return 0.0
     return ANGLE_TOL
 

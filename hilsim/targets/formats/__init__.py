@@ -7,7 +7,7 @@
                         ``bottango_curve`` the exact Bézier segment and track
 ``blender_servo``       blender-servo-animation ``.json``/``.bin``/``.h`` (parsers in
                         ``blender_servo_forms``)
-``fseq``                xLights/FPP ``.fseq`` v2 (plain, zstd, zlib, sparse; 8/16-bit)
+``fseq``                xLights/FPP ``.fseq`` v2 (plain, zstd, zlib, sparse) and v1; 8/16-bit
 ``audio_jaw``           a sound file through an envelope follower -> a jaw track;
                         ``spring_lag_s``, the lead that puts the commanded jaw in time
 ``lipsync``             Rhubarb (``lipsync_cues``), Moho ``.dat``, Papagayo ``.pgo`` cues

@@ -1,4 +1,4 @@
-"""FSEQ v2 sequences (xLights, Falcon Player) as tracks in joint radians.
+"""FSEQ sequences, v2 and v1 (xLights, Falcon Player), as tracks in joint radians.
 
 An ``.fseq`` file is a series of frames, each one byte per channel, one frame every
 ``step`` milliseconds; FPP plays each frame until the next (zero-order hold). Layout (v2,
@@ -28,6 +28,12 @@ offset   size  field
 Uncompressed, the channel data is ``frames × channels`` bytes. Compressed, each block is one
 zstd frame (or one zlib stream) holding whole frames from its first frame to the next block's.
 With sparse ranges a frame holds only those ranges' channels, one range after the other.
+
+**v1** (older xLights; FPP still plays it) shares bytes 0-18 (major version 1) and has a
+28-byte fixed header: byte 19 flags, 20 and 22 u16 universe count and size, 24 gamma, 25 colour
+encoding, 26-27 reserved (none of them used). Variable headers follow from byte 28 (as FPP reads
+them; bytes 8-9, the fixed header's length, are not relied on); the channel data, from the
+data offset, is uncompressed and holds every channel (no sparse ranges). The ID is 0.
 
 **Channel numbers are 1-based, as xLights shows them**: channel 1 is the first byte of a frame
 (FPP's and the file's index 0). A DMX model whose start channel xLights shows as 1 has its
@@ -73,6 +79,7 @@ from hilsim.targets.formats.common import INTERPOLATIONS, FormatError, SampledTr
 
 MAGICS = (b"PSEQ", b"FSEQ")  # FPP reads both; the oldest files say FSEQ
 HEADER_SIZE, BLOCK_SIZE, RANGE_SIZE = 32, 8, 6
+V1_HEADER_SIZE = 28
 COMPRESSIONS = {0: "none", 1: "zstd", 2: "zlib"}
 ZERO_MODES = ("value", "hold")
 #: bytes decompressed at a time (memory stays bounded whatever a header claims)
@@ -126,7 +133,7 @@ class FseqChannel:
 
 @dataclass(frozen=True)
 class FseqHeader:
-    """The header of a v2 file, checked against the file's size. ``blocks``: (first frame,
+    """The header of a v1 or v2 file, checked against the file's size. ``blocks``: (first frame,
     offset from the start of the file, size) of each used compressed block; ``sparse_ranges``:
     (first channel 0-based, count); ``variables``: (code, data) in file order."""
 
@@ -187,16 +194,19 @@ def parse_header(data, path: str | Path = "<bytes>") -> FseqHeader:
         if data[:4] == b"ESEQ":
             raise bad("byte 0", "an ESEQ effect sequence, not an FSEQ sequence")
         raise bad("byte 0", f"not an FSEQ file: starts with {bytes(data[:4])!r}, not b'PSEQ'")
-    if size < HEADER_SIZE:
-        raise bad(f"byte {size}", f"truncated: {size} bytes, the FSEQ header alone is 32")
+    major = data[7] if size > 7 else 2
+    fixed = V1_HEADER_SIZE if major == 1 else HEADER_SIZE
+    if size < fixed:
+        raise bad(f"byte {size}", f"truncated: {size} bytes, the FSEQ header alone is {fixed}")
+    if major not in (1, 2):
+        raise bad("byte 7", f"FSEQ version {major}.{data[6]}: versions 1 and 2 are read "
+                  "(xLights saves v2: open the sequence there and save it again)")  # fmt: skip
     u16, u32 = (lambda o, n=n: int.from_bytes(data[o : o + n], "little") for n in (2, 4))
-    minor, major = data[6], data[7]
-    if major != 2:
-        raise bad("byte 7", f"FSEQ version {major}.{minor}: only version 2 is read (xLights "
-                  "saves v2: open the sequence there and save it again)")  # fmt: skip
-    offset, channels, frames, step = u16(4), u32(10), u32(14), data[18]
-    ctype, n_ranges = data[20] & 0x0F, data[22]
-    n_blocks = ((data[20] & 0xF0) << 4) | data[21]  # v2.1: bits 8-11 in the high nibble
+    minor, offset, channels, frames, step = data[6], u16(4), u32(10), u32(14), data[18]
+    ctype = n_ranges = n_blocks = 0  # v1: uncompressed, every channel
+    if major == 2:
+        ctype, n_ranges = data[20] & 0x0F, data[22]
+        n_blocks = ((data[20] & 0xF0) << 4) | data[21]  # v2.1: bits 8-11 in the high nibble
     if ctype not in COMPRESSIONS:
         raise bad("byte 20", f"compression type {ctype}: known are 0 (none), 1 (zstd), 2 (zlib)")
     if frames > MAX_FRAMES:
@@ -206,12 +216,12 @@ def parse_header(data, path: str | Path = "<bytes>") -> FseqHeader:
                             (18, step, "a frame step of 0 ms")):  # fmt: skip
         if value == 0:
             raise bad(f"byte {at}", what)
-    tables_end = HEADER_SIZE + n_blocks * BLOCK_SIZE + n_ranges * RANGE_SIZE
+    tables_end = fixed + n_blocks * BLOCK_SIZE + n_ranges * RANGE_SIZE
     if not tables_end <= offset <= size:
+        tables = "block index and sparse ranges" if major == 2 else "v1 header"
         raise bad("byte 4", f"channel data offset {offset} is not between the end of the "
-                  f"block index and sparse ranges ({tables_end}) and the file's end "
-                  f"({size})")  # fmt: skip
-    ranges = _ranges(data, HEADER_SIZE + n_blocks * BLOCK_SIZE, n_ranges, bad)
+                  f"{tables} ({tables_end}) and the file's end ({size})")  # fmt: skip
+    ranges = _ranges(data, fixed + n_blocks * BLOCK_SIZE, n_ranges, bad)
     if ranges and sum(n for _, n in ranges) != channels:
         held = sum(n for _, n in ranges)
         raise bad("byte 10", f"{channels} channels per frame, but the sparse ranges hold {held}")
@@ -246,7 +256,8 @@ def parse_header(data, path: str | Path = "<bytes>") -> FseqHeader:
         if at != size:
             raise bad(f"byte {at}", f"{size - at} bytes after the last compressed block")
     head = (major, minor, offset, channels, frames, step, COMPRESSIONS[ctype], tuple(blocks))
-    return FseqHeader(*head, tuple(ranges), tuple(variables), u32(24) | u32(28) << 32)
+    unique_id = u32(24) | u32(28) << 32 if major == 2 else 0
+    return FseqHeader(*head, tuple(ranges), tuple(variables), unique_id)
 
 
 def _ranges(data, pos: int, n: int, bad) -> list[tuple[int, int]]:
@@ -283,7 +294,7 @@ def _variables(data, start: int, end: int, bad) -> list[tuple[str, bytes]]:
 
 @dataclass(frozen=True, eq=False)
 class FseqFile:
-    """A checked v2 file: its header and its bytes (``data``: bytes or a read-only mmap)."""
+    """A checked file (v1 or v2): its header and its bytes (``data``: bytes or a read-only mmap)."""
 
     path: str
     header: FseqHeader
