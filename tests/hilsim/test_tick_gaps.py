@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-import hilsim.loop as loop_mod
+import hilsim.show.loop as loop_mod
 from hilsim.cli import main
 from hilsim.exit_codes import ExitCode
 from hilsim.telemetry import TelemetryWriter, plot_common
