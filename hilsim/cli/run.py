@@ -334,6 +334,14 @@ def _run_on_bus(args, parts, bus, run_dir: Path) -> int:
             _say(str(exc))
             _remove_if_empty(run_dir)
             return EXIT_USAGE
+        reserve = telemetry.end.reserve
+        if reserve.error is not None:  # the show goes on; its end may not fit on the disk
+            notes.append(
+                f"warning: cannot set aside {reserve.wanted // 1024} KiB in {run_dir} for the "
+                f"end of the record ({reserve.error.strerror or reserve.error}): if the disk "
+                "fills up, the summary and the fault record may be lost"
+            )
+            _say(notes[-1])
         for note in notes:  # what the start-up found and changed, in the run's record too
             telemetry.event("startup", note)
         _say(
@@ -361,10 +369,7 @@ def _run_on_bus(args, parts, bus, run_dir: Path) -> int:
         if not args.shared_start:  # a group's child keeps them: the parent's stop is late
             for s, handler in previous.items():
                 signal.signal(s, handler)
-    if show.telemetry_error is not None:
-        _say(f"telemetry could not be written to {run_dir}: {show.telemetry_error}")
-        if show.telemetry_traceback:
-            print(show.telemetry_traceback.rstrip(), file=sys.stderr)
+    _say_telemetry_failed(show, run_dir)
     summary = show.summary
     show_s = show.ticks / rig.loop.rate_hz
     x = show_s / show.wall_s if virtual and show.wall_s > 0 else None
@@ -383,7 +388,7 @@ def _run_on_bus(args, parts, bus, run_dir: Path) -> int:
     print(f"  telemetry: {run_dir}{how}", file=sys.stderr)
     if show.exit_code == ExitCode.OK and (line := verdict(summary, show.ticks)):
         _say(f"verdict: {line}")
-    if not args.no_plots and "ticks" in summary:  # a summary was written: the run reads back
+    if not args.no_plots and show.summary_error is None:  # the run reads back
         try:
             from hilsim.telemetry.plots import plot_run
 
@@ -393,6 +398,21 @@ def _run_on_bus(args, parts, bus, run_dir: Path) -> int:
             _say(f"plots not drawn: {type(exc).__name__}: {exc}")
     _say(f"exit code {show.exit_code}")
     return show.exit_code
+
+
+def _say_telemetry_failed(show, run_dir: Path) -> None:
+    """What the disk did to the record, a line each; a traceback only for what is not a disk
+    error (a bug), the disk's in telemetry_error.txt."""
+    from hilsim.telemetry.end_record import disk_error
+
+    error, tb = show.telemetry_error, show.telemetry_traceback
+    if error is not None:
+        where = "" if show.traceback_path is None else f" (traceback: {show.traceback_path})"
+        _say(f"telemetry could not be written to {run_dir}: {error}{where}")
+        if tb and not disk_error(error):
+            print(tb.rstrip(), file=sys.stderr)
+    if show.summary_error is not None:
+        _say(f"{run_dir / 'summary.json'}: {show.summary_error}")
 
 
 def _open_inputs(director, clock) -> None:
