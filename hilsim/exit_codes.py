@@ -10,7 +10,8 @@ code   meaning
 2      usage or configuration error: the rig file, a command-line value, or servos that do
        not match the rig or refuse to start (before torque went on). Nothing moved.
 3      a fault stopped the show (a servo, the bus, the host, the telemetry disk, or an
-       internal error in the loop); the reason names it. The exit policy was applied.
+       internal error in the loop), or the telemetry disk failed as the record was finished
+       after it; the reason names it. The exit policy was applied.
 4      the show was not stopped by a fault, but the exit policy could not be confirmed on
        some servo (named on stderr and in ``summary.json``): the figure may not be in a safe
        state. (After a fault, 3 stands and the unconfirmed servos are named the same way.)

@@ -284,10 +284,7 @@ def _report(
     args: argparse.Namespace, rig: Rig, show: ShowResult, run_dir: Path, virtual: bool
 ) -> int:
     """What the show did, on stderr; the plots; returns its exit code."""
-    if show.telemetry_error is not None:
-        _say(f"telemetry could not be written to {run_dir}: {show.telemetry_error}")
-        if show.telemetry_traceback:
-            print(show.telemetry_traceback.rstrip(), file=sys.stderr)
+    _say_telemetry_failed(show, run_dir)
     summary = show.summary
     show_s = show.ticks / rig.loop.rate_hz
     x = show_s / show.wall_s if virtual and show.wall_s > 0 else None
@@ -306,7 +303,7 @@ def _report(
     print(f"  telemetry: {run_dir}{how}", file=sys.stderr)
     if show.exit_code == ExitCode.OK and (line := verdict(summary, show.ticks)):
         _say(f"verdict: {line}")
-    if not args.no_plots and "ticks" in summary:  # a summary was written: the run reads back
+    if not args.no_plots and show.summary_error is None:  # the run reads back
         try:
             from hilsim.telemetry.plots import plot_run
 
@@ -316,6 +313,21 @@ def _report(
             _say(f"plots not drawn: {type(exc).__name__}: {exc}")
     _say(f"exit code {show.exit_code}")
     return show.exit_code
+
+
+def _say_telemetry_failed(show: ShowResult, run_dir: Path) -> None:
+    """What the disk did to the record, a line each; a traceback only for what is not a disk
+    error (a bug), the disk's in telemetry_error.txt."""
+    from hilsim.telemetry.end_record import disk_error
+
+    error, tb = show.telemetry_error, show.telemetry_traceback
+    if error is not None:
+        where = "" if show.traceback_path is None else f" (traceback: {show.traceback_path})"
+        _say(f"telemetry could not be written to {run_dir}: {error}{where}")
+        if tb and not disk_error(error):
+            print(tb.rstrip(), file=sys.stderr)
+    if show.summary_error is not None:
+        _say(f"{run_dir / 'summary.json'}: {show.summary_error}")
 
 
 def _track_warnings(rig, targets, duration_s: float | None) -> list[str]:

@@ -230,6 +230,15 @@ class Show:
             assert self._run_dir is not None
             run_dir = self._run_dir.path
             telemetry = open_telemetry(self.rig, run_dir, self._bus.clock.virtual)
+            reserve = telemetry.end.reserve
+            if reserve.error is not None:  # the show goes on; its end may not fit on the disk
+                why = reserve.error.strerror or reserve.error
+                self.notes.append(
+                    f"warning: cannot set aside {reserve.wanted // 1024} KiB in {run_dir} for "
+                    f"the end of the record ({why}): if the disk fills up, the summary and the "
+                    "fault record may be lost"
+                )
+                self._say(self.notes[-1])
             for note in self.notes:  # what the start-up found and changed, in the record too
                 telemetry.event("startup", note)
             self._result = run_show(

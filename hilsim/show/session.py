@@ -24,16 +24,15 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from drivers.clock import MonotonicClock
 from drivers.dynamixel.startup import Expectation, ReadMode, StartupReport
 from drivers.protocol2.wire_time import cycle_bytes, cycle_time_s
-from hilsim.exit_codes import ExitCode
-from hilsim.rig import Rig, TelemetryFailurePolicy
+from hilsim.rig import Rig
 from hilsim.rig.joint_map import JointMap
+from hilsim.show.end import ShowResult, close_quietly, crashed, end_show
 from hilsim.show.loop import HilLoop
 from hilsim.show.parts import Parts
 from hilsim.show.stop import StopFlag
@@ -241,23 +240,6 @@ def open_telemetry(rig: Rig, run_dir: Path, virtual: bool) -> TelemetryWriter:
         raise ShowRefusedError(f"cannot write telemetry to {run_dir}: {exc}") from None
 
 
-@dataclass
-class ShowResult:
-    """How a show ended: the exit code and reason, and the summary written (or why not)."""
-
-    exit_code: int
-    reason: str
-    ticks: int
-    wall_s: float
-    exit_policy: str
-    summary: dict[str, Any] = field(default_factory=dict)
-    #: the run directory (its telemetry, events, summary.json)
-    run_dir: Path | None = None
-    #: why summary.json could not be written (the writer's error), else None
-    telemetry_error: BaseException | None = None
-    telemetry_traceback: str | None = None
-
-
 def run_show(
     parts: Parts,
     bus: DynamixelBus,
@@ -268,14 +250,11 @@ def run_show(
     on_status: Callable[[dict], None] | None = None,
     start_at: float | None = None,
 ) -> ShowResult:
-    """Run the show and close its telemetry with the summary (``docs/summary.md``).
+    """Run the show, then end its record (:func:`hilsim.show.end.end_show`: the outcome
+    decided once, then ``summary.json``, ``docs/summary.md``, says it).
 
     ``start_at``: the real clock's time of tick 0 (``time.monotonic``; the buses of a figure
     share it); None: at once. A virtual clock ignores it (its show time is k·period)."""
-    from hilsim.telemetry import WriterFailedError
-
-    rig = parts.rig
-    virtual = bus.clock.virtual
     try:
         loop = HilLoop(
             parts,
@@ -289,39 +268,9 @@ def run_show(
         wall0 = time.perf_counter()
         result = loop.run()
         wall = time.perf_counter() - wall0
-    except BaseException:
+    except BaseException as exc:
         if parts.director is not None:
             parts.director.close_inputs()
-        _close_quietly(telemetry, {"exit_code": int(ExitCode.INTERNAL), "exit_reason": "crashed"})
+        close_quietly(telemetry, crashed(exc))
         raise
-    exit_code, reason = result.exit_code, result.reason
-    summary_in = {
-        "exit_code": exit_code,
-        "exit_reason": reason,
-        "exit_policy": result.exit_policy,
-        "exit_policy_confirmed": result.exit_policy_confirmed,
-        "wall_s": wall,
-        "clock": "virtual time" if virtual else "real time",
-        "port": rig.bus.port,
-        "read_mode": bus.read_mode.value,
-        "loop": result.loop,
-    }
-    if parts.director is not None:  # the inputs stopped, the take written, their counts
-        summary_in["live"] = parts.director.close(telemetry.run_dir)
-    show = ShowResult(exit_code, reason, result.ticks, wall, result.exit_policy)
-    try:
-        show.summary = telemetry.close(summary_in)
-    except WriterFailedError as exc:
-        cause = exc.__cause__ or exc
-        show.telemetry_error, show.telemetry_traceback = cause, telemetry.error_traceback
-        if rig.telemetry.on_failure is TelemetryFailurePolicy.STOP and exit_code == 0:
-            show.exit_code, show.reason = int(ExitCode.FAULT), f"telemetry: {cause}"
-        show.summary = {"telemetry": {"error": repr(cause)}}
-    return show
-
-
-def _close_quietly(telemetry: TelemetryWriter, summary: dict) -> None:
-    import contextlib
-
-    with contextlib.suppress(Exception):
-        telemetry.close(summary, timeout_s=2.0)
+    return end_show(parts, bus, telemetry, result, wall)

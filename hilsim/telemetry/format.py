@@ -8,8 +8,13 @@ A run directory (written by :class:`hilsim.telemetry.TelemetryWriter`, read back
                      gzip-compressed (``telemetry.csv.gz``), or Parquet part files
                      (``telemetry.parquet/part-NNNNN.parquet``, columns :func:`parquet_columns`)
     events.jsonl     one JSON object per line: start/stop, faults, warnings, signals, dropped rows
-    summary.json     written once by :meth:`TelemetryWriter.close` (absent if the process died)
+    summary.json     written once, last, by :meth:`TelemetryWriter.close` (or
+                     :meth:`~TelemetryWriter.write_summary`): absent if the process died
     rig.toml         a verbatim copy of the rig config text the loop passed (``config_text``)
+    telemetry_error.txt  the writer's traceback, when it failed (a full disk, an I/O error)
+    summary.reserve  space set aside during the run for the end of the record
+                     (:mod:`hilsim.telemetry.end_record`); gone after the end, zeros if the
+                     process was killed
 
 **CSV columns** (:func:`csv_columns`), grouped by quantity, joints in the order given::
 
@@ -66,10 +71,13 @@ the writer, so a crash or power cut leaves only complete parts: what was fsync-e
 
 from __future__ import annotations
 
+import json
 import math
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 from enum import StrEnum
+from pathlib import Path
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
@@ -80,6 +88,8 @@ TELEMETRY_PARQUET = "telemetry.parquet"  # a directory of part files
 EVENTS_JSONL = "events.jsonl"
 SUMMARY_JSON = "summary.json"
 CONFIG_NAME = "rig.toml"
+TRACEBACK_TXT = "telemetry_error.txt"
+RESERVE_NAME = "summary.reserve"
 #: the version of summary.json's layout (docs/summary.md); raised when a key changes meaning
 SUMMARY_SCHEMA_VERSION = 1
 
@@ -106,6 +116,24 @@ ROWS_SCHEMA_VERSION = 2
 #: each version's tail columns (the head and per-joint blocks have not changed): version 1 had
 #: no ``skipped_ticks``, so a gap in its rows after an overrun cannot be told from lost rows
 TAILS: dict[int, tuple[str, ...]] = {1: TAIL_COLUMNS[:-1], 2: TAIL_COLUMNS}
+
+
+def _json_default(obj: Any) -> Any:
+    if isinstance(obj, np.generic):
+        return obj.item()
+    if isinstance(obj, np.ndarray):
+        return obj.tolist()
+    if isinstance(obj, Path):
+        return str(obj)
+    if isinstance(obj, set | frozenset | tuple):
+        return list(obj)
+    return repr(obj)
+
+
+def to_json(obj: Any, **kw: Any) -> str:
+    """The JSON text of an event or a summary: numpy numbers and arrays as numbers and lists,
+    paths as text, sets as lists, anything else as its ``repr``."""
+    return json.dumps(obj, default=_json_default, ensure_ascii=False, **kw)
 
 
 def _nan_array() -> npt.NDArray[np.float64]:

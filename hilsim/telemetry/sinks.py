@@ -16,7 +16,8 @@ never comes long enough: cheap per row, as Parquet; CSV formats every float unde
 interpreter lock, and a burst of it would make a fast loop late), ``take(ring, n)``,
 ``put(rows) -> rows now written``, ``busy()`` and ``work()`` (work left on rows already put,
 done a step of ~0.1 ms at a time in the loop's free time: Parquet's encoding),
-``flush(fsync) -> rows now written`` and ``close()``.
+``flush(fsync) -> rows now written``, ``close()`` and ``rows_on_disk()`` (after a failure: the
+rows the disk holds, None if not known better than the count).
 Errors (a full disk) propagate to the writer thread, whose failure path handles them.
 """
 
@@ -127,6 +128,9 @@ class CsvSink:
             self._file = opener(path, "x")
             self._file.write(header)
         self._file.flush()
+        self._rows_put = 0
+        #: (bytes, rows) of the plain file at its last flush
+        self._flushed = (os.fstat(self._file.fileno()).st_size, 0)
 
     def take(self, ring: TickRing, n: int) -> list[list[float]]:
         return ring.take(n)
@@ -135,6 +139,7 @@ class CsvSink:
         fmt = self._fmt
         text = "".join([fmt % tuple(r) for r in rows])
         if self._gz is None:
+            self._rows_put += len(rows)
             self._file.write(text)
             return len(rows)
         self._pending.append(text)
@@ -165,9 +170,21 @@ class CsvSink:
             rows = self._compress()
             self._gz.flush()  # a sync flush: everything so far decodes
         self._file.flush()
+        if self._gz is None:
+            self._flushed = (os.fstat(self._file.fileno()).st_size, self._rows_put)
         if fsync:
             os.fsync(self._file.fileno())
         return rows
+
+    def rows_on_disk(self) -> int | None:
+        """The whole rows in the file after a failure: those of its last flush, and those its
+        buffer got out since (a torn last one not counted). None for gzip."""
+        if self._gz is not None:
+            return None
+        size, rows = self._flushed
+        with open(self.path, "rb") as f:
+            f.seek(size)
+            return rows + f.read().count(b"\n")
 
     def close(self) -> None:
         try:
@@ -325,6 +342,9 @@ class ParquetSink:
             if k % _ARROW_COLUMNS == _ARROW_COLUMNS - 1:
                 yield
         return pa.RecordBatch.from_arrays(arrays, schema=self._schema)
+
+    def rows_on_disk(self) -> int | None:
+        return None  # parts are written whole: the rows counted are the rows there
 
     def close(self) -> None:
         self._raw.clear()

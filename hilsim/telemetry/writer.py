@@ -29,8 +29,9 @@ Exceptions::
     TelemetryError                  (hilsim.telemetry.format) base of the writer's and reader's
      │                              errors
      ├── WriterFailedError          the writer thread died (disk full, I/O error) or stalled at
-     │                              close; raised by the next record()/flush()/close(); __cause__
-     │                              holds the original error
+     │                              close; raised by the next record()/flush()/close(), and by
+     │                              write_summary() when summary.json could not be written;
+     │                              __cause__ holds the original error
      ├── NotARunError               (reader) read_run: no rows in the directory (telemetry.csv,
      │                              .csv.gz or .parquet/; also a FileNotFoundError)
      └── RunFormatError             (reader) read_run: the rows are not telemetry, or Parquet
@@ -50,12 +51,18 @@ Loop usage::
     on a fault:   tel.event("fault", msg, k, t, joint="jaw")   # fsync-ed; listed in the summary
     at the end:   tel.stats.set_safety_counts(...)             # the safety filter's counters
                   summary = tel.close({"exit_code": 0, "exit_reason": "end of show"})
+    or, when the outcome depends on the record:   error = tel.finish()   # the rows' end
+                  ... the outcome, from error ...;  summary = tel.write_summary(outcome)
+
+**The end of the record** (events logged after :meth:`~TelemetryWriter.finish` or after the
+writer died, the writer's traceback, ``summary.json``) is written once, last, on the writer
+thread, into space set aside at the start (:mod:`hilsim.telemetry.end_record`): a full disk
+keeps its fault record and its summary.
 """
 
 from __future__ import annotations
 
 import contextlib
-import json
 import os
 import queue
 import threading
@@ -65,21 +72,20 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any, Literal, TextIO
 
-import numpy as np
-
 from drivers.clock import Slack
+from hilsim.telemetry.end_record import EndRecord
 from hilsim.telemetry.format import (
     CONFIG_NAME,
     EVENTS_JSONL,
-    SUMMARY_JSON,
     TelemetryError,
     TickRecord,
     check_joint_names,
     choose_format,
     csv_columns,
+    to_json,
 )
 from hilsim.telemetry.ring import TickRing
-from hilsim.telemetry.sinks import fsync_dir, open_sink
+from hilsim.telemetry.sinks import open_sink
 from hilsim.telemetry.stats import RunStats
 
 #: event kinds that are fsync-ed by default (``event(..., fsync=None)``)
@@ -96,22 +102,6 @@ _monotonic = time.monotonic
 
 class WriterFailedError(TelemetryError):
     """The writer thread died or could not finish; rows may be lost (see ``__cause__``)."""
-
-
-def _json_default(obj: Any) -> Any:
-    if isinstance(obj, np.generic):
-        return obj.item()
-    if isinstance(obj, np.ndarray):
-        return obj.tolist()
-    if isinstance(obj, Path):
-        return str(obj)
-    if isinstance(obj, set | frozenset | tuple):
-        return list(obj)
-    return repr(obj)
-
-
-def _dumps(obj: Any, **kw: Any) -> str:
-    return json.dumps(obj, default=_json_default, ensure_ascii=False, **kw)
 
 
 _STOP = object()
@@ -131,7 +121,8 @@ class TelemetryWriter:
     16 s at 1 kHz; ``8 * (12 + 6 * n_joints)`` bytes a row, 7.9 MB for 8 joints). ``overflow``
     picks what a full ring does: ``"drop"`` (count the row, return False: never blocks) or
     ``"block"`` (wait for the writer: lossless, for virtual-time runs). ``config_text`` is
-    copied to ``run_dir/config_name``.
+    copied to ``run_dir/config_name``. Space for the end of the record is set aside last
+    (``end.reserve``; if the disk has none, its ``error`` says why and the run goes on).
 
     :attr:`stats` (a :class:`RunStats`) is fed by :meth:`record`, :meth:`amend` and :meth:`event`
     (faults); :meth:`close` turns it into the summary.
@@ -200,10 +191,11 @@ class TelemetryWriter:
         self._error: BaseException | None = None
         #: the writer thread's traceback when it died (also in summary.json), else None
         self.error_traceback: str | None = None
-        self._summary: dict[str, Any] = {}
-        self._written_summary: dict[str, Any] | None = None
-        self._finished = False
-        self._failure_handled = False
+        self._unwritten: list[dict[str, Any]] = []  # the batch of events being written
+        # events in the file's buffer since its last flush (with their bytes), bytes flushed
+        self._unflushed: list[tuple[dict[str, Any], int]] = []
+        self._events_flushed = 0
+        self._rows_done = threading.Event()  # finish() is done, or the writer died
         self._inbox: queue.SimpleQueue[Any] = queue.SimpleQueue()
         self._space = threading.Event()
         #: Rows are formatted only while this is set. A real-time loop passes it to
@@ -219,11 +211,14 @@ class TelemetryWriter:
             self._sink = open_sink(self.format, self.run_dir, names, self._open)
             self._chunk_rows = self._sink.chunk_rows
             self._events = self._open(self.run_dir / EVENTS_JSONL, "a")
+            self._events_flushed = os.fstat(self._events.fileno()).st_size
             if config_text is not None:
                 (self.run_dir / config_name).write_text(config_text, encoding="utf-8")
         except BaseException:
             self._close_files()
             raise
+        #: the end of the record and the space set aside for it (``.reserve``)
+        self.end = EndRecord(self.run_dir, len(names))
         self._thread = threading.Thread(target=self._run, name="telemetry-writer", daemon=True)
         self._thread.start()
 
@@ -295,23 +290,26 @@ class TelemetryWriter:
         ``t`` is clock time in s since run start; ``wall`` (Unix time) is added here. With
         ``fsync=True`` (default: ``kind in FSYNC_KINDS``, i.e. faults, signals, stop) the writer
         drains pending rows (including the last recorded one) and events, flushes and
-        ``os.fsync``-s both files right away. Events of
-        kind ``"fault"`` also go into the summary's ``faults`` list. Never blocks and never raises
-        for a dead writer (it may be called while handling a fault or a signal); returns False if
-        the event was not queued (writer closed or failed, or more than ``max_pending_events``
-        waiting), which is counted in ``events_dropped``.
+        ``os.fsync``-s both files right away. Events of kind ``"fault"`` also go into the
+        summary's ``faults`` list. After :meth:`finish`, or once the writer has died, events are
+        kept for the end of the record (a hundred at most). Never blocks and never raises for a
+        dead writer (it may be called while handling a fault or a signal); returns False if the
+        event was not kept (the end of the record under way, or more than
+        ``max_pending_events`` waiting), which is counted in ``events_dropped``.
         """
         if kind == "fault":
             self.stats.fault(kind, message, tick, t, **fields)
+        ev = {"tick": tick, "t": t, "wall": time.time(), "kind": str(kind), "message": str(message)}
+        if fields:
+            ev.update(fields)
         if self._failed or self._close_requested:
+            if self.end.keep(ev):
+                return True
             self.events_dropped += 1
             return False
         if self._events_put - self._events_got >= self.max_pending_events:
             self.events_dropped += 1
             return False
-        ev = {"tick": tick, "t": t, "wall": time.time(), "kind": str(kind), "message": str(message)}
-        if fields:
-            ev.update(fields)
         sync = kind in FSYNC_KINDS if fsync is None else bool(fsync)
         if sync:
             self._publish_pending()  # the last complete row belongs in what gets fsync-ed
@@ -327,7 +325,7 @@ class TelemetryWriter:
         """
         if self._failed:
             self._raise_not_open()
-        if self._finished or self._close_requested:
+        if self._close_requested:
             return True
         self._publish_pending()
         done = threading.Event()
@@ -338,9 +336,7 @@ class TelemetryWriter:
         deadline = None if timeout_s is None else _monotonic() + timeout_s
         try:
             while not done.wait(0.05):
-                if not self._thread.is_alive() or (
-                    deadline is not None and _monotonic() > deadline
-                ):
+                if self._rows_done.is_set() or (deadline is not None and _monotonic() > deadline):
                     break
         finally:
             slack.until = until
@@ -350,37 +346,76 @@ class TelemetryWriter:
             self._raise_not_open()
         return done.is_set()
 
-    def close(
-        self, summary: Mapping[str, Any] | None = None, *, timeout_s: float = 10.0
-    ) -> dict[str, Any]:
-        """Drain the ring, fsync, write ``summary.json``; return the summary written.
+    def finish(self, timeout_s: float = 10.0) -> BaseException | None:
+        """The end of the rows: hand over the pending row, drain the ring, write the queued
+        events, flush and fsync, close the rows file; wait up to ``timeout_s``.
 
-        The summary is :meth:`RunStats.summary` of :attr:`stats`, updated with ``summary``'s keys
-        (the caller's win: e.g. ``exit_code``, ``exit_reason``, ``duration_s``), plus a
-        ``"telemetry"`` entry (rows recorded/written/dropped/lost, events dropped, error).
-        Idempotent: the first call's summary wins, later calls wait for the same completion and
-        return the same dict. Safe from a signal handler and after a writer failure (no lock;
-        joins the thread). Raises :class:`WriterFailedError` (every call) if the writer died
-        (summary.json is still written when the disk allows) or did not finish within
-        ``timeout_s`` (disk stalled).
+        Returns None when everything recorded is on the disk, else why not: the writer's error
+        (a full disk, an I/O error: :attr:`error`), or a :class:`WriterFailedError` when it did
+        not finish in time (disk stalled). Never raises; idempotent. Events logged from now on
+        go into the end of the record (:meth:`write_summary`), so the outcome can be decided
+        from this result before the summary says it.
         """
         if not self._close_requested:
-            self._summary = dict(summary) if summary is not None else {}
             self._publish_pending()
             self._close_requested = True
             self.slack.until = float("inf")  # the loop is done: drain at full speed
             self.slack.set()
             self._inbox.put(_STOP)
-        self._thread.join(timeout_s)
-        if self._thread.is_alive():
-            raise WriterFailedError(
+        if not self._rows_done.wait(timeout_s):
+            return WriterFailedError(
                 f"telemetry writer did not finish within {timeout_s} s (disk stalled?); "
                 f"{self._ring.pending()} rows still queued"
             )
-        if self._failed:
-            self._handle_failure()
-            raise WriterFailedError(f"telemetry writer failed: {self._error!r}") from self._error
-        return self._written_summary if self._written_summary is not None else {}
+        return self._error
+
+    def write_summary(
+        self, summary: Mapping[str, Any] | None = None, *, timeout_s: float = 10.0
+    ) -> dict[str, Any]:
+        """The end of the record, once (after :meth:`finish`, which it calls if need be): the
+        events kept for it, the writer's traceback (``telemetry_error.txt``, if it died), then
+        ``summary.json``; return the summary written.
+
+        The summary is :meth:`RunStats.summary` of :attr:`stats`, updated with ``summary``'s
+        keys (the caller's win: e.g. ``exit_code``, ``exit_reason``), plus a ``"telemetry"``
+        entry (rows recorded/written/dropped/lost, events dropped, error). The first call's
+        summary wins; later calls return the same dict. Raises :class:`WriterFailedError` when
+        summary.json could not be written (``__cause__``: why; there is then no summary.json)
+        or not within ``timeout_s``.
+        """
+        end = self.end
+        if not self._close_requested:
+            self.finish(timeout_s)
+        end.request(summary)
+        if not end.done.wait(timeout_s):
+            raise WriterFailedError(f"not written within {timeout_s} s (disk stalled?)")
+        if end.error is not None:
+            raise WriterFailedError(f"summary.json not written: {end.error}") from end.error
+        return end.summary if end.summary is not None else {}
+
+    def close(
+        self, summary: Mapping[str, Any] | None = None, *, timeout_s: float = 10.0
+    ) -> dict[str, Any]:
+        """:meth:`finish`, then :meth:`write_summary` with ``summary``; return the summary
+        written. Idempotent: the first call's summary wins, later calls wait for the same
+        completion and return the same dict. Safe from a signal handler and after a writer
+        failure (no lock). Raises :class:`WriterFailedError` (every call) if the writer died
+        (summary.json is still written when the disk allows), did not finish within
+        ``timeout_s`` (disk stalled), or summary.json could not be written.
+        """
+        error = self.finish(timeout_s)
+        if not self._rows_done.is_set():
+            assert error is not None
+            raise error
+        try:
+            written = self.write_summary(summary, timeout_s=timeout_s)
+        except WriterFailedError:
+            if error is None:
+                raise
+            written = {}
+        if error is not None:
+            raise WriterFailedError(f"telemetry writer failed: {error!r}") from error
+        return written
 
     def __enter__(self) -> TelemetryWriter:
         return self
@@ -440,55 +475,66 @@ class TelemetryWriter:
 
     def _run(self) -> None:
         try:
-            last_flush = last_fsync = _monotonic()
-            left_behind = False
-            while True:
-                try:  # rows left behind for want of free time: straight back after the events
-                    items = [self._inbox.get(timeout=0.0 if left_behind else self._poll_s)]
-                except queue.Empty:
-                    items = []
-                with contextlib.suppress(queue.Empty):
-                    while True:
-                        items.append(self._inbox.get_nowait())
-                stop = _STOP in items
-                left_behind = self._drain_rows()
-                sync = stop
-                waiters = []
-                for item in items:
-                    if isinstance(item, tuple):
-                        ev, fsync = item
-                        self._write_event(ev)
-                        sync = sync or fsync
-                    elif isinstance(item, threading.Event):
-                        waiters.append(item)
-                        sync = True
-                self._report_drops()
-                if sync and not left_behind:  # (rows waiting for free time: the fsync first)
-                    left_behind = self._drain_rows()  # rows handed over during the events
-                now = _monotonic()
-                if now - last_fsync >= self.fsync_interval_s:
-                    sync = True  # a power cut loses at most this much
-                if sync or now - last_flush >= self.flush_interval_s:
-                    self._flush_files(fsync=sync)
-                    last_flush = now
-                    if sync:
-                        last_fsync = now
-                for w in waiters:
-                    w.set()
-                if stop:
-                    self._finish()
-                    return
+            self._write_rows()
         except BaseException as exc:
-            self._error = exc
-            self._failed = True  # first: the loop must see the death at its next record()
-            self._space.set()
-            self.error_traceback = traceback.format_exc()  # read after join() (close)
-            # wake anyone waiting in flush()
+            self._died(exc)
+        self._rows_done.set()
+        tb = self.error_traceback
+        text = None if tb is None else f"telemetry writer: {self._error!r}\n\n{tb}"
+        self.end.write(self._leftovers, self._summary_for, text)
+
+    def _write_rows(self) -> None:
+        """Rows, events, flushes and fsyncs until close; raises when the disk fails."""
+        last_flush = last_fsync = _monotonic()
+        left_behind = False
+        while True:
+            try:  # rows left behind for want of free time: straight back after the events
+                items = [self._inbox.get(timeout=0.0 if left_behind else self._poll_s)]
+            except queue.Empty:
+                items = []
             with contextlib.suppress(queue.Empty):
                 while True:
-                    item = self._inbox.get_nowait()
-                    if isinstance(item, threading.Event):
-                        item.set()
+                    items.append(self._inbox.get_nowait())
+            stop = _STOP in items
+            waiters = [item for item in items if isinstance(item, threading.Event)]
+            batch = [item for item in items if isinstance(item, tuple)]
+            self._unwritten = [ev for ev, _ in batch]  # kept for the end if the disk fails
+            sync = stop or bool(waiters) or any(fsync for _, fsync in batch)
+            left_behind = self._drain_rows()
+            self._write_events(self._unwritten)
+            self._report_drops()
+            if sync and not left_behind:  # (rows waiting for free time: the fsync first)
+                left_behind = self._drain_rows()  # rows handed over during the events
+            now = _monotonic()
+            if now - last_fsync >= self.fsync_interval_s:
+                sync = True  # a power cut loses at most this much
+            if sync or now - last_flush >= self.flush_interval_s:
+                self._flush_files(fsync=sync)
+                last_flush = now
+                if sync:
+                    last_fsync = now
+            for w in waiters:
+                w.set()
+            if stop:
+                self._finish()
+                return
+
+    def _died(self, exc: BaseException) -> None:
+        """The disk failed: the loop sees it at its next record(); the events not written are
+        kept for the end of the record; anyone waiting in flush() is woken."""
+        self._error = exc
+        self._failed = True  # first: the loop must see the death at its next record()
+        self._space.set()
+        self.error_traceback = traceback.format_exc()
+        older = self._events_not_on_disk() + self._unwritten
+        with contextlib.suppress(queue.Empty):
+            while True:
+                item = self._inbox.get_nowait()
+                if isinstance(item, tuple):
+                    older.append(item[0])
+                elif isinstance(item, threading.Event):
+                    item.set()
+        self.end.events[:0] = older
 
     def _drain_rows(self) -> bool:
         """Hand the ring's rows to the sink; True if some were left waiting for free time."""
@@ -532,10 +578,39 @@ class TelemetryWriter:
             _yield_gil()  # let the loop thread have the GIL between chunks
         return False
 
-    def _write_event(self, ev: dict[str, Any]) -> None:
+    def _write_events(self, evs: list[dict[str, Any]]) -> None:
+        """Write ``evs`` in order; those not written when the disk fails stay in the list."""
         assert self._events is not None
-        self._events_got += 1
-        self._events.write(_dumps(ev) + "\n")
+        self._unwritten = evs
+        while evs:
+            line = to_json(evs[0]) + "\n"
+            self._events.write(line)
+            self._unflushed.append((evs[0], len(line.encode("utf-8"))))
+            self._events_got += 1
+            evs.pop(0)
+
+    def _events_not_on_disk(self) -> list[dict[str, Any]]:
+        """After a death: the events in the file's buffer that did not reach the disk whole
+        (what did is told by the file's size). The buffer is dropped with its descriptor:
+        closing it would write part of them again, or take the reserve's space."""
+        f, self._events = self._events, None
+        if f is None or not self._unflushed:
+            self._events = f
+            return []
+        try:
+            on_disk = os.fstat(f.fileno()).st_size - self._events_flushed
+        except (OSError, ValueError):
+            on_disk = 0
+        lost = []
+        for ev, n in self._unflushed:
+            if on_disk >= n and not lost:
+                on_disk -= n
+            else:
+                lost.append(ev)
+        for close in (getattr(getattr(f, "buffer", None), "raw", f).close, f.close):
+            with contextlib.suppress(Exception):
+                close()
+        return lost
 
     def _report_drops(self) -> None:
         dropped = self.rows_dropped
@@ -551,32 +626,34 @@ class TelemetryWriter:
                 "total": dropped,
             }
             self._dropped_reported = dropped
-            assert self._events is not None
-            self._events.write(_dumps(ev) + "\n")
+            self._write_events([ev])
 
     def _flush_files(self, *, fsync: bool) -> None:
         if self._sink is not None:
             self.rows_written += self._sink.flush(fsync)
-        for f in (self._events,):
-            if f is not None:
-                f.flush()
-                if fsync:
-                    os.fsync(f.fileno())
+        f = self._events
+        if f is not None:
+            f.flush()
+            self._events_flushed += sum(n for _, n in self._unflushed)
+            self._unflushed.clear()
+            if fsync:
+                os.fsync(f.fileno())
 
     def _finish(self) -> None:
         self._drain_rows()
+        items = []
         with contextlib.suppress(queue.Empty):
             while True:
-                item = self._inbox.get_nowait()
-                if isinstance(item, tuple):
-                    self._write_event(item[0])
-                elif isinstance(item, threading.Event):
-                    item.set()
+                items.append(self._inbox.get_nowait())
+        self._write_events([item[0] for item in items if isinstance(item, tuple)])
         self._report_drops()
         self._flush_files(fsync=True)
-        self._close_files()
-        self._write_summary()
-        self._finished = True
+        if self._sink is not None:
+            self._sink.close()  # (gzip's trailer: a failure here is the writer's too)
+            self._sink = None
+        for item in items:
+            if isinstance(item, threading.Event):
+                item.set()
 
     def _telemetry_summary(self) -> dict[str, Any]:
         recorded = self.rows_recorded
@@ -594,24 +671,29 @@ class TelemetryWriter:
             "error_traceback": self.error_traceback,
         }
 
-    def _write_summary(self) -> None:
+    def _leftovers(self) -> list[dict[str, Any]]:
+        """At the end: the files closed (after a death, what their buffers hold goes now, if it
+        fits; the rows counted on the disk), and the events queued as the writer died."""
+        sink = self._sink
+        self._close_files()
+        if self._failed and sink is not None:  # what its buffer held may not be there
+            with contextlib.suppress(OSError):
+                on_disk = sink.rows_on_disk()
+                self.rows_written = self.rows_written if on_disk is None else on_disk
+        evs = []
+        with contextlib.suppress(queue.Empty):
+            while True:
+                item = self._inbox.get_nowait()
+                if isinstance(item, tuple):
+                    evs.append(item[0])
+        return evs
+
+    def _summary_for(self, outcome: dict[str, Any], events_lost: int) -> dict[str, Any]:
+        self.events_dropped += events_lost
         summary = self.stats.summary()
-        summary.update(self._summary)
+        summary.update(outcome)
         summary["telemetry"] = self._telemetry_summary()
-        path = self.run_dir / SUMMARY_JSON
-        tmp = path.with_name(path.name + ".tmp")
-        try:
-            with open(tmp, "w", encoding="utf-8") as f:
-                f.write(_dumps(summary, indent=2) + "\n")
-                f.flush()
-                os.fsync(f.fileno())
-            os.replace(tmp, path)
-        except BaseException:
-            with contextlib.suppress(OSError):  # a full disk: leave no empty half-file
-                tmp.unlink()
-            raise
-        fsync_dir(self.run_dir)
-        self._written_summary = summary
+        return summary
 
     def _close_files(self) -> None:
         for name in ("_sink", "_events"):
@@ -620,14 +702,3 @@ class TelemetryWriter:
             if f is not None:
                 with contextlib.suppress(OSError, ValueError):
                     f.close()
-
-    def _handle_failure(self) -> None:
-        """After the writer thread died: best-effort flush/close and a summary, once."""
-        if self._failure_handled:
-            return
-        self._failure_handled = True
-        with contextlib.suppress(Exception):
-            self._flush_files(fsync=True)
-        self._close_files()
-        with contextlib.suppress(Exception):
-            self._write_summary()

@@ -67,6 +67,7 @@ from hilsim.telemetry import TelemetryWriter
 from hilsim.telemetry.reader import Run, read_run
 from hilsim.telemetry.stats import comm_errors
 from tests.hilsim.clocks import NotVirtual
+from tests.hilsim.disk_layer import FailsOnce, SmallDisk
 from tests.serial_stub import CannedPort
 
 OK, STALE, ERROR, ALERT = (int(s) for s in ReadStatus)
@@ -1215,6 +1216,24 @@ def test_row_25_sigint_during_a_write_applies_the_exit_policy(emulated):
     _signal_mid_show(emulated, signal.SIGINT, 130)
 
 
+def test_row_25_a_keyboard_interrupt_raised_in_the_loop_is_130_in_the_summary_too(emulated):
+    """Ctrl-C as KeyboardInterrupt inside the loop (not through the handlers): the exit policy
+    runs, the process exits 130, and summary.json says 130, not a crash's 1."""
+    emu = emulated()
+    raised: dict = {}
+
+    def hook(data: bytes) -> None:
+        if not raised and emu.bus.clock.now() >= 0.5 and data[7] == INST.SYNC_WRITE:
+            raised["t"] = emu.bus.clock.now()
+            raise KeyboardInterrupt
+
+    emu.hook_writes(hook)
+    assert emu.run() == ExitCode.SIGINT
+    s = emu.read().summary
+    assert s["exit_code"] == ExitCode.SIGINT and "KeyboardInterrupt" in s["exit_reason"]
+    assert_hold_exit_on_the_wire(Wire.of(emu.bus), confirmed=(1, 2, 3))
+
+
 def test_row_26_sigterm_applies_the_exit_policy_well_within_the_bound(emulated):
     _signal_mid_show(emulated, signal.SIGTERM, 143)
 
@@ -1544,6 +1563,112 @@ def test_row_30_disk_full_keeps_the_show_running_when_the_rig_allows(emulated, m
     assert len(wire.ticks) == round(1.5 / PERIOD) + 2  # every tick went to the servos
     assert "telemetry stopped" in err and "the show goes on" in err
     assert_hold_exit_on_the_wire(wire, confirmed=(1, 2, 3))
+
+
+def _record_agrees(emu: Emu, rc: int, err: str) -> dict | None:
+    """What every run must hold however its disk failed: summary.json, when there is one, says
+    the exit code the process returned, and a fault in its faults and in events.jsonl; no
+    summary only with exit 3; an OS error is a line on stderr, never a traceback; the exit
+    policy went out on the wire."""
+    assert_hold_exit_on_the_wire(Wire.of(emu.bus), confirmed=(1, 2, 3))
+    path = emu.out / "summary.json"
+    if not path.exists():
+        assert rc == ExitCode.FAULT and "summary.json" in err
+        assert "Traceback" not in err
+        return None
+    run = read_run(emu.out)
+    s = run.summary
+    assert s["exit_code"] == rc, (s["exit_code"], s["exit_reason"], rc)
+    assert s["exit_policy_confirmed"] is True
+    if rc == ExitCode.OK:
+        assert s["exit_reason"] == "end of show" and s["telemetry"]["error"] is None
+        assert not s["faults"] and not events(run, "fault")
+    else:
+        assert rc == ExitCode.FAULT and "telemetry" in s["exit_reason"]
+        assert [f["message"] for f in s["faults"]] == [s["exit_reason"]]
+        assert [e["message"] for e in events(run, "fault")] == [s["exit_reason"]]
+        assert s["telemetry"]["error"]
+    assert "Traceback" not in err
+    return s
+
+
+def test_row_30_a_write_failing_anywhere_in_close_never_contradicts_the_exit_code(
+    emulated, monkeypatch, capsys
+):
+    """Every operation the writer makes on the disk from the moment it is closed (the last
+    rows, events, flushes, fsyncs, closes, the summary's own writes), failing in turn (a full
+    disk, an I/O error, a file system gone read-only): the summary and the exit code agree,
+    and the show's exit policy went out regardless."""
+    got = capture_writer(monkeypatch)
+
+    def closing() -> bool:
+        w = got.get("writer")
+        return w is not None and w._close_requested
+
+    def run(at, err=errno.ENOSPC):
+        emu = emulated()
+        with monkeypatch.context() as m:
+            disk = FailsOnce(m, emu.out, closing, at, err)
+            rc = emu.run(duration=0.2)
+        return emu, disk, rc
+
+    _, clean, rc = run(None)
+    assert rc == ExitCode.OK
+    points = list(dict.fromkeys(clean.points))  # each kind of operation, in order
+    assert {op for op, _ in points} >= {"write", "flush", "fsync", "close"}
+    for at, err in zip(points, itertools.cycle([errno.ENOSPC, errno.EIO, errno.EROFS])):
+        for _ in range(5):  # whether rows are left for close to write depends on the threads
+            capsys.readouterr()
+            emu, disk, rc = run(at, err)
+            if disk.fired:
+                break
+        assert disk.fired, at
+        out = capsys.readouterr().err
+        _record_agrees(emu, rc, out)
+        if rc != ExitCode.OK:
+            assert os.strerror(err) in out, at
+
+
+def test_row_30_a_full_disk_keeps_the_fault_record_and_the_summary(emulated, monkeypatch, capsys):
+    """The run directory's disk fills up mid-show: the show stops safely (exit 3), and what
+    the end must write is there all the same: the fault in events.jsonl and summary.json,
+    the exit policy's event, the summary saying exit 3; the OS error is one line on stderr,
+    its traceback in a file of the run directory."""
+    emu = emulated()
+    disk = SmallDisk(monkeypatch, emu.out, capacity=80_000)
+    assert emu.run() == ExitCode.FAULT
+    err = capsys.readouterr().err
+    assert disk.full
+    s = _record_agrees(emu, ExitCode.FAULT, err)
+    assert s is not None and "No space left on device" in s["exit_reason"]
+    run = read_run(emu.out)
+    assert [e["kind"] for e in run.events][:1] == ["start"]
+    (policy,) = events(run, "exit_policy")
+    assert sorted(policy["confirmed"]) == [1, 2, 3]
+    np.testing.assert_array_equal(run.tick, np.arange(run.n_ticks))
+    assert 10 < run.n_ticks < 1.5 / PERIOD  # stopped when the disk filled
+    tel = s["telemetry"]  # the rows it says are there are the rows there
+    assert tel["rows_written"] == run.n_ticks and tel["rows_lost"] == s["ticks"] - run.n_ticks
+    line = [ln for ln in err.splitlines() if "No space left on device" in ln]
+    assert line and all(ln.startswith("hilsim run: ") for ln in line)
+    tracebacks = [p for p in emu.out.iterdir() if "Traceback" in p.read_text(errors="replace")]
+    assert [p.name for p in tracebacks if p.name != "summary.json"] == ["telemetry_error.txt"]
+
+
+def test_row_30_no_room_for_the_end_record_at_start_is_one_line_and_the_show_goes_on(
+    emulated, monkeypatch, capsys
+):
+    """A disk too full to set aside the end record's space: said in one line, and the show
+    starts all the same (it stops when the rows find the disk full, exit 3)."""
+    emu = emulated()
+    SmallDisk(monkeypatch, emu.out, capacity=12_000)
+    rc = emu.run()
+    err = capsys.readouterr().err
+    warned = [ln for ln in err.splitlines() if "set aside" in ln]
+    assert len(warned) == 1 and "No space left on device" in warned[0]
+    assert len(Wire.of(emu.bus).ticks) > 1  # the show started
+    assert rc == ExitCode.FAULT
+    _record_agrees(emu, rc, err)
 
 
 def test_row_31_a_torn_last_line_is_tolerated_and_every_earlier_record_parses(emulated, tmp_path):

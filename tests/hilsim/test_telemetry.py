@@ -21,8 +21,10 @@ from hypothesis import strategies as st
 from drivers.servo_bus import ReadStatus
 from hilsim.telemetry import TelemetryWriter, WriterFailedError
 from hilsim.telemetry import writer as tm
+from hilsim.telemetry.end_record import end_bytes
 from hilsim.telemetry.format import (
     EVENTS_JSONL,
+    RESERVE_NAME,
     SUMMARY_JSON,
     TELEMETRY_CSV,
     TelemetryError,
@@ -380,7 +382,7 @@ def test_writer_death_surfaces(tmp_path: Path, surface: str) -> None:
     _record_row(w, 1, np.zeros(3))  # hands row 0 over
     w._inbox.put(tm._WAKE)  # have the writer drain now
     assert w.entered.wait(WAIT_S)
-    w._thread.join(WAIT_S)
+    assert w._rows_done.wait(WAIT_S)
     assert w.failed and isinstance(w.error, OSError)
     if surface == "record":
         with pytest.raises(WriterFailedError) as info:
@@ -389,12 +391,14 @@ def test_writer_death_surfaces(tmp_path: Path, surface: str) -> None:
     elif surface == "flush":
         with pytest.raises(WriterFailedError):
             w.flush()
-    assert w.event("fault", "disk full", 1, 0.001) is False  # never raises on the fault path
+    # never raises on the fault path; kept for the end of the record
+    assert w.event("fault", "disk full", 1, 0.001) is True
     for _ in range(2):  # every close says so; neither deadlocks
         with pytest.raises(WriterFailedError, match="No space left"):
             w.close({"exit_code": 3})
     summary = json.loads((tmp_path / SUMMARY_JSON).read_text())
-    assert summary["exit_code"] == 3
+    assert summary["exit_code"] == 3 and summary["faults"][0]["message"] == "disk full"
+    assert read_run(tmp_path).events[-1]["message"] == "disk full"
     assert "No space left" in summary["telemetry"]["error"]
     assert summary["telemetry"]["rows_lost"] >= 1
 
@@ -731,3 +735,37 @@ def test_synthetic_run_reads_back(tmp_path: Path) -> None:
     assert run.summary["stale_reads"]["jaw"] == int((data["status"][:, 2] == 1).sum())
     assert comm_errors(run.summary, servo=3) == int((data["status"][:, 2] != 0).sum())
     np.testing.assert_allclose(run.lateness_us, data["lateness"], atol=1e-3)
+
+
+def test_the_end_of_the_record_has_its_space_set_aside_until_it_is_written(tmp_path: Path) -> None:
+    w = TelemetryWriter(tmp_path, JOINTS)
+    reserve = tmp_path / RESERVE_NAME
+    assert reserve.stat().st_size == w.end.reserve.size == end_bytes(len(JOINTS)) >= 16384
+    _record_row(w, 0, np.zeros(3))
+    summary = w.close({"exit_code": 0})
+    assert not reserve.exists()  # summary.json was written into it
+    assert read_run(tmp_path).summary == json.loads(json.dumps(summary))
+
+
+def test_without_fallocate_the_reserve_is_zeros_and_without_room_it_is_said(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    def unsupported(fd: int, offset: int, length: int) -> None:
+        raise OSError(errno.EOPNOTSUPP, "Operation not supported")
+
+    monkeypatch.setattr(os, "posix_fallocate", unsupported)
+    w = TelemetryWriter(tmp_path / "a", JOINTS)
+    assert (tmp_path / "a" / RESERVE_NAME).read_bytes() == bytes(w.end.reserve.size)
+    assert w.end.reserve.error is None
+    w.close({})
+
+    def full(fd: int, offset: int, length: int) -> None:
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(os, "posix_fallocate", full)
+    w = TelemetryWriter(tmp_path / "b", JOINTS)  # the run goes on; the reason is kept
+    assert w.end.reserve.size == 0 and w.end.reserve.error.errno == errno.ENOSPC
+    assert not (tmp_path / "b" / RESERVE_NAME).exists()
+    _record_row(w, 0, np.zeros(3))
+    assert w.close({"exit_code": 0})["exit_code"] == 0  # written the ordinary way
+    assert read_run(tmp_path / "b").n_ticks == 1
