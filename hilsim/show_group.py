@@ -400,10 +400,12 @@ def run_group(
     stopped = [c.name for c in sent if c.stop is None or c.stop.at >= signalled_at]
     if stopper is not None:
         row = rows[[o.name for o in outcomes].index(stopper)]
+        # on virtual clocks the instant is only the signal to go: counted from when it was sent
+        went = start_at - START_MARGIN_S if "--virtual-time" in extra else start_at
         stop = {
             "exit_code": row["exit_code"],
             "reason": row["reason"],
-            "after_start_s": ends[stopper] - start_at,
+            "after_start_s": ends[stopper] - went,
             "buses_stopped": stopped,
         }
     code = group_code(outcomes, stopper, set(stopped))

@@ -250,9 +250,11 @@ def _run_group(args: argparse.Namespace, rigs) -> int:
     result = run_group(args.config, names, run_dir, extra, echo=echo)
     if result.stopped_by is not None and result.stop is not None:
         stopped = result.stop["buses_stopped"]
+        when = (
+            "" if args.virtual_time else f", {result.stop['after_start_s']:.2f} s after the start"
+        )
         _say(
-            f"bus {result.stopped_by} stopped first (exit {result.stop['exit_code']}, "
-            f"{result.stop['after_start_s']:.2f} s after the start), so "
+            f"bus {result.stopped_by} stopped first (exit {result.stop['exit_code']}{when}), so "
             + (
                 f"bus{'es' if len(stopped) > 1 else ''} {', '.join(stopped)} "
                 f"{'were' if len(stopped) > 1 else 'was'} stopped too (one figure)"
