@@ -367,12 +367,14 @@ def run_show(
     stop: StopFlag,
     on_status: Callable[[dict], None] | None = None,
     start_at: float | None = None,
+    on_stop: Callable[[int, str], None] | None = None,
 ) -> ShowResult:
     """Run the show, then end its record (:func:`hilsim.show_end.end_show`: the outcome
     decided once, then ``summary.json``, ``docs/summary.md``, says it).
 
     ``start_at``: the real clock's time of tick 0 (``time.monotonic``; the buses of a figure
-    share it); None: at once. A virtual clock ignores it (its show time is k·period)."""
+    share it); None: at once. A virtual clock ignores it (its show time is k·period).
+    ``on_stop``: :class:`~hilsim.loop.HilLoop`'s, told the code and reason as the loop stops."""
     try:
         loop = HilLoop(
             parts,
@@ -382,6 +384,7 @@ def run_show(
             stop=stop,
             on_status=on_status,
             start_at=start_at,
+            on_stop=on_stop,
         )
         wall0 = time.perf_counter()
         result = loop.run()
