@@ -22,6 +22,7 @@ import select
 import signal
 import sys
 import threading
+import time
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -78,7 +79,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "bus, one process each, started together)",
     )
     # a child of hilsim.show.group: "ready" on stdout once the servos are checked, then the
-    # shared instant of tick 0 from stdin; stdin closing stops it
+    # shared instant of tick 0 from stdin; "stopping ..." on stdout when its loop stops;
+    # stdin closing stops it
     p.add_argument("--shared-start", action="store_true", help=argparse.SUPPRESS)
 
 
@@ -188,8 +190,20 @@ def _run_group(args: argparse.Namespace, rigs) -> int:
             print(line, file=sys.stderr, flush=True)
 
     result = run_group(args.config, names, run_dir, extra, echo=echo)
-    if result.stopped_by is not None:
-        _say(f"bus {result.stopped_by} ended first, so every bus was stopped (one figure)")
+    if result.stopped_by is not None and result.stop is not None:
+        stopped = result.stop["buses_stopped"]
+        when = (
+            "" if args.virtual_time else f", {result.stop['after_start_s']:.2f} s after the start"
+        )
+        _say(
+            f"bus {result.stopped_by} stopped first (exit {result.stop['exit_code']}{when}), so "
+            + (
+                f"bus{'es' if len(stopped) > 1 else ''} {', '.join(stopped)} "
+                f"{'were' if len(stopped) > 1 else 'was'} stopped too (one figure)"
+                if stopped
+                else "it ended the show (no other bus was still running)"
+            )
+        )
     for line in format_rows(result.rows):
         print(f"  {line}", file=sys.stderr)
     for row in result.rows:
@@ -223,6 +237,15 @@ def _watch_parent() -> None:
         os.kill(os.getpid(), signal.SIGTERM)
 
     threading.Thread(target=watch, daemon=True).start()
+
+
+def _tell_parent(code: int, reason: str) -> None:
+    """A child of a group: its loop has stopped (its exit policy, record and plots come next).
+    The parent stops the other buses now, and knows which bus stopped first, and when."""
+    from hilsim.show.group import stopping_line
+
+    with contextlib.suppress(OSError, ValueError):  # (the parent gone: its stdin tells us)
+        print(stopping_line(code, reason, time.monotonic()), flush=True)
 
 
 def _run_show(args: argparse.Namespace, show: Show, made: RunDir, shown: list[bool]) -> int:
@@ -264,7 +287,11 @@ def _run_show(args: argparse.Namespace, show: Show, made: RunDir, shown: list[bo
             status = None if virtual else StatusLine(rig.loop.rate_hz)
             try:
                 shown[0] = True
-                result = show.run(on_status=status, start_at=start_at)
+                result = show.run(
+                    on_status=status,
+                    start_at=start_at,
+                    on_stop=_tell_parent if args.shared_start else None,
+                )
             except ShowRefusedError as exc:  # the telemetry could not be opened
                 shown[0] = False
                 _say(str(exc))

@@ -5,8 +5,10 @@ show times: as JSON ``{"joint": [values...]}`` with ``--json``, else one line pe
 Without ``--at`` it runs the show's targets, springs and safety filter offline
 (:mod:`hilsim.show.preview`), writes a preview plot (target, spring, command, limits, and
 where the safety filter changes the command) and prints a warning per joint and limit the
-targets break (:mod:`hilsim.targets.check`). Nothing opens a port. Exit codes: 0 done (warnings
-or not), 2 the rig or an option cannot be used (one line on stderr).
+targets break (:mod:`hilsim.targets.check`). A rig with several ``[buses.<name>]`` shows every
+bus's joints, bus by bus, as ``hilsim run`` runs the whole figure; ``--bus NAME`` shows one.
+Nothing opens a port. Exit codes: 0 done (warnings or not), 2 the rig or an option cannot be
+used (one line on stderr).
 """
 
 from __future__ import annotations
@@ -29,7 +31,9 @@ ENDLESS_PREVIEW_S = 20.0
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("config", metavar="RIG", help="rig file (TOML)")
     parser.add_argument(
-        "--bus", metavar="NAME", help="the bus to show, for a rig with [buses.<name>] tables"
+        "--bus",
+        metavar="NAME",
+        help="a rig with several [buses.<name>]: show this bus's joints only (default: every bus)",
     )
     parser.add_argument(
         "--at", metavar="T1,T2,...", help="show times (s) at which to print each joint's target"
@@ -66,7 +70,7 @@ def parse_times(text: str) -> list[float]:
 
 
 def run(args: argparse.Namespace) -> int:
-    from hilsim.rig import RigError, load_rig
+    from hilsim.rig import RigError, load_rigs, select_bus
     from hilsim.show.parts import build_parts
 
     try:
@@ -77,40 +81,49 @@ def run(args: argparse.Namespace) -> int:
             raise ValueError(f"--duration must be a finite time > 0 s, got {args.duration!r}")
         if args.out is not None and Path(args.out).suffix.lower() != ".png":
             raise ValueError(f"--out {args.out}: the preview is a PNG; give a name ending in .png")
-        rig = load_rig(args.config, bus=args.bus)
-        parts = build_parts(rig)
+        rigs = load_rigs(args.config)
+        if args.bus is not None or len(rigs) == 1:
+            rigs = (select_bus(rigs, args.bus),)
+        shows = [(rig, build_parts(rig)) for rig in rigs]  # one per bus, in the file's order
     except (RigError, ValueError) as exc:
         _say(str(exc))
         return int(ExitCode.USAGE)
-    for note in parts.targets.notes:  # what the animation files say, on stderr
-        _say(f"note: {note}")
+    for _rig, parts in shows:
+        for note in parts.targets.notes:  # what the animation files say, on stderr
+            _say(f"note: {note}")
     if times is not None:
         from hilsim.show.preview import targets_at
 
-        values = targets_at(parts, times)
+        values = {k: v for _rig, parts in shows for k, v in targets_at(parts, times).items()}
         if args.json:
             print(json.dumps(values))
         else:
             for name, row in values.items():
                 print(f"{name}: " + ", ".join(f"{v:.4f}" for v in row))
         return int(ExitCode.OK)
-    return _preview(args, rig, parts)
+    return _preview(args, shows)
 
 
-def _preview(args: argparse.Namespace, rig, parts) -> int:
-    from hilsim.show.preview import plot_preview, preview
+def _preview(args: argparse.Namespace, shows) -> int:
+    from hilsim.show.preview import combine, plot_preview, preview
     from hilsim.targets.check import check_tracks
 
-    duration = args.duration or parts.targets.duration or ENDLESS_PREVIEW_S
-    if args.duration is None and parts.targets.duration is None:
+    rig = shows[0][0]
+    lengths = [parts.targets.duration for _rig, parts in shows]
+    # the figure's length: its longest bus's (a bus that never ends: the figure never does)
+    longest = None if None in lengths else max(lengths)
+    duration = args.duration or longest or ENDLESS_PREVIEW_S
+    if args.duration is None and longest is None:
         _say(f"the animation never ends: previewing its first {ENDLESS_PREVIEW_S:g} s")
     try:
-        p = preview(parts, duration)
+        previews = [preview(parts, duration) for _rig, parts in shows]
     except ValueError as exc:
         _say(str(exc))
         return int(ExitCode.USAGE)
-    for w in check_tracks(parts.targets, rig.joints, rig.loop.period_s, duration_s=duration):
-        _say(f"warning: {w}")
+    for each, parts in shows:
+        for w in check_tracks(parts.targets, each.joints, each.loop.period_s, duration_s=duration):
+            _say(f"warning: {w}")
+    p = previews[0] if len(shows) == 1 else combine(previews, [r.bus_name for r, _ in shows])
     for i, name in enumerate(p.joints):
         count = int(p.clamped[:, i].sum())
         if count:
@@ -119,8 +132,13 @@ def _preview(args: argparse.Namespace, rig, parts) -> int:
                 f"after the {rig.safety.soft_start_s:g} s soft start"
             )
     out = Path(args.out) if args.out else Path(rig.telemetry.out_dir) / f"{rig.name}-tracks.png"
+    title = f"{rig.name}: targets through the springs and safety filter"
+    if len(shows) > 1:
+        title += f" ({len(shows)} buses: {', '.join(str(r.bus_name) for r, _ in shows)})"
+    elif args.bus is not None:
+        title += f" (bus {args.bus})"
     try:
-        path = plot_preview(p, out, f"{rig.name}: targets through the springs and safety filter")
+        path = plot_preview(p, out, title)
     except OSError as exc:
         _say(f"cannot write {out}: {exc}")
         return int(ExitCode.USAGE)

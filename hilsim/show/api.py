@@ -210,12 +210,14 @@ class Show:
         *,
         on_status: Callable[[dict[str, Any]], None] | None = None,
         start_at: float | None = None,
+        on_stop: Callable[[int, str], None] | None = None,
     ) -> ShowResult:
         """Run the show to its end, a stop or a fault; returns how it ended (its exit code,
         reason, run directory and summary). Every way out applies the exit policy.
 
         ``on_status``: called about twice a second (real time) with the live figures.
         ``start_at``: tick 0 at this ``time.monotonic()`` instant (several buses, one figure).
+        ``on_stop``: told the exit code and reason as the loop stops, before the exit policy.
         Runs once; raises :class:`ShowError` if the show is not open or ran already."""
         with self._lock:
             if self._bus is None or self._closed:
@@ -249,6 +251,7 @@ class Show:
                 stop=self._stop,
                 on_status=on_status,
                 start_at=start_at,
+                on_stop=on_stop,
             )
             self._result.run_dir = run_dir
             return self._result

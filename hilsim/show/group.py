@@ -14,18 +14,24 @@ reads. This module is the parent (``docs/buses.md``):
   (exit 2) calls the start off: the others are told (their stdin closes) and nothing moves.
   With ``--virtual-time`` each child keeps its own virtual clock (show time is k·period, so
   each bus's numbers are deterministic) and the instant is only the signal to go.
-* **One stop.** SIGINT/SIGTERM to the parent is sent on to every child; each applies its exit
-  policy. A child that ends with a code other than 0 while others still run (a fault, a
-  signal of its own) stops the others with SIGTERM: a figure half-running is not a show.
-  A child's stdin closing (the parent died) stops it too.
-* **One verdict.** Each bus's lateness, overruns, comm errors and stalls side by side, and the
-  exit code of the worst child (:func:`worst_code`).
+* **One stop.** SIGINT/SIGTERM to the parent is sent on to every child whose show still runs;
+  each applies its exit policy. A child whose loop stops with a code other than 0 (a fault, a
+  signal of its own) says so on its stdout the moment it stops (:func:`stopping_line`: the
+  code, the instant on CLOCK_MONOTONIC, the reason), before its exit policy, record and plots;
+  the parent then stops every bus whose show still runs with SIGTERM: a figure half-running
+  is not a show. A child that ends without saying so (a crash, SIGKILL) stops them when it
+  ends. A child's stdin closing (the parent died) stops it too.
+* **One verdict.** Each bus's lateness, overruns, comm errors and stalls side by side, which
+  bus stopped the show and why (the earliest of the buses' own stops, by their instants, not
+  by the order the processes ended: :func:`first_stop`), and the exit code of the worst child
+  (:func:`group_code`).
 """
 
 from __future__ import annotations
 
 import contextlib
 import json
+import math
 import signal
 import subprocess
 import sys
@@ -57,6 +63,8 @@ SEVERITY = (
     int(ExitCode.OK),
 )
 _POLL_S = 0.02
+#: the first word of a child's line on its stdout when its loop stops (:func:`stopping_line`)
+STOPPING = "stopping"
 
 
 def worst_code(codes: Sequence[int]) -> int:
@@ -66,6 +74,58 @@ def worst_code(codes: Sequence[int]) -> int:
         return int(ExitCode.OK)
     rank = {code: i for i, code in enumerate(SEVERITY)}
     return min(codes, key=lambda c: rank.get(c, -1))
+
+
+@dataclass(frozen=True)
+class Stop:
+    """A child's loop stopped: its exit code then, the instant (CLOCK_MONOTONIC) and why."""
+
+    code: int
+    at: float
+    reason: str
+
+
+def stopping_line(code: int, reason: str, at: float) -> str:
+    """What a child prints on its stdout the moment its loop stops (one line)."""
+    return f"{STOPPING} {int(code)} {at!r} {' '.join(reason.split())}"
+
+
+def parse_stopping(line: str) -> Stop | None:
+    """A :func:`stopping_line` read back; None for any other line."""
+    word, _, rest = line.strip().partition(" ")
+    if word != STOPPING:
+        return None
+    code, _, rest = rest.partition(" ")
+    at, _, reason = rest.partition(" ")
+    try:
+        return Stop(int(code), float(at), reason)
+    except ValueError:
+        return None
+
+
+def first_stop(ends: dict[str, float], before: float = math.inf) -> str | None:
+    """The bus that stopped the show: of the buses whose show ended by itself with a code other
+    than 0 (``ends``: bus -> its instant), the earliest before ``before`` (the first signal the
+    parent sent: a stop after it may be the parent's doing). None: no bus stopped the show."""
+    own = {name: at for name, at in ends.items() if at < before}
+    return min(own, key=own.__getitem__) if own else None
+
+
+def group_code(outcomes: Sequence[BusOutcome], stopper: str | None, stopped: set[str]) -> int:
+    """The group's exit code: the worst bus's (:func:`worst_code`), where a bus the parent
+    stopped because ``stopper`` had stopped counts by the stopper's code, not by the SIGTERM it
+    was sent (nobody signalled the figure). A stopper that could not start (2) after a bus it
+    stopped had energised its servos is a fault of the figure (3): something had moved."""
+    codes, moved = [], False
+    for o in outcomes:
+        if o.name in stopped and o.exit_code == int(ExitCode.SIGTERM):
+            moved |= o.summary.get("exit_policy_confirmed") is not None
+            continue
+        codes.append(o.exit_code)
+    by_name = {o.name: o.exit_code for o in outcomes}
+    if moved and stopper is not None and by_name.get(stopper) == int(ExitCode.USAGE):
+        codes.append(int(ExitCode.FAULT))
+    return worst_code(codes)
 
 
 @dataclass
@@ -93,10 +153,11 @@ def bus_outcome(name: str, returncode: int, ready: bool, run_dir: Path) -> BusOu
         sig = signal.Signals(signum).name
     except ValueError:
         sig = f"signal {signum}"
-    if "exit_code" in summary:
-        return BusOutcome(
-            name, int(summary["exit_code"]), f"killed by {sig} after its show", summary
-        )
+    if "exit_code" in summary:  # its record stands, and says why its show ended
+        why = summary.get("exit_reason")
+        note = f"killed by {sig} after its show"
+        note = f"{why} ({note})" if why else note
+        return BusOutcome(name, int(summary["exit_code"]), note, summary)
     if not ready:
         code = for_signal(signum) if signum in (signal.SIGINT, signal.SIGTERM) else ExitCode.USAGE
         return BusOutcome(name, int(code), f"killed by {sig} before its start: nothing moved")
@@ -168,8 +229,10 @@ class GroupResult:
     outcomes: list[BusOutcome]
     rows: list[dict[str, Any]]
     start_at: float | None
-    #: the bus whose end stopped the others, and why (None: no bus stopped the others)
+    #: the bus whose own stop came first (None: no bus stopped the show; the user, or the end)
     stopped_by: str | None = None
+    #: its exit code, reason, seconds after the start instant, and the buses stopped for it
+    stop: dict[str, Any] | None = None
 
 
 class _Child:
@@ -177,6 +240,10 @@ class _Child:
 
     def __init__(self, name: str, argv: list[str], echo: Callable[[str], None]) -> None:
         self.name, self.ready = name, threading.Event()
+        #: what the child said when its loop stopped (None: not said, or not yet read)
+        self.stop: Stop | None = None
+        #: when the parent first saw the process gone (time.monotonic())
+        self.exited_at: float | None = None
         self.proc = subprocess.Popen(
             argv,
             stdin=subprocess.PIPE,
@@ -197,6 +264,21 @@ class _Child:
         for line in self.proc.stdout:
             if line.strip() == "ready":
                 self.ready.set()
+            elif self.stop is None and (stop := parse_stopping(line)) is not None:
+                self.stop = stop
+
+    def observe(self, now: float) -> None:
+        if self.exited_at is None and self.proc.poll() is not None:
+            self.exited_at = now
+
+    def own_stop(self) -> float | None:
+        """When this bus's show ended by itself with a code other than 0: the instant its
+        loop stopped, or (it could not say: a crash, SIGKILL) when it was seen gone."""
+        code = self.proc.returncode
+        failed = code is not None and code != 0
+        if self.stop is not None:
+            return self.stop.at if self.stop.code != 0 or failed else None
+        return self.exited_at if failed else None
 
     def _read_stderr(self, echo: Callable[[str], None]) -> None:
         for line in self.proc.stderr:
@@ -257,16 +339,23 @@ def run_group(
     }
     children: list[_Child] = []
     start_at: float | None = None
-    stopped_by: str | None = None
+    #: the first signal the parent sent (its stop, or the user's sent on): a bus's stop after
+    #: it may be that signal's doing, so only the stops before it can have stopped the show
+    signalled_at = math.inf
+    sent: list[_Child] = []  # the buses the parent stopped because another had stopped
     try:
         for name in buses:
             children.append(_Child(name, child_argv(config, name, run_dir, extra), echo))
-        called_off = signalled = False
+        called_off = False
         while any(c.proc.poll() is None for c in children):
-            while pending:  # every signal the parent gets, every running child gets
-                signum, signalled = pending.pop(0), True
+            now = time.monotonic()
+            for c in children:
+                c.observe(now)
+            while pending:  # every signal the parent gets, every show still running gets
+                signum, signalled_at = pending.pop(0), min(signalled_at, now)
                 for c in children:
-                    c.signal(signum)
+                    if c.stop is None:  # (one that has stopped is writing its record)
+                        c.signal(signum)
             if start_at is None and not called_off:
                 # a bus that ended before the start, ready or not, cannot play its part
                 refused = [c for c in children if c.proc.poll() is not None]
@@ -278,15 +367,20 @@ def run_group(
                     start_at = time.monotonic() + START_MARGIN_S
                     for c in children:
                         c.send(repr(start_at))
-            elif start_at is not None and stopped_by is None and not signalled:
+            elif (
+                start_at is not None
+                and signalled_at == math.inf
+                and any(c.own_stop() is not None for c in children)
+            ):
+                signalled_at = time.monotonic()  # a figure half-running is not a show
                 for c in children:
-                    code = c.proc.poll()
-                    if code is not None and code != 0:
-                        stopped_by = c.name  # a figure half-running is not a show
-                        for other in children:
-                            other.signal(signal.SIGTERM)
-                        break
+                    if c.stop is None and c.proc.poll() is None:
+                        c.signal(signal.SIGTERM)
+                        sent.append(c)
             time.sleep(_POLL_S)
+        now = time.monotonic()
+        for c in children:
+            c.observe(now)
     finally:
         for c in children:  # (a crash of the parent: the children see their stdin close)
             c.send(None)
@@ -298,12 +392,29 @@ def run_group(
         bus_outcome(c.name, c.proc.returncode, c.ready.is_set(), run_dir / c.name) for c in children
     ]
     rows = [bus_row(o, start_at) for o in outcomes]
-    result = GroupResult(worst_code([o.exit_code for o in outcomes]), outcomes, rows, start_at)
-    result.stopped_by = stopped_by
+    stopper, stop = None, None
+    if start_at is not None:
+        ends = {c.name: at for c in children if (at := c.own_stop()) is not None}
+        stopper = first_stop(ends, signalled_at)
+    # a bus sent SIGTERM whose own stop came before it was not stopped by the parent
+    stopped = [c.name for c in sent if c.stop is None or c.stop.at >= signalled_at]
+    if stopper is not None:
+        row = rows[[o.name for o in outcomes].index(stopper)]
+        # on virtual clocks the instant is only the signal to go: counted from when it was sent
+        went = start_at - START_MARGIN_S if "--virtual-time" in extra else start_at
+        stop = {
+            "exit_code": row["exit_code"],
+            "reason": row["reason"],
+            "after_start_s": ends[stopper] - went,
+            "buses_stopped": stopped,
+        }
+    code = group_code(outcomes, stopper, set(stopped))
+    result = GroupResult(code, outcomes, rows, start_at, stopper, stop)
     record = {
         "exit_code": result.exit_code,
         "start_at_monotonic_s": start_at,
-        "stopped_by": stopped_by,
+        "stopped_by": stopper,
+        "stop": stop,
         "buses": rows,
     }
     with contextlib.suppress(OSError):

@@ -30,6 +30,7 @@ once anything was energised; exit codes are in :mod:`hilsim.exit_codes`.
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import math
 import signal
@@ -109,6 +110,8 @@ class HilLoop:
     start_at: tick 0 at this instant of the real clock (the buses of one figure share it; the
         start-up runs just before it, see SHARED_START_LEAD_S); None: at once. A virtual clock
         ignores it.
+    on_stop: called once with the exit code and reason the moment the loop stops, before the
+        exit policy (a figure's other buses are stopped then, not after this bus's record).
     """
 
     def __init__(
@@ -121,6 +124,7 @@ class HilLoop:
         stop: StopFlag | None = None,
         on_status: Callable[[dict], None] | None = None,
         start_at: float | None = None,
+        on_stop: Callable[[int, str], None] | None = None,
     ) -> None:
         rig = parts.rig
         if tuple(bus.ids) != rig.servo_ids:
@@ -139,7 +143,7 @@ class HilLoop:
         self._limp: tuple[int, ...] = tuple(teach.limp_indices) if teach is not None else ()
         self.clock = bus.clock
         self.stop = stop or StopFlag()
-        self.on_status = on_status
+        self.on_status, self.on_stop = on_status, on_stop
         self.start_at = None if self.clock.virtual else start_at
         self.duration_s = parts.targets.duration if duration_s is None else duration_s
         self.period = rig.loop.period_s
@@ -306,6 +310,9 @@ class HilLoop:
             exit_code, reason = int(ExitCode.SIGINT), f"interrupted ({type(exc).__name__})"
         finally:
             sys.setswitchinterval(switch)
+        if self.on_stop is not None:  # a report, never a reason to skip the exit policy
+            with contextlib.suppress(Exception):
+                self.on_stop(exit_code, reason)
         if fault:
             k = self._k
             self.log.event("fault", reason, tick=k, t=k * self.period)

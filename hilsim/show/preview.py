@@ -6,7 +6,8 @@ times. :func:`preview` runs the show's own parts - targets, integrator, safety f
 tick as :class:`~hilsim.show.loop.HilLoop` does, with no bus: the target, the spring's position, the
 command the filter lets through and where the filter changed it. The figure starts where the
 rig's ``initial_deg`` puts each joint, else at its target at t = 0 (a real show starts from the
-pose the servos report, through the soft start). :func:`plot_preview` draws it;
+pose the servos report, through the soft start). :func:`combine` puts the previews of a
+figure's buses side by side; :func:`plot_preview` draws it;
 :func:`hilsim.targets.check.check_tracks` names the limits the targets break.
 """
 
@@ -45,6 +46,28 @@ class Preview:
     min_deg: tuple[float, ...]
     max_deg: tuple[float, ...]
     soft_start_s: float = 0.0
+    #: each joint's bus, for a rig with several ``[buses.<name>]`` (empty: one bus)
+    buses: tuple[str, ...] = ()
+
+
+def combine(previews: Sequence[Preview], buses: Sequence[str]) -> Preview:
+    """One preview of a figure on several buses: each bus's joints, bus by bus, side by side
+    (the buses share the rate, the safety settings and the preview's length)."""
+    first = previews[0]
+    if any(len(p.t) != len(first.t) for p in previews):
+        raise ValueError("the buses' previews differ in length")
+    return Preview(
+        joints=tuple(name for p in previews for name in p.joints),
+        t=first.t,
+        target_deg=np.hstack([p.target_deg for p in previews]),
+        spring_deg=np.hstack([p.spring_deg for p in previews]),
+        cmd_deg=np.hstack([p.cmd_deg for p in previews]),
+        clamped=np.hstack([p.clamped for p in previews]),
+        min_deg=tuple(v for p in previews for v in p.min_deg),
+        max_deg=tuple(v for p in previews for v in p.max_deg),
+        soft_start_s=first.soft_start_s,
+        buses=tuple(bus for p, bus in zip(previews, buses, strict=True) for _ in p.joints),
+    )
 
 
 def targets_at(parts: Parts, times: Sequence[float]) -> dict[str, list[float]]:
@@ -134,7 +157,7 @@ def plot_preview(p: Preview, path: Path, title: str, dpi: int = 110) -> Path:
         hit = p.clamped[:, i]
         if hit.any():
             ax.plot(p.t[hit], p.cmd_deg[hit, i], "|", color="red", ms=6, label="safety filter")
-        ax.set_ylabel(f"{name} (deg)")
+        ax.set_ylabel(f"{p.buses[i]}: {name} (deg)" if p.buses else f"{name} (deg)")
         ax.grid(alpha=0.3)
     legend = {}
     for ax in axes:  # one legend for every panel's lines, on the first
@@ -142,5 +165,8 @@ def plot_preview(p: Preview, path: Path, title: str, dpi: int = 110) -> Path:
             legend.setdefault(label, handle)
     axes[0].legend(legend.values(), legend.keys(), loc="upper right", fontsize="small", ncols=4)
     axes[-1].set_xlabel("show time (s)")
-    fig.subplots_adjust(left=0.1, right=0.98, top=1 - 0.6 / fig.get_figheight(), hspace=0.25)
+    height = fig.get_figheight()  # margins in inches: a figure of many joints is tall
+    fig.subplots_adjust(
+        left=0.1, right=0.98, top=1 - 0.6 / height, bottom=0.55 / height, hspace=0.25
+    )
     return save(fig, path, dpi)

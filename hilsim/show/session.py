@@ -249,12 +249,14 @@ def run_show(
     stop: StopFlag,
     on_status: Callable[[dict], None] | None = None,
     start_at: float | None = None,
+    on_stop: Callable[[int, str], None] | None = None,
 ) -> ShowResult:
     """Run the show, then end its record (:func:`hilsim.show.end.end_show`: the outcome
     decided once, then ``summary.json``, ``docs/summary.md``, says it).
 
     ``start_at``: the real clock's time of tick 0 (``time.monotonic``; the buses of a figure
-    share it); None: at once. A virtual clock ignores it (its show time is k·period)."""
+    share it); None: at once. A virtual clock ignores it (its show time is k·period).
+    ``on_stop``: told the code and reason as the loop stops (:class:`~hilsim.show.loop.HilLoop`)."""
     try:
         loop = HilLoop(
             parts,
@@ -264,6 +266,7 @@ def run_show(
             stop=stop,
             on_status=on_status,
             start_at=start_at,
+            on_stop=on_stop,
         )
         wall0 = time.perf_counter()
         result = loop.run()

@@ -13,7 +13,18 @@ import pytest
 
 from hilsim.cli import main
 from hilsim.rig import RigError, load_rig, load_rigs
-from hilsim.show.group import bus_outcome, bus_row, child_argv, format_rows, worst_code
+from hilsim.show.group import (
+    BusOutcome,
+    bus_outcome,
+    bus_row,
+    child_argv,
+    first_stop,
+    format_rows,
+    group_code,
+    parse_stopping,
+    stopping_line,
+    worst_code,
+)
 
 CONFIGS = pathlib.Path(__file__).resolve().parents[2] / "configs"
 
@@ -178,6 +189,44 @@ def test_the_worst_bus_decides_the_exit_code():
     assert worst_code([]) == 0
 
 
+def test_a_childs_stop_line_reads_back():
+    line = stopping_line(3, "bus: adapter gone\n  servo 3: no reply", 1234.5678)
+    assert "\n" not in line
+    stop = parse_stopping(line + "\n")
+    assert (stop.code, stop.at, stop.reason) == (
+        3,
+        1234.5678,
+        "bus: adapter gone servo 3: no reply",
+    )
+    assert parse_stopping("ready") is None and parse_stopping("stopping x y z") is None
+
+
+def test_the_first_own_stop_before_the_parents_signal_stopped_the_show():
+    assert first_stop({"a": 10.2, "b": 10.1}) == "b"  # by instant, not by name or end order
+    assert first_stop({"a": 10.2, "b": 10.1}, before=10.15) == "b"
+    assert first_stop({"a": 10.2}, before=10.15) is None  # after the user's signal: its doing
+    assert first_stop({}) is None
+
+
+def test_a_bus_stopped_for_another_counts_by_the_stoppers_code():
+    def out(name, code, confirmed=True):
+        return BusOutcome(name, code, "", {"exit_policy_confirmed": confirmed})
+
+    fault = [out("a", 143), out("b", 3)]
+    assert group_code(fault, "b", {"a"}) == 3
+    # b's adapter went in its start-up, after a had moved: nobody signalled the figure
+    assert group_code([out("a", 143), out("b", 2, None)], "b", {"a"}) == 3
+    # a was stopped before its torque went on: nothing moved anywhere
+    assert group_code([out("a", 143, None), out("b", 2, None)], "b", {"a"}) == 2
+    # a child signalled alone stopped the others: the signal is the figure's ending
+    assert group_code([out("a", 143), out("b", 143)], "b", {"a"}) == 143
+    # a bus stopped for another that could not confirm its exit policy still says so
+    assert group_code([out("a", 4, False), out("b", 3)], "b", {"a"}) == 3
+    assert group_code([out("a", 4, False), out("b", 143)], "b", {"a"}) == 4
+    # the user's signal: every bus's own code
+    assert group_code([out("a", 143), out("b", 2, None)], None, set()) == 143
+
+
 def _summary(tmp_path, name: str, **summary) -> pathlib.Path:
     run = tmp_path / name
     run.mkdir()
@@ -190,7 +239,8 @@ def test_a_child_killed_by_a_signal_is_judged_by_what_it_left(tmp_path):
     done = _summary(tmp_path, "a", exit_code=0, exit_reason="end of show")
     empty = _summary(tmp_path, "b")
     after = bus_outcome("a", -signal.SIGKILL, True, done)
-    assert (after.exit_code, after.note) == (0, "killed by SIGKILL after its show")
+    # its record stands, with the reason it gives
+    assert (after.exit_code, after.note) == (0, "end of show (killed by SIGKILL after its show)")
     before = bus_outcome("b", -signal.SIGTERM, False, empty)
     assert before.exit_code == 143 and "before its start: nothing moved" in before.note
     during = bus_outcome("b", -signal.SIGKILL, True, empty)

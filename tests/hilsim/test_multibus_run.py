@@ -158,7 +158,8 @@ def test_a_signal_to_the_parent_reaches_every_bus_on_the_real_clock(tmp_path, si
             policy = [e for e in run.events if e["kind"] == "exit_policy"]
             assert "2 servo(s) confirmed" in policy[0]["message"]
     assert f"exit code {code} (the worst bus's)" in parent.text
-    assert "ended first" not in parent.text and record["stopped_by"] is None  # the user did
+    assert "stopped first" not in parent.text and record["stopped_by"] is None  # the user did
+    assert record["stop"] is None
 
 
 def _children_of(out: Path) -> list[int]:
@@ -209,8 +210,11 @@ def test_a_fault_on_one_bus_stops_the_others(tmp_path):
     a, b = read_run(out / "a").summary, read_run(out / "b").summary
     assert b["exit_code"] == 3 and "bus" in b["exit_reason"]
     assert a["exit_code"] == 143 and a["exit_policy_confirmed"] is True  # stopped, held
-    assert group_record(out)["stopped_by"] == "b"
-    assert "bus b ended first, so every bus was stopped" in parent.text
+    record = group_record(out)
+    assert record["stopped_by"] == "b" and record["stop"]["buses_stopped"] == ["a"]
+    assert record["stop"]["reason"] == b["exit_reason"]  # why, from the bus that stopped it
+    assert "bus b stopped first (exit 3)" in parent.text  # (virtual time: no wall seconds)
+    assert "so bus a was stopped too (one figure)" in parent.text
 
 
 def test_a_bus_that_cannot_start_keeps_every_bus_still(tmp_path):
@@ -256,3 +260,122 @@ def test_a_bus_that_ends_after_saying_ready_calls_the_start_off(tmp_path, monkey
     result = group.run_group("x", ["a", "b"], tmp_path / "run", [], echo=lambda line: None)
     assert result.start_at is None  # never sent
     assert {o.name: o.exit_code for o in result.outcomes}["b"] == 2  # told: nothing moves
+
+
+# ---------------------------------------------------------------- which bus stopped the show
+# Stand-in children (the protocol of hilsim run --shared-start without a bus): each says ready,
+# takes the start instant, and says "stopping CODE INSTANT REASON" when its show stops.
+CHILD = """
+import json, os, signal, sys, time
+from pathlib import Path
+run, tmp = Path(sys.argv[1]), Path(sys.argv[2])
+signals = []
+signal.signal(signal.SIGTERM, lambda s, f: signals.append(s))  # as hilsim run's child does
+(tmp / (run.name + ".pid")).write_text(str(os.getpid()))
+print("ready", flush=True)
+time.sleep(max(0.0, float(sys.stdin.readline()) - time.monotonic()))  # tick 0
+
+def stop(code, reason, energised=True):
+    print(f"stopping {code} {time.monotonic()!r} {reason}", flush=True)
+    run.mkdir(parents=True, exist_ok=True)
+    summary = {"exit_code": code, "exit_reason": reason,
+               "exit_policy_confirmed": True if energised else None}
+    (run / "summary.json").write_text(json.dumps(summary))
+
+def gone(bus):
+    pid = tmp / (bus + ".pid")
+    while not pid.exists() or not pid.read_text():
+        time.sleep(0.01)
+    try:
+        os.kill(int(pid.read_text()), 0)
+    except ProcessLookupError:
+        return True
+    return False
+
+def until(check, cap_s=20.0):
+    deadline = time.monotonic() + cap_s  # only on a parent that never stops the others
+    while not check() and time.monotonic() < deadline:
+        time.sleep(0.01)
+    return check()
+"""
+
+# faults first; its exit policy, record and plots keep the process for a while: until the
+# other bus is gone. In those last moments it no longer catches SIGTERM (as a Python process
+# while it shuts down): a SIGTERM from the parent now would kill it.
+FAULTS_FIRST = """
+stop(3, "bus: adapter gone during Sync Read")
+(tmp / "faulted").write_text("")
+signal.signal(signal.SIGTERM, signal.SIG_DFL)
+left_after = until(lambda: gone("b"))
+(tmp / "a-left").write_text("after b" if left_after else "before b")
+raise SystemExit(3)
+"""
+# faults too, later (a brown-out reaching it second), unless the parent's stop came first;
+# its process ends at once
+FAULTS_SECOND = """
+until(lambda: signals or (tmp / "faulted").exists(), cap_s=60.0)
+if signals:
+    stop(143, "stopped by SIGTERM")
+    raise SystemExit(143)
+time.sleep(0.05)
+stop(3, "servo 3: following error 40 deg")
+raise SystemExit(3)
+"""
+# runs until the parent stops it
+HEALTHY = """
+until(lambda: signals, cap_s=60.0)
+stop(143, "stopped by SIGTERM")
+raise SystemExit(143)
+"""
+# cannot start after the start instant (its adapter gone at its first read): nothing energised
+CANNOT_START = """
+stop(2, "cannot start: adapter gone during Sync Read", energised=False)
+raise SystemExit(2)
+"""
+
+
+def _group(monkeypatch, tmp_path, **scripts):
+    import hilsim.show.group as group
+
+    def argv(config, bus, run_dir, extra):
+        return [sys.executable, "-c", CHILD + scripts[bus], str(run_dir / bus), str(tmp_path)]
+
+    monkeypatch.setattr(group, "child_argv", argv)
+    lines: list[str] = []
+    (tmp_path / "run").mkdir()
+    result = group.run_group("x", list(scripts), tmp_path / "run", [], echo=lines.append)
+    return result, group_record(tmp_path / "run"), "\n".join(lines)
+
+
+def test_the_bus_that_faulted_first_is_recorded_not_the_one_that_ended_first(tmp_path, monkeypatch):
+    """Bus a faults first; bus b's process ends first (its own fault a moment later, or the
+    parent's stop). The record names a, with a's own reason; a is never sent SIGTERM."""
+    result, record, err = _group(monkeypatch, tmp_path, a=FAULTS_FIRST, b=FAULTS_SECOND)
+    a = next(r for r in record["buses"] if r["bus"] == "a")
+    assert (a["exit_code"], a["reason"]) == (3, "bus: adapter gone during Sync Read"), err
+    assert result.stopped_by == "a" and record["stopped_by"] == "a"
+    assert record["stop"]["exit_code"] == 3
+    assert record["stop"]["reason"] == "bus: adapter gone during Sync Read"
+    assert 0 < record["stop"]["after_start_s"] < 60
+    assert record["exit_code"] == result.exit_code == 3
+
+
+def test_a_fault_stops_the_other_buses_before_the_faulted_bus_has_finished(tmp_path, monkeypatch):
+    """The others are stopped when the faulted bus's loop stops, not when its process ends
+    (after its record and plots: seconds at 1 kHz, while the rest of the figure moved on)."""
+    result, record, err = _group(monkeypatch, tmp_path, a=FAULTS_FIRST, b=HEALTHY)
+    assert (tmp_path / "a-left").read_text() == "after b", err
+    assert record["stopped_by"] == "a" and record["stop"]["buses_stopped"] == ["b"]
+    assert [r["exit_code"] for r in record["buses"]] == [3, 143]
+    assert result.exit_code == 3
+
+
+def test_a_bus_that_cannot_start_after_the_others_moved_is_a_fault_not_a_signal(
+    tmp_path, monkeypatch
+):
+    """Bus b's adapter goes in its start-up, after the start instant: b moved nothing (2), a
+    had moved and was stopped for it (143). Nobody signalled the figure: the exit code is 3."""
+    result, record, err = _group(monkeypatch, tmp_path, a=HEALTHY, b=CANNOT_START)
+    assert [r["exit_code"] for r in record["buses"]] == [143, 2], err
+    assert record["exit_code"] == result.exit_code == 3
+    assert record["stopped_by"] == "b" and record["stop"]["buses_stopped"] == ["a"]

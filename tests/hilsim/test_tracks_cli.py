@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from hilsim.cli import main
-from hilsim.rig import load_rig
+from hilsim.rig import load_rig, load_rigs
 from hilsim.show.parts import build_parts
 from hilsim.show.preview import preview, targets_at
 
@@ -119,9 +119,26 @@ def test_an_endless_animation_is_previewed_for_a_stated_span(tmp_path, capsys):
     assert (tmp_path / "runs" / "t-tracks.png").is_file()
 
 
-def test_a_rig_with_several_buses_is_shown_one_bus_at_a_time(capsys):
+def test_a_rig_with_several_buses_shows_every_bus_or_the_one_asked_for(tmp_path, capsys):
+    """As ``hilsim run`` runs the whole figure: every bus's joints, bus by bus; --bus one."""
     rig = str(Path(__file__).resolve().parents[2] / "configs" / "two_buses.toml")
-    assert main(["tracks", rig, "--bus", "right", "--at", "0", "--json"]) == 0
-    assert next(iter(json.loads(capsys.readouterr().out))) == "r1"
-    assert main(["tracks", rig, "--at", "0"]) == 2
-    assert "give --bus NAME" in capsys.readouterr().err
+    assert main(["tracks", rig, "--at", "0,0.5", "--json"]) == 0
+    every = json.loads(capsys.readouterr().out)
+    assert list(every) == [f"l{i}" for i in range(1, 9)] + [f"r{i}" for i in range(1, 9)]
+    assert main(["tracks", rig, "--bus", "right", "--at", "0,0.5", "--json"]) == 0
+    right = json.loads(capsys.readouterr().out)
+    assert right == {k: v for k, v in every.items() if k.startswith("r")}
+    assert main(["tracks", rig, "--at", "0.5"]) == 0  # as text: a line per joint
+    assert len(capsys.readouterr().out.splitlines()) == 16
+
+    out = tmp_path / "two.png"
+    assert main(["tracks", rig, "--duration", "1", "--out", str(out)]) == 0, capsys.readouterr()
+    assert out.is_file()
+    from hilsim.show.preview import combine
+
+    rigs = load_rigs(rig)
+    each = [preview(build_parts(r), 1.0) for r in rigs]
+    whole = combine(each, ["left", "right"])
+    assert whole.joints == tuple(every) and whole.buses == ("left",) * 8 + ("right",) * 8
+    np.testing.assert_array_equal(whole.cmd_deg[:, 8:], each[1].cmd_deg)
+    assert whole.max_deg[8:] == each[1].max_deg
