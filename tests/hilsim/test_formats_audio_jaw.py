@@ -262,6 +262,16 @@ def test_compressed_wav_goes_to_soundfile(tmp_path, subtype):
     assert deg(track, 1.10) == pytest.approx(7.17, abs=0.2)
 
 
+def test_a_float_sample_far_beyond_full_scale_is_refused_through_soundfile_too(tmp_path):
+    """One such sample would leave the envelope's running sums too coarse for the quiet
+    samples after it (1e9: the jaw shut for the rest of the file), or not finite."""
+    soundfile = pytest.importorskip("soundfile")
+    path = tmp_path / "loud.aiff"
+    soundfile.write(str(path), np.array([0.0, 0.5, 1e9]), 8000, subtype="FLOAT", format="AIFF")
+    with pytest.raises(FormatError, match=r"loud\.aiff: sample 2 is 1e\+09, beyond ±1000"):
+        read_audio(path)
+
+
 def test_other_formats_without_soundfile_name_the_extra(tmp_path, monkeypatch):
     monkeypatch.setitem(sys.modules, "soundfile", None)  # import soundfile -> ImportError
     path = write(tmp_path, b"fLaC\0\0\0\x22" + bytes(60), "a.flac")
@@ -303,6 +313,10 @@ BAD = {
     "half frame": (_patch(_good()[:47], 40, "<I", 3) + b"\0", r"not whole frames of 2 bytes"),
     "nan sample": (gen.wav_bytes(np.array([0.0, np.nan, 0.0]), 8000, bits=32, kind="float"),
                    r"byte 48: sample 1 is not finite"),
+    "huge sample": (gen.wav_bytes(np.array([0.0, 1e200, 0.0]), 8000, bits=64, kind="float"),
+                    r"byte 52: sample 1 is 1e\+200, beyond ±1000 \(full scale ±1\)"),
+    "loud sample": (gen.wav_bytes(np.array([0.0, 0.5, -2e3]), 8000, bits=32, kind="float"),
+                    r"byte 52: sample 2 is -2000, beyond ±1000"),
 }  # fmt: skip
 
 
