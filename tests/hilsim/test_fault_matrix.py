@@ -1236,7 +1236,9 @@ def _signal_during_startup(emulated, signum, code, during) -> None:
     wire = Wire.of(emu.bus)
     assert not [tx for tx in wire.txs if tx.write() and tx.write()[1] == TORQUE_ENABLE]
     assert not [tx for tx in wire.txs if tx.goals() is not None]  # nothing energised or moved
-    if emu.out.exists():  # the loop had begun (first read): its record says so
+    # the loop begins at its first read: from then on, and not before, there is a record
+    assert emu.out.exists() == (during == STARTUP_MOMENTS["first-read"])
+    if emu.out.exists():  # and it says so
         run = emu.read()
         assert run.summary["exit_code"] == code and run.n_ticks == 0
         assert "nothing was energised" in run.summary["exit_reason"]
