@@ -249,8 +249,9 @@ def _audio(spec, path, spring, _cache, _notes) -> Track:
         return jaw_track(path, jaw, env, channel=channel, lead_s=lead_s)
     except ValueError as exc:
         if type(exc) is ValueError:  # a setting the reader refused (a FormatError names the file)
-            key = "audio_channel" if "channel" in str(exc) else "lead_ms"
-            raise SourceError(key, str(exc)) from None
+            text = str(exc)  # the channel, the lead, or the track's values (the degrees)
+            key = "audio_channel" if "channel" in text else "lead_ms" if "lead_s" in text else ""
+            raise SourceError(key or "degrees", text) from None
         raise
 
 

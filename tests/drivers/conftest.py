@@ -13,6 +13,7 @@ import pytest
 
 from drivers.clock import VirtualClock
 from drivers.dxlsim import DxlBus, VirtualServo, register_bus, unregister_bus
+from drivers.dxlsim.protocol import StreamParser
 from drivers.dynamixel.port import PortHandler
 
 IDS = (1, 2, 3, 4)
@@ -56,6 +57,33 @@ def make_bus(
         seed=seed,
         trace=trace,
     )
+
+
+@dataclass
+class Asked:
+    """One instruction the host sent (from a bus's trace) and the notes of the replies it
+    caused, ``"id=2 fault=late"``; a dropped reply leaves none."""
+
+    id: int
+    instruction: int
+    address: int | None
+    replies: list[str]
+
+
+def asked(bus: DxlBus, since: int = 0) -> list[Asked]:
+    """Every instruction on ``bus``'s wire from trace record ``since`` on (the bus made with
+    ``trace=True``): a test counts the tries of a retry here, not in the code retrying."""
+    out: list[Asked] = []
+    parser = StreamParser()
+    for rec in bus.trace[since:]:
+        if rec.direction == "tx":
+            for frame in parser.feed(rec.data):
+                p = frame.packet
+                addr = p.params[0] | p.params[1] << 8 if len(p.params) >= 2 else None
+                out.append(Asked(p.id, p.instruction, addr, []))
+        elif out:
+            out[-1].replies.append(rec.note)
+    return out
 
 
 def open_session(bus: DxlBus, name: str = "test-bus", latency_timer_ms: float = 16.0) -> Session:

@@ -12,6 +12,7 @@ from drivers.dynamixel.errors import ExitNotConfirmed, StartupMismatch
 from drivers.dynamixel.startup import Expectation, ReadMode, check_servo
 from drivers.protocol2 import control_table as ct
 from drivers.servo_bus import ExitPolicy
+from tests.drivers.conftest import asked
 from tests.drivers.test_dynamixel_bus import bus_opener
 
 BAUD = 1_000_000
@@ -225,8 +226,18 @@ def test_hold_needs_torque(open_bus):
 
 
 def test_transient_failures_are_retried(open_bus):
-    bus, _ = _moved(open_bus, faults="drop:id=2,at=0.04,count=2")
+    bus, dx = _moved(open_bus, faults="drop:id=2,at=0.04,count=2", trace=True)
+    before = len(dx.trace)
     assert bus.apply_exit_policy("relax", retries=2).ok
+    # the retries happened: servo 2's first two writes went unanswered, the third was read back
+    tries = [(a.id, a.instruction, a.address, len(a.replies)) for a in asked(dx, before)]
+    write, read = sdk.INST_WRITE, sdk.INST_READ
+    assert [t for t in tries if t[0] == 2] == [
+        (2, write, 64, 0), (2, write, 64, 0), (2, write, 64, 1), (2, read, 64, 1)
+    ]  # fmt: skip
+    assert [t for t in tries if t[0] != 2] == [
+        (i, inst, 64, 1) for i in (1, 3, 4) for inst in (write, read)
+    ]
 
 
 def test_exit_policy_after_an_interrupted_transaction(open_bus):

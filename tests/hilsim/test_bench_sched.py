@@ -10,6 +10,7 @@ import pytest
 
 from drivers.clock import VirtualClock
 from hilsim.bench import cyclictest
+from hilsim.bench import sched as sched_mod
 from hilsim.bench.sched import (
     SCHED_FIFO,
     SCHED_OTHER,
@@ -104,15 +105,32 @@ def test_scheduler_on_a_virtual_clock_is_never_late():
     assert run.sched == SCHED_OTHER and run.spin_us is None
 
 
-def test_realtime_restores_the_scheduling_class():
-    before = os.sched_getscheduler(0) if hasattr(os, "sched_getscheduler") else None
+def test_realtime_restores_the_scheduling_class(monkeypatch):
+    """The suite refuses SCHED_FIFO (tests/conftest.py), so the switch back after it never ran
+    here: a kernel that grants it is faked (and memory is not locked for real)."""
+    policy, asked = [os.SCHED_OTHER], []
+
+    def setscheduler(pid, new, param):
+        asked.append((new, param.sched_priority))
+        policy[0] = new
+
+    monkeypatch.setattr(os, "sched_setscheduler", setscheduler)
+    monkeypatch.setattr(os, "sched_getscheduler", lambda pid: policy[0])
+    monkeypatch.setattr(os, "sched_getparam", lambda pid: os.sched_param(0))
+    monkeypatch.setattr(sched_mod, "_libc", lambda: None)
     with realtime("other") as (cls, locked):
+        assert (cls, locked) == (SCHED_OTHER, False) and not asked
+    with realtime("auto", 10) as (cls, locked):
+        assert (cls, locked) == (SCHED_FIFO, False) and policy == [os.SCHED_FIFO]
+    assert policy == [os.SCHED_OTHER] and asked == [(os.SCHED_FIFO, 10), (os.SCHED_OTHER, 0)]
+
+    def refuse(*_args):
+        raise PermissionError(1, "Operation not permitted")
+
+    monkeypatch.setattr(os, "sched_setscheduler", refuse)
+    with realtime("auto", 10) as (cls, locked):  # refused: SCHED_OTHER, nothing to undo
         assert (cls, locked) == (SCHED_OTHER, False)
-    with realtime("auto", 10) as (cls, _locked):
-        assert cls in (SCHED_FIFO, SCHED_OTHER)  # FIFO only where permitted
-    if before is not None:
-        assert os.sched_getscheduler(0) == before
-    with pytest.raises(ValueError), realtime("rr"):
+    with pytest.raises(ValueError, match="sched must be auto, fifo or other"), realtime("rr"):
         pass
 
 

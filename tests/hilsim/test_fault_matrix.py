@@ -1257,7 +1257,9 @@ def _signal_during_startup(emulated, signum, code, during) -> None:
     wire = Wire.of(emu.bus)
     assert not [tx for tx in wire.txs if tx.write() and tx.write()[1] == TORQUE_ENABLE]
     assert not [tx for tx in wire.txs if tx.goals() is not None]  # nothing energised or moved
-    if emu.out.exists():  # the loop had begun (first read): its record says so
+    # the loop begins at its first read: from then on, and not before, there is a record
+    assert emu.out.exists() == (during == STARTUP_MOMENTS["first-read"])
+    if emu.out.exists():  # and it says so
         run = emu.read()
         assert run.summary["exit_code"] == code and run.n_ticks == 0
         assert "nothing was energised" in run.summary["exit_reason"]
@@ -1507,9 +1509,10 @@ def test_row_29_a_failing_exit_step_is_bounded_named_and_exit_code_4(emulated, c
     assert "servo 2" in err and "NOT confirmed" in err  # loud
     (policy,) = events(run, "exit_policy")
     assert policy["unconfirmed"] == [2] and sorted(policy["confirmed"]) == [1, 3]
-    # bounded: servo 2 asked at most 1 + exit_retries times per step, the exit quick
-    asked = [tx for tx in wire.after_last_sync_write() if tx.id == 2]
-    assert 1 <= len(asked) <= 1 + emu.rig.safety.exit_retries
+    # servo 2's first step (is its torque on?) tried 1 + exit_retries times, unanswered: the
+    # retries happened, and no more; then the exit goes on to servo 3, and is quick
+    asked = [(tx.inst, tx.addr, tx.replies) for tx in wire.after_last_sync_write() if tx.id == 2]
+    assert asked == [(INST.READ, TORQUE_ENABLE, [])] * (1 + emu.rig.safety.exit_retries)
     assert wire.txs[-1].t - t_exit < 0.1
     assert_hold_exit_on_the_wire(wire, confirmed=(1, 3))
     assert_wire_is_telemetry(emu, run, wire)

@@ -3,7 +3,6 @@ spring), every WAV form alike, channels, the band-pass, and bad files (one Forma
 
 from __future__ import annotations
 
-import contextlib
 import importlib.util
 import math
 import struct
@@ -13,11 +12,13 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from hypothesis import given, settings
+from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
 from hilsim import Spring, simulate
 from hilsim.targets.formats.audio_jaw import (
+    FLOAT_LIMIT,
+    RATE_RANGE,
     EnvelopeSettings,
     jaw_envelope,
     jaw_track,
@@ -262,6 +263,16 @@ def test_compressed_wav_goes_to_soundfile(tmp_path, subtype):
     assert deg(track, 1.10) == pytest.approx(7.17, abs=0.2)
 
 
+def test_a_float_sample_far_beyond_full_scale_is_refused_through_soundfile_too(tmp_path):
+    """One such sample would leave the envelope's running sums too coarse for the quiet
+    samples after it (1e9: the jaw shut for the rest of the file), or not finite."""
+    soundfile = pytest.importorskip("soundfile")
+    path = tmp_path / "loud.aiff"
+    soundfile.write(str(path), np.array([0.0, 0.5, 1e9]), 8000, subtype="FLOAT", format="AIFF")
+    with pytest.raises(FormatError, match=r"loud\.aiff: sample 2 is 1e\+09, beyond ±1000"):
+        read_audio(path)
+
+
 def test_other_formats_without_soundfile_name_the_extra(tmp_path, monkeypatch):
     monkeypatch.setitem(sys.modules, "soundfile", None)  # import soundfile -> ImportError
     path = write(tmp_path, b"fLaC\0\0\0\x22" + bytes(60), "a.flac")
@@ -303,6 +314,10 @@ BAD = {
     "half frame": (_patch(_good()[:47], 40, "<I", 3) + b"\0", r"not whole frames of 2 bytes"),
     "nan sample": (gen.wav_bytes(np.array([0.0, np.nan, 0.0]), 8000, bits=32, kind="float"),
                    r"byte 48: sample 1 is not finite"),
+    "huge sample": (gen.wav_bytes(np.array([0.0, 1e200, 0.0]), 8000, bits=64, kind="float"),
+                    r"byte 52: sample 1 is 1e\+200, beyond ±1000 \(full scale ±1\)"),
+    "loud sample": (gen.wav_bytes(np.array([0.0, 0.5, -2e3]), 8000, bits=32, kind="float"),
+                    r"byte 52: sample 2 is -2000, beyond ±1000"),
 }  # fmt: skip
 
 
@@ -335,17 +350,66 @@ def test_bad_settings_are_refused(kw, match):
         EnvelopeSettings(**kw)
 
 
+# A fuzz test that asserted nothing once a file was read would pass on any envelope at all:
+# each checks what every accepted file gives, and that every refusal is the module's one line.
+def _refused(exc: FormatError, path: Path) -> None:
+    text = str(exc)
+    assert text.startswith(f"{path}:") and exc.detail, text
+    assert len(text.splitlines()) == 1 and len(exc.detail) < 400, text
+
+
+def _accepted(env, path: Path) -> None:
+    """The samples finite and within the level read; the envelope on a 1 ms grid from 0 over
+    the whole file, finite, RMS and follower >= 0, the opening in 0..1 and shut at the end
+    (after 20 release time constants even the loudest sample read is below the threshold);
+    and the jaw track within its 0-20° at any time, as long as the envelope."""
+    audio = env.audio
+    assert RATE_RANGE[0] <= audio.rate_hz <= RATE_RANGE[1] and audio.channels >= 1
+    assert audio.samples.size and (np.abs(audio.samples) <= FLOAT_LIMIT).all()
+    t, step = env.times_s, ISSUE.step_ms / 1000
+    assert t[0] == 0 and np.allclose(np.diff(t), step) and t[-1] >= audio.duration - step
+    for curve in (env.rms, env.envelope, env.opening):
+        assert curve.shape == t.shape and np.isfinite(curve).all() and (curve >= 0).all()
+    assert (env.opening <= 1).all() and env.opening[-1] == 0
+    track = jaw_track(path, JAW, ISSUE)
+    assert track.duration == t[-1]
+    u, du = track.sample_array(np.linspace(-1.0, t[-1] + 1.0, 101))
+    assert np.isfinite(du).all() and (np.degrees(u) >= 0).all() and (np.degrees(u) <= 20).all()
+
+
+def _header(data: bytes) -> tuple[int, int, int] | None:
+    """(channels, rate, frames) as the plain 44-byte header says, or None if the file is not
+    laid out that way (then the RIFF walk reads it another way, or soundfile does)."""
+    tag, channels, rate, _, align, _ = struct.unpack_from("<HHIIHH", data, 20)
+    if data[:4] != b"RIFF" or data[8:16] != b"WAVEfmt " or data[36:40] != b"data":
+        return None
+    if struct.unpack_from("<I", data, 16)[0] != 16 or tag not in (1, 3):
+        return None
+    return channels, rate, struct.unpack_from("<I", data, 40)[0] // align
+
+
+_SHORT = gen.wav_bytes(gen.acceptance_signal(8000)[3900:4100], 8000)  # a loud 25 ms
+
+
 @settings(max_examples=300)
 @given(st.binary(max_size=400))
+@example(_SHORT).via("a WAV file")
+@example(gen.wav_bytes(np.array([0.0, 1e3, -1e3, 0.0]), 1000, bits=64, kind="float")).via("loud")
 def test_fuzz_random_bytes_only_format_errors(tmp_path_factory, data):
     path = tmp_path_factory.mktemp("fz") / "f.wav"
     path.write_bytes(data)
-    with contextlib.suppress(FormatError):
-        jaw_envelope(path, ISSUE)
+    try:
+        env = jaw_envelope(path, ISSUE)
+    except FormatError as exc:
+        _refused(exc, path)
+        return
+    _accepted(env, path)
 
 
 @settings(max_examples=300)
 @given(st.lists(st.tuples(st.integers(0, 47), st.integers(0, 255)), min_size=1, max_size=6))
+@example([(22, 2), (32, 4)]).via("two channels")
+@example([(40, 100)]).via("a shorter data chunk")
 def test_fuzz_mutated_headers_only_format_errors(tmp_path_factory, edits):
     data = bytearray(gen.wav_bytes(gen.acceptance_signal(8000)[:2000], 8000))
     for offset, value in edits:
@@ -354,6 +418,10 @@ def test_fuzz_mutated_headers_only_format_errors(tmp_path_factory, edits):
     path.write_bytes(bytes(data))
     try:
         env = jaw_envelope(path, ISSUE)
-    except FormatError:
+    except FormatError as exc:
+        _refused(exc, path)
         return
-    assert np.isfinite(env.opening).all() and env.times_s[-1] < 60.0
+    _accepted(env, path)
+    if (header := _header(bytes(data))) is not None:  # what the header says is what was read
+        assert (env.audio.channels, env.audio.rate_hz, env.audio.samples.size) == header
+        assert env.audio.duration == header[2] / header[1]

@@ -10,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from hypothesis import given
+from hypothesis import example, given
 from hypothesis import strategies as st
 
 from hilsim.targets.formats.blender_servo import (
@@ -237,15 +237,34 @@ def test_bad_input_is_one_format_error_naming_file_and_position(form, data, matc
 
 
 def _only_format_errors(form: str, data: bytes) -> None:
+    """A FormatError of one line naming the file, or an export whose every servo gives a
+    track: a position per frame, finite and within the map's 0-180° at any time, frames
+    ascending from 0, as long as the file's frames at its fps."""
+    path = f"f.{form}"
     try:
-        anim = parse_blender_servo(data, form, f"f.{form}", fps=30 if form == "bin" else None)
-    except FormatError:
+        anim = parse_blender_servo(data, form, path, fps=30 if form == "bin" else None)
+    except FormatError as exc:
+        text = str(exc)
+        assert text.startswith(path) and len(text.splitlines()) == 1 and len(text) < 400, text
         return
+    assert anim.form == form and anim.fps >= 1 and anim.n_frames >= 1 and anim.servo.size
+    assert (np.diff(anim.frame_of) >= 0).all() and anim.frame_of[0] >= 0
+    assert anim.frame_of[-1] < anim.n_frames
     for sid in anim.servo_ids:
-        anim.track(sid, UnitMap((0, 65535), (0, 180)), interpolation="linear").sample(0.1)
+        assert 0 <= sid <= 255
+        assert anim.positions(sid).shape == (anim.n_frames,)
+        for how in ("hold", "linear"):
+            track = anim.track(sid, UnitMap((0, 65535), (0, 180)), interpolation=how)
+            assert track.duration == pytest.approx(anim.n_frames / anim.fps)
+            u, du = track.sample_array(np.linspace(-1.0, track.duration + 1.0, 50))
+            assert np.isfinite(du).all() and (np.degrees(u) >= -1e-9).all()
+            assert (np.degrees(u) <= 180 + 1e-9).all()
 
 
 @given(st.sampled_from(["json", "bin", "h"]), st.binary(max_size=300))
+@example("json", FORMS["json"]).via("an export")
+@example("bin", FORMS["bin"]).via("an export")
+@example("h", FORMS["h"]).via("an export")
 def test_random_bytes_give_a_format_error_or_tracks(form, data):
     _only_format_errors(form, data)
 

@@ -6,20 +6,20 @@ numbers are issue 13's acceptance and the animation-ecosystem review's (R3, §2.
 
 from __future__ import annotations
 
-import contextlib
 import importlib.util
 import json
 import math
 import sys
+from itertools import pairwise
 from pathlib import Path
 
 import numpy as np
 import pytest
-from hypothesis import given, settings
+from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
 from hilsim.targets.formats.bottango import read_export
-from hilsim.targets.formats.bottango_curve import BezierSegment, BezierTrack
+from hilsim.targets.formats.bottango_curve import Y_MAX, BezierSegment, BezierTrack
 from hilsim.targets.formats.common import FormatError, UnitMap
 
 _spec = importlib.util.spec_from_file_location(
@@ -418,13 +418,88 @@ def test_json_shapes_are_read_liberally(tmp_path):
 
 
 # ------------------------------------------------------------------------------- fuzzing
+# A fuzz test that asserted nothing once a file was read would pass on any track at all: each
+# checks what every accepted export holds, and that every refusal is the module's one line.
+DEG90 = UnitMap((0, 1), (0, 90), "movement")
+
+
+def _refused(exc: FormatError, path: Path) -> None:
+    """The module's one line: ``file:where: what``, the file first, a short reason."""
+    text = str(exc)
+    assert text.startswith(str(path)) and exc.detail, text
+    assert len(text.splitlines()) == 1 and len(exc.detail) < 400, text
+
+
+def _start_deg(eff) -> float | None:
+    """An effector's registered start on the 0-90° map (where the servo may park before its
+    first curve), or None when there is no registration to place it."""
+    if eff is None:
+        return None
+    if eff.signal_min is None:  # a curved event: its start is a movement already
+        return 90.0 * eff.start
+    if eff.signal_min == eff.signal_max:
+        return None
+    return 90.0 * (eff.start - eff.signal_min) / (eff.signal_max - eff.signal_min)
+
+
+def _accepted(export, form: str) -> None:
+    """Every effector's curves, in every animation and loop: in time order from 0 ms, none
+    overlapping, values in 0..8192; and its track as :func:`_track_holds` says."""
+    assert export.form == form
+    for anim in export.animations.values():
+        for loop, table in ((False, anim.segments), (True, anim.loop_segments)):
+            for eid, segs in table.items():
+                assert segs
+                for s in segs:
+                    assert s.start_ms >= 0 and s.dur_ms >= 0 and math.isfinite(s.end_ms)
+                    assert 0 <= s.y0 <= Y_MAX and 0 <= s.y1 <= Y_MAX
+                for a, b in pairwise(segs):
+                    assert a.start_ms <= b.start_ms and a.end_ms <= b.start_ms
+                _track_holds(export, anim.index, eid, loop)
+
+
+def _track_holds(export, index: int, eid: str, loop: bool) -> None:
+    """One effector's track, mapped the rig's two ways onto 0-90° (movement, and the
+    registered signal range when there is one): finite at any time, within 0-90° (or the
+    registered start, where the servo may sit before the first curve), as long as its curves."""
+    anim = export.animation(index)
+    segs = (anim.loop_segments if loop else anim.segments)[eid]
+    eff = export.effectors.get(eid)
+    maps = [{"movement": DEG90}]
+    if eff is not None and eff.signal_min is not None and eff.signal_min != eff.signal_max:
+        maps.append({"signal": UnitMap((eff.signal_min, eff.signal_max), (0, 90), eff.unit)})
+    start = _start_deg(eff) or 0.0
+    lo, hi = min(0.0, start) - 1e-9, max(90.0, start) + 1e-9
+    end_s = segs[-1].end_ms / 1000
+    times = {-1.0, 0.0, end_s, end_s + 1.0}
+    for s in segs:
+        times |= {s.start_ms / 1000, (s.start_ms + s.dur_ms / 2) / 1000, s.end_ms / 1000}
+    for kw in maps:
+        track = export.track(index, eid, loop=loop, **kw)
+        assert track.duration == end_s
+        for t in sorted(times):
+            u, du = track.sample(t)
+            assert math.isfinite(u) and math.isfinite(du), (eid, t)
+            assert lo <= math.degrees(u) <= hi, (eid, t, math.degrees(u))
+
+
 @pytest.fixture(scope="module")
 def fuzz_dir(tmp_path_factory):
     return tmp_path_factory.mktemp("fuzz")
 
 
+_GOOD = {  # the shipped sample in each form: the accepted path runs on every test run
+    "code": samples.code_text(samples.SETUP, samples.ANIMS).encode(),
+    "json": json.dumps([*samples.SETUP, *samples.ANIMS[0].data]).encode(),
+    "sd": "".join(c + "\n" for c in samples.ANIMS[0].data).encode(),
+}
+
+
 @settings(max_examples=150)
 @given(st.binary(max_size=300), st.sampled_from(["code", "json", "sd"]))
+@example(_GOOD["code"], "code").via("the shipped sample")
+@example(_GOOD["json"], "json").via("the shipped sample")
+@example(_GOOD["sd"], "sd").via("the shipped sample")
 def test_random_bytes_give_only_format_errors(fuzz_dir, data, form):
     p = fuzz_dir / f"f.{'json' if form == 'json' else 'cpp'}"
     p.write_bytes(data)
@@ -432,8 +507,12 @@ def test_random_bytes_give_only_format_errors(fuzz_dir, data, form):
         (fuzz_dir / "bytes" / "anims" / "0").mkdir(parents=True, exist_ok=True)
         (fuzz_dir / "bytes" / "anims" / "0" / "data.txt").write_bytes(data)
         p = fuzz_dir / "bytes"
-    with contextlib.suppress(FormatError):
-        read_export(p, form)
+    try:
+        export = read_export(p, form)
+    except FormatError as exc:
+        _refused(exc, p)
+        return
+    _accepted(export, form)
 
 
 _ATOMS = ["sC", "sCI", "rSVPin", "rSVI2C", "rMTR", "sSY", "sR", "upE", "xE", "xUC", "tSYN",
@@ -443,6 +522,8 @@ _ATOMS = ["sC", "sCI", "rSVPin", "rSVI2C", "rMTR", "sSY", "sR", "upE", "xE", "xU
 
 @settings(max_examples=200)
 @given(st.lists(st.sampled_from(_ATOMS), max_size=60), st.sampled_from(["code", "json", "sd"]))
+@example(["sCI", ",", "0", ",", "8192", "\n", "sC", ",", "0", ",", "0", ",", "1", ",", "8192",
+          ",", "0", ",", "0", ",", "0", ",", "0", ",", "0"], "json").via("a curve")  # fmt: skip
 def test_random_command_text_gives_only_format_errors(fuzz_dir, atoms, form):
     text = "".join(atoms)
     if form == "sd":
@@ -458,18 +539,15 @@ def test_random_command_text_gives_only_format_errors(fuzz_dir, atoms, form):
         p.write_text(f'const char ANIM_0_DATA0[] = "{text}";\n{text}')
     try:
         export = read_export(p, form)
-    except FormatError:
+    except FormatError as exc:
+        _refused(exc, p)
         return
-    for anim in export.animations.values():
-        for eid in anim.segments:
-            track = export.track(anim.index, eid, movement=UnitMap((0, 1), (0, 90)))
-            for t in (0.0, 0.5, 10.0):
-                assert all(math.isfinite(v) for v in track.sample(t))
+    _accepted(export, form)
 
 
 _FIELD = st.one_of(
     st.integers(-10, 9000).map(str), st.integers(-(10**12), 10**12).map(str),
-    st.sampled_from(["", "x", "1.5", " 7", "0x10", "1e3", "nan"]),
+    st.sampled_from(["", "x", "1.5", " 7", "0x10", "1e3", "nan", "e" * 300]),
 )  # fmt: skip
 _NAMES = ["sC", "sCI", "rSVPin", "rSVI2C", "rMTR", "rECC", "rSTDir", "upE", "xUE", "xC", "tSYN"]
 _ANY_COMMAND = st.tuples(
@@ -491,16 +569,21 @@ def _chain(curves: list[tuple[int, ...]]) -> list[str]:
     return out
 
 
+#: (a chain of curves on effector 0, up to two other commands, where they go in the chain)
 _COMMANDS = st.tuples(
     st.lists(_CURVE, min_size=1, max_size=6).map(_chain),
     st.lists(_ANY_COMMAND, max_size=2),
     st.integers(0, 6),
-).map(lambda c: c[0][: c[2]] + c[1] + c[0][c[2] :])
+)
 
 
 @settings(max_examples=150)
 @given(_COMMANDS, st.sampled_from(["code", "json", "sd"]))
-def test_random_commands_give_tracks_or_format_errors(fuzz_dir, commands, form):
+@example(([SEG1], [f"upE,{'e' * 300},1,2,3"], 1), "json").via("a long unknown identifier")
+@example(([SEG1, SEG2], ["sCI, 7,100", "sCI,0,5"], 1), "sd").via("instant moves")
+def test_random_commands_give_tracks_or_format_errors(fuzz_dir, parts, form):
+    chain, others, at = parts
+    commands = chain[:at] + others + chain[at:]
     sub = fuzz_dir / f"cmd-{form}"
     sub.mkdir(exist_ok=True)
     kinds = {"code": "GeneratedCodeAnimations.cpp", "sd": "card", "json": "e.json"}
@@ -509,13 +592,19 @@ def test_random_commands_give_tracks_or_format_errors(fuzz_dir, commands, form):
     path = writer[form](sub / kinds[form], setup, [samples.Anim("", commands)])
     try:
         export = read_export(path, form)
-    except FormatError:
+    except FormatError as exc:
+        _refused(exc, path)
         return
-    for eid in export.animation(0).segments:
-        track = export.track(0, eid, movement=UnitMap((0, 1), (0, 90)))
-        for t in np.linspace(-1.0, (track.duration or 0) + 1.0, 23):
-            u, du = track.sample(float(t))
-            assert math.isfinite(u) and math.isfinite(du) and 0 <= math.degrees(u) <= 90 + 1e-9
+    _accepted(export, form)
+    # the tracks are the input's: effector 0's chain, and an effector for each other curve
+    curves = [c.split(",") for c in others if c.split(",")[0] in ("sC", "sCI")]
+    segments = export.animation(0).segments
+    assert set(segments) == {"0"} | {f[1].strip() for f in curves}
+    assert len(segments["0"]) == len(chain) + sum(f[1].strip() == "0" for f in curves)
+    if not curves and not any(c.startswith("tSYN") for c in others):
+        want = [BezierSegment.from_command(*map(int, c.split(",")[2:])) for c in chain]
+        assert list(segments["0"]) == want
+        assert export.track(0, "0", movement=DEG90).duration == want[-1].end_ms / 1000
 
 
 def test_shipped_samples_are_the_generators(tmp_path):

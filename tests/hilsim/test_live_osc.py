@@ -10,7 +10,7 @@ import struct
 import threading
 
 import pytest
-from hypothesis import HealthCheck, given, settings
+from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
 from hilsim.live.netguard import GuardConfig, NetGuardError
@@ -289,12 +289,20 @@ _VALID = [
 
 @settings(max_examples=1500, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(st.binary(max_size=200))
+@example(_VALID[0]).via("a message")
+@example(_VALID[1]).via("a bundle")
+@example(_VALID[2]).via("every type")
 def test_fuzz_random_bytes_decode_or_decode_error(data):
     try:
         msgs = decode_packet(data)
     except OscDecodeError:
         return
-    assert all(isinstance(m, OscMessage) for m in msgs)
+    # a message is one, a bundle its elements; each address '/' and printable, as in the packet
+    assert msgs and (len(msgs) == 1 or data.startswith(b"#bundle\0"))
+    for m in msgs:
+        assert isinstance(m, OscMessage) and isinstance(m.args, tuple)
+        assert m.address.startswith("/") and m.address.isprintable() and " " not in m.address
+        assert _pad(m.address.encode("ascii")) in data
 
 
 @settings(max_examples=2000, deadline=None)

@@ -224,12 +224,18 @@ def test_trigger_grammar(text, kind, key, value) -> None:
         "daily:24:00",
         "",
         "key:a b",
+        "every:soon",
+        "at:-1",
         None,
     ],
 )
 def test_bad_triggers(text) -> None:
-    with pytest.raises(ValueError):
+    with pytest.raises(ValueError) as info:
         parse_trigger(text)
+    # the trigger's own line, naming it; not a ValueError from a conversion inside
+    said = str(info.value)
+    assert "\n" not in said
+    assert said.startswith(f"{text!r}: ") if text is not None else said.endswith("got None")
 
 
 def test_normalise_key_never_raises() -> None:

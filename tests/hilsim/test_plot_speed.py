@@ -92,7 +92,9 @@ def test_ctrl_c_in_the_parent_leaves_no_child(
     pid_file = tmp_path / "child.pid"
 
     def slow(*_a: object, **_k: object) -> Path:
-        pid_file.write_text(str(os.getpid()))
+        part = pid_file.with_suffix(".part")  # renamed whole: never read empty
+        part.write_text(str(os.getpid()))
+        part.replace(pid_file)
         time.sleep(30)
         raise AssertionError("not killed")
 

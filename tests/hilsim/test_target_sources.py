@@ -174,6 +174,8 @@ def test_lipsync_forms_give_the_same_jaw(file):
          "lead_ms: must be a number of ms"),
         ({"type": "audio", "file": "audio_jaw/line.wav", "degrees": [0, 20], "lead_ms": "auto"},
          "lead_ms: \"auto\" needs"),
+        ({"type": "audio", "file": "audio_jaw/line.wav", "degrees": [0, 1e5]},
+         "degrees: key [0-9]+: value [0-9.]+° is beyond ±92160°"),
         ({"type": "lipsync", "file": "lipsync/hi.dat", "degrees": [0, 20], "shapes": {"A": 0}},
          "fps: a Moho .dat file holds no frame rate"),
         ({"type": "lipsync", "file": "lipsync/hi.tsv", "degrees": [0, 20], "shapes": {"Q": 1}},

@@ -87,7 +87,7 @@ def test_preview_warns_of_the_limits_and_writes_the_plot(tmp_path, capsys):
     out = tmp_path / "p.png"
     assert main(["tracks", str(rig_file(tmp_path)), "--out", str(out)]) == 0
     err = capsys.readouterr().err
-    assert "jaw: target 20.0" in err or "beyond max_deg 20" in err
+    assert "warning: jaw: target 20.4° at t = 0.34 s is beyond max_deg 20°" in err
     assert "exceeds max_speed_deg_s 50" in err
     assert "jaw: the safety filter would change the command on" in err
     assert out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"

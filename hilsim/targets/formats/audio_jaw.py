@@ -30,7 +30,7 @@ WAVE_FORMAT_EXTENSIBLE of those are read here with numpy, from a RIFF chunk walk
 byte of every fault (the stdlib ``wave`` names none, returns a truncated file's frames without a
 word, and reads no float WAV). Anything else (FLAC, Ogg, AIFF, RF64, compressed WAV) is read by
 the optional ``soundfile`` library (``pip install 'hilsim[audio]'``); without it such a file is
-one FormatError naming the extra.
+one FormatError naming the extra. A float sample beyond ±:data:`FLOAT_LIMIT` is refused.
 
 Phase 2 (the rig) is one call::
 
@@ -58,6 +58,9 @@ from hilsim.targets.formats.common import FormatError, SampledTrack, UnitMap, re
 CHANNELS = ("left", "right", "mix")
 #: sample rates read (Hz): below, a 1 ms grid is coarser than the audio; above, no audio file
 RATE_RANGE = (1000, 768_000)
+#: the largest float sample read (full scale is ±1): beyond, the envelope's running sums of
+#: squares lose the quieter samples after it (or overflow), so such a file is refused
+FLOAT_LIMIT = 1000.0
 #: WAVE format tags: PCM, IEEE float, extensible (the sub-format's tag is in its GUID)
 _PCM, _FLOAT, _EXTENSIBLE = 0x0001, 0x0003, 0xFFFE
 AUDIO_EXTRA = "pip install 'hilsim[audio]'"
@@ -246,10 +249,10 @@ def _decode(
         )
     if tag == _FLOAT:
         x = np.frombuffer(raw, dtype="<f4" if bits == 32 else "<f8").astype(np.float64)
-        bad = np.flatnonzero(~np.isfinite(x))
+        bad = np.flatnonzero(~(np.abs(x) <= FLOAT_LIMIT))  # NaN too
         if bad.size:
             i = int(bad[0])
-            raise FormatError(path, f"byte {at + i * bits // 8}", f"sample {i} is not finite")
+            raise FormatError(path, f"byte {at + i * bits // 8}", f"sample {i} {_loud(x[i])}")
         encoding = f"float {bits}-bit"
     elif bits == 8:
         x = (np.frombuffer(raw, dtype=np.uint8).astype(np.float64) - 128.0) / 128.0
@@ -298,9 +301,15 @@ def _read_other(path: Path, data: bytes, at: str, what: str) -> tuple[np.ndarray
         raise FormatError(
             path, "", f"sample rate {rate} Hz; allowed {RATE_RANGE[0]} .. {RATE_RANGE[1]} Hz"
         )
-    if not np.isfinite(frames).all():
-        raise FormatError(path, "", "a sample is not finite")
+    if (bad := np.flatnonzero(~(np.abs(frames) <= FLOAT_LIMIT))).size:
+        raise FormatError(path, "", f"sample {int(bad[0])} {_loud(frames.flat[bad[0]])}")
     return frames, int(rate), f"{info.format} {info.subtype}"
+
+
+def _loud(x: float) -> str:
+    if not math.isfinite(x):
+        return "is not finite"
+    return f"is {x:g}, beyond ±{FLOAT_LIMIT:g} (full scale ±1)"
 
 
 def _pick(path: Path, frames: np.ndarray, channel: str | int) -> np.ndarray:

@@ -376,7 +376,7 @@ def _housekeeping(st: _State, line: Line, name: str, f: list[str], pre: str) -> 
         lo, hi, speed = _ints(line, f[1:], "min max maxPerSec")
         eff = st.effectors.get(ids[0]) if ids else None
         if eff is None or eff.signal_min is None:
-            raise line.error(f"upE for {f[0].strip()!r}, which has no signal range registered")
+            raise line.error(f"upE for {f[0].strip()[:20]!r}, which has no signal range registered")
         st.effectors[eff.identifier] = Effector(
             eff.identifier,
             eff.kind,
