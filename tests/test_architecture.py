@@ -236,3 +236,16 @@ def test_no_comment_points_outside_the_repository() -> None:
         if pattern.search(line)
     ]
     assert hits == []
+
+
+def test_no_issue_numbers_in_the_code() -> None:
+    """An issue number means nothing to a reader of the package (the tracker is not in it):
+    say what the code does and why; the history goes in the commit message."""
+    pattern = re.compile(r"\bissue\s*#?\d+", re.I)
+    hits = [
+        f"{p.relative_to(REPO)}:{n}: {line.strip()}"
+        for p in _modules().values()
+        for n, line in enumerate(p.read_text(encoding="utf-8").splitlines(), 1)
+        if pattern.search(line)
+    ]
+    assert hits == []

@@ -338,7 +338,7 @@ def measure_demo(path: str, *, runs: int = 2, window_s: float = 6.0) -> DemoCpu:
 
 
 # ----------------------------------------------------------------------- the clock
-#: the spin window and timer slack before issue 12 (µs, ns): the comparison's "before"
+#: the spin window and timer slack of the first release (µs, ns): the comparison's "before"
 FORMER_SPIN_US = 200.0
 FORMER_SLACK_NS = 50_000
 #: a shorter window a rig may choose (``loop.spin_us = 50``): the comparison's third line

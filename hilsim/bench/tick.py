@@ -8,7 +8,8 @@ timed:
 
 * **bare SDK**: the cheapest cycle dynamixel-sdk offers (``syncWriteTxOnly``,
   ``syncReadTx`` fast, ``rxPacket``, positions out of the reply) on its own ``PortHandler``:
-  issue 12's baseline; its group objects cost 20-50 µs more and would flatter the ratio;
+  the first performance round's baseline; its group objects cost 20-50 µs more and would
+  flatter the ratio;
 * **hilsim tick**: :meth:`hilsim.show.loop.HilLoop._tick` itself (springs, targets, safety
   filter, joint map, the driver's Sync Write and Fast Sync Read, the checks, the telemetry
   row) and the row's amendment, on a rig of ``n`` joints (RK4 springs, sine targets) and
@@ -50,7 +51,7 @@ from hilsim.show.parts import build_parts
 from hilsim.telemetry import TelemetryWriter
 
 SERVO_COUNTS = (4, 8, 16)  # servo counts the bench compares
-TARGET_RATIO = {4: 1.3, 16: 1.1}  # issue 12: hilsim's tick at most this × the bare cycle
+TARGET_RATIO = {4: 1.3, 16: 1.1}  # the goal: hilsim's tick at most this × the bare cycle
 #: stages of the breakdown, in the tick's order
 STAGES = ("safety", "map", "driver", "targets", "telemetry", "springs")
 _FAST_SYNC_READ = 0x8A

@@ -1,5 +1,5 @@
 """A Bottango live driver: hilsim answers Bottango's driver protocol, so a figure animated in
-Bottango moves on Dynamixels through hilsim's springs and safety filter (issue 14 item 4).
+Bottango moves on Dynamixels through hilsim's springs and safety filter.
 
 How to use it (``[inputs.bottango]`` in the show file, parsed by :func:`from_table`)::
 

@@ -1,4 +1,4 @@
-"""Who may talk to a network input, and how much: issue 14 item 5, "nobody else drives the figure".
+"""Who may talk to a network input, and how much: nobody else drives the figure.
 
 A network input (OSC today, the Bottango TCP port later) passes every datagram through one
 :class:`NetGuard` before it decodes a byte of it, cheapest check first:

@@ -1,4 +1,4 @@
-"""Named clips played on a show's timeline (issue 13): one joint's target as the clips that
+"""Named clips played on a show's timeline: one joint's target as the clips that
 drive it, one after another.
 
 A *clip* is a set of tracks, one per joint it drives, each with its own time from 0 (a

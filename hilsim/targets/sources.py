@@ -1,4 +1,4 @@
-"""Rig target specs that name another tool's animation file, turned into tracks (issue 13).
+"""Rig target specs that name another tool's animation file, turned into tracks.
 
 :func:`hilsim.targets.spec.track_from_spec` hands a spec of one of these types here::
 

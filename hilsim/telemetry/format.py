@@ -238,7 +238,7 @@ class TelemetryFormat(StrEnum):
     PARQUET = "parquet"  # fixed-point integer columns, delta-encoded, zstd (needs pyarrow)
 
 
-#: auto keeps CSV while a 10-minute show's CSV stays under this many bytes (issue 12's goal)
+#: auto keeps CSV while a 10-minute show's CSV stays under this many bytes (the performance goal)
 AUTO_CSV_BYTES_PER_10_MIN = 100e6
 
 

@@ -1,4 +1,4 @@
-"""Readers of other tools' animation files (issue 13), each to tracks in joint radians.
+"""Readers of other tools' animation files, each to tracks in joint radians.
 
 ======================  ===============================================================
 ``common``              :class:`FormatError`, :class:`UnitMap`, :class:`SampledTrack`

@@ -1,4 +1,4 @@
-"""Audio -> jaw: a sound file through an envelope follower, as a jaw track (issue 13).
+"""Audio -> jaw: a sound file through an envelope follower, as a jaw track.
 
 The talking skull's curve: the louder the line, the wider the jaw. Offline, from the file::
 

@@ -1,4 +1,4 @@
-"""Lip-sync files -> mouth-shape cues -> step-hold joint tracks (issue 13).
+"""Lip-sync files -> mouth-shape cues -> step-hold joint tracks.
 
 Readers (each returns :class:`Cues`: (time, shape) in order, with the file position of each):
 
