@@ -1,62 +1,16 @@
-"""The order a Sync Read asks its servos in, and which blocks of a Fast reply may be late.
+"""The order a Sync Read asks its servos in, and which replies may be a late one.
 
-In a Sync Read chain a silent servo silences those after it (each waits for the one before),
-so after a failed read the first servo missing goes to the back of the order: a dead one
-costs the others a tick or two, not every tick.
+* After a failed read, the first servo missing goes to the back of the order: a silent servo
+  silences those after it in a chain, so a dead one costs the others a tick or two.
+* A late Fast Sync Read block is never a later read's reading: a servo missing at a later
+  place is *headerless-suspect* and a servo missing first *headed-suspect* for
+  :data:`LATE_BLOCK_S` (at most :data:`MAX_SUSPECT_S`), and their blocks are not taken
+  where a late one could stand.
+* A late plain status packet is told by its length: after a plain read, the servos it did
+  not read are busy at that length for :data:`PLAIN_LATE_S`, and the next reads ask another
+  of :data:`PLAIN_LENGTHS`.
 
-A reply later than the wait after a failed read still comes. A Fast Sync Read reply is one
-packet: the first servo sends the header and its block, each other servo only its block
-(``ERR ID data CRC``), its CRC running on over what it heard. So a late reply is one of two
-things, and either can be taken for a later read's when that read misses its own reply:
-
-* a servo S missing at a later place sends its block (and the blocks after it follow)
-  without a header: it can fill S's place in a later reply, the ID right and the running
-  CRC passing 1 time in 256 (it keeps only 8 bits across each block's CRC: its two bytes
-  fold the state to their XOR). Until :data:`LATE_BLOCK_S` after the adapter could have
-  shown what the read gave up on, S is *headerless-suspect*: asked first, where its block
-  comes with the header; anywhere else its block, and those after it, are not readings
-  (headerless suspects are asked last, so they cost only themselves);
-* a servo S missing first sends the header and its block, whole, and the rest of the
-  chain after it: a later read that starts with S takes it whole, as far as its order
-  agrees. S is *headed-suspect* as long: not asked first (anywhere else its late reply's
-  header cannot pass for a block), and a read that still starts with it (every servo is
-  headed-suspect, or there is only one) is not a reading at all.
-
-A suspect's reading taken back may itself have been a late reply, its own reply late in
-turn: its suspicion is renewed, but not past :data:`MAX_SUSPECT_S` after it last went
-missing, so that suspicion ends (two suspects would otherwise keep each other suspect).
-The cost: a servo that fails now and then makes the others miss some reads too (asked
-first, it takes the chain down when it fails there), a dead one until its budget ends the
-show; a servo alone on its bus is not read for a read or two after each miss.
-
-A plain Sync Read's replies are status packets, each whole with its own CRC: the missing
-servo's late packet, and those of every servo after it (each waits for the one before),
-would pass for a later read's wherever that asks them. What tells them apart is their
-length: a status packet carries the number of bytes its request asked for. So after a plain
-read, each servo it did not read (silent, cut off, or a corrupt packet in its place, which
-may have been something else) may still send a packet of that length until
-:data:`PLAIN_LATE_S` has passed; the next reads ask the first length of :data:`PLAIN_LENGTHS`
-no such packet may come of (Present Position and the bytes after it, which are not used),
-and a packet of another length than its read's is passed
-over, never a reading; so is a packet with an error number (it carries no data, whatever the
-read asked) from a servo whose late packet may come. If every length has one, the read asks
-the length with the fewest, and those servos' readings are taken back (a servo whose
-replies come corrupt every time costs only itself so). A show's own reads of one servo that
-get no reply (a watchdog recovery's read-back of 4 bytes) count the same way
-(:meth:`ReadOrder.plain_unread`). The missing servo goes last, since a silent servo silences
-those after it. The cost: the reads for 40 ms after a failed one carry up to 11 bytes more
-a servo, and a longer reply may meet a late packet on the wire where a short one would have
-ended before it (a review measured, with one servo's replies 30 % late: 4,088 true readings
-kept where asking 4 bytes every time kept 4,836 at 6 ms late; more than before at 4, 5, 7,
-8.5 and 10 ms). A length is asked again as soon as its window has passed; asking the one
-busy longest ago instead kept out later packets too, but made more reads fail under many
-late replies (two of row 8's twelve plain runs stopped on their budget or exit policy).
-
-What is left: a reply later than that (``tests/hilsim/test_fault_matrix.py`` row 8: 15 % of
-replies up to 9.5 ms late at 250 Hz, never a reading from another read, Fast or plain). Late
-replies add up along a plain chain (three servos each ~15 ms late bring a packet ~45 ms
-after its read). With Fast Sync Read, a servo after the first one missing whose own reply
-is late on top (its block comes alone, without a header, and it is not suspect).
+The reasoning, the costs and what is left: ``docs/read_order.md``.
 """
 
 from __future__ import annotations
