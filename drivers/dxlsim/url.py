@@ -58,6 +58,7 @@ Named buses (:func:`register_bus`) are kept by their name until :func:`unregiste
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 import threading
 import urllib.parse
@@ -369,17 +370,17 @@ def acquire_bus(
     side is set to ``host_baud``, the servos keep theirs. Raises ValueError."""
     parsed = DxlsimUrl.parse(url)
     if parsed.name:
-        bus = parsed.build_bus(host_baud=host_baud)
-        bus.baud = int(host_baud)
-        return bus, ""
+        named = parsed.build_bus(host_baud=host_baud)
+        named.baud = int(host_baud)
+        return named, ""
     key = str(parsed)
     with _lock:
         entry = _live.get(key)
         bus = entry.ref() if entry is not None else None
-    if bus is None:
+    if entry is None or bus is None:  # (no entry: no bus)
         bus = keep if keep is not None else parsed.build_bus(host_baud=host_baud)
         with _lock:
-            entry = _live[key] = _Live(weakref.ref(bus, lambda ref, key=key: _forget(key, ref)))
+            entry = _live[key] = _Live(weakref.ref(bus, functools.partial(_forget, key)))
     with _lock:
         entry.users += 1
     bus.baud = int(host_baud)
