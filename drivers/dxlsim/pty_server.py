@@ -102,7 +102,7 @@ def piece_due(bus: DxlBus) -> tuple[float | None, int]:
     end = min(bus.pending_rx, USB_CHUNK)
     while n < end:
         t = visible_at(n + 1)
-        if t - last > gap:
+        if t is None or t - last > gap:  # (not None: n + 1 <= pending_rx)
             break
         last, n = t, n + 1
     return last, n
@@ -169,5 +169,5 @@ class PtyServer:
     def __enter__(self) -> PtyServer:
         return self
 
-    def __exit__(self, *exc) -> None:
+    def __exit__(self, *exc: object) -> None:
         self.close()
