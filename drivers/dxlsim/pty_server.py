@@ -40,6 +40,7 @@ import sys
 import termios
 import threading
 import tty
+from typing import Self
 
 from drivers.clock import precise_timers
 from drivers.dxlsim.bus import DxlBus
@@ -166,7 +167,7 @@ class PtyServer:
             if n and n >= piece_due(bus)[1]:  # the piece is readable to its last byte
                 os.write(master, bus.read(n))
 
-    def __enter__(self) -> PtyServer:
+    def __enter__(self) -> Self:
         return self
 
     def __exit__(self, *exc: object) -> None:
