@@ -64,7 +64,7 @@ import threading
 import urllib.parse
 import weakref
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, TypedDict, Unpack
 
 from drivers.clock import DEFAULT_SPIN_S, MonotonicClock, VirtualClock
 from drivers.dxlsim.bus import DxlBus
@@ -109,6 +109,24 @@ def register_bus(name: str, bus: DxlBus) -> str:
 def unregister_bus(name: str) -> None:
     with _lock:
         _registry.pop(name, None)
+
+
+class UrlChanges(TypedDict, total=False):
+    """The keys :meth:`DxlsimUrl.replace` changes: its fields but ``keys`` and ``source``."""
+
+    name: str
+    ids: tuple[int, ...]
+    model: str
+    baud: int | None
+    rdt_us: float
+    turnaround_us: float
+    latency_ms: float
+    clock: str
+    spin_us: float
+    faults: str
+    seed: int
+    firmware: int | None
+    trace: bool
 
 
 @dataclass(frozen=True)
@@ -243,7 +261,7 @@ class DxlsimUrl:
             items.append((key, _text(value)))
         return "dxlsim://?" + urllib.parse.urlencode(items, safe=_SAFE) if items else "dxlsim://"
 
-    def replace(self, **changes: Any) -> DxlsimUrl:
+    def replace(self, **changes: Unpack[UrlChanges]) -> DxlsimUrl:
         """A copy with ``changes``; the keys changed are printed even at their defaults."""
         keys = self.keys + tuple(k for k in changes if k in _KEYS and k not in self.keys)
         return dataclasses.replace(self, **changes, keys=keys, source=None)
