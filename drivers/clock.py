@@ -36,13 +36,21 @@ PR_GET_TIMERSLACK = 30
 PRECISE_SLACK_NS = 1
 
 
-_libc_cache: list = []
+class _Prctl(Protocol):
+    """``prctl(option, arg2, arg3, arg4, arg5)`` through ctypes: returns the C ``int``."""
+
+    def __call__(
+        self, option: int, arg2: int | ctypes.c_ulong, arg3: int, arg4: int, arg5: int, /
+    ) -> int: ...
 
 
-def _libc():
+_libc_cache: list[_Prctl | None] = []
+
+
+def _libc() -> _Prctl | None:
     """The C library's ``prctl`` (the process's own symbols: no library search), or None."""
     if not _libc_cache:
-        lib = None
+        lib: _Prctl | None = None
         if sys.platform.startswith("linux"):
             try:
                 lib = ctypes.CDLL(None, use_errno=True).prctl
@@ -84,7 +92,7 @@ def precise_timers(ns: int = PRECISE_SLACK_NS) -> Iterator[bool]:
     try:
         yield ok
     finally:
-        if ok:
+        if ok and old is not None:  # ok implies the second; the checker cannot tell
             set_timer_slack_ns(old)
 
 
@@ -92,6 +100,9 @@ def precise_timers(ns: int = PRECISE_SLACK_NS) -> Iterator[bool]:
 class Clock(Protocol):
     #: True when waiting moves time instead of letting it pass (nothing ever sleeps).
     virtual: bool
+    #: free time offered by every wait that names none (see :class:`MonotonicClock`); a
+    #: virtual clock never sleeps, so it has none to offer and ignores it
+    idle: threading.Event | None
 
     def now(self) -> float:
         """Current time in seconds."""
@@ -176,6 +187,8 @@ class VirtualClock:
     """A clock that only moves when told to: ``wait_until`` and ``advance`` jump."""
 
     virtual = True
+    #: never used: nothing sleeps on a virtual clock (here to be a :class:`Clock`)
+    idle: threading.Event | None = None
 
     def __init__(self, start: float = 0.0) -> None:
         self._t = float(start)

@@ -19,14 +19,24 @@ from __future__ import annotations
 import struct
 from collections.abc import Callable
 from functools import partial
+from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
+
+if TYPE_CHECKING:
+    from numpy.typing import NDArray
 
 #: the struct code of each dtype :class:`Packed` views
 _CODES = {"float64": "d", "uint8": "B", "int8": "b"}
 
 
-def packer(arr: np.ndarray) -> Callable[..., None] | None:
+class Put(Protocol):
+    """``put(*values)``: one value per element, in order."""
+
+    def __call__(self, *values: float) -> None: ...
+
+
+def packer(arr: NDArray[np.generic]) -> Put | None:
     """``put(*values)`` writing ``arr.size`` values into ``arr`` (1-D, C-contiguous, writable,
     native float64, uint8 or int8), or None for any other array."""
     if not (
@@ -40,7 +50,7 @@ def packer(arr: np.ndarray) -> Callable[..., None] | None:
     code = _CODES.get(arr.dtype.name)
     if code is None:
         return None
-    return partial(struct.Struct(f"{arr.size}{code}").pack_into, memoryview(arr), 0)
+    return partial(struct.Struct(f"{arr.size}{code}").pack_into, arr.data, 0)  # arr.data: a view
 
 
 class Packed:
@@ -49,22 +59,26 @@ class Packed:
 
     __slots__ = ("arr", "n", "put", "tolist")
 
-    def __init__(self, arr: np.ndarray | None = None, n: int | None = None) -> None:
+    def __init__(self, arr: NDArray[np.generic] | None = None, n: int | None = None) -> None:
         self.arr, self.n = arr, n
         pack = None if arr is None or (n is not None and arr.size != n) else packer(arr)
-        if pack is None:
-            self.tolist: Callable[[], list] = getattr(arr, "tolist", list)
-            self.put: Callable[..., None] = self._assign
+        if pack is None or arr is None:  # (a packer implies an array)
+            self.tolist: Callable[[], list[float]] = getattr(arr, "tolist", list)
+            self.put: Put = self._assign
         else:
-            self.tolist = memoryview(arr).tolist
+            # typeshed types memoryview.tolist() as list[int] whatever the format ("d": floats)
+            self.tolist = arr.data.tolist  # type: ignore[assignment]
             self.put = pack
 
     def _assign(self, *values: float) -> None:
-        self.arr[:] = values  # type: ignore[index]
+        arr = self.arr
+        if arr is None:
+            raise TypeError("Packed(): no array to write into")
+        arr[:] = values
 
-    def of(self, arr: np.ndarray, n: int | None = None) -> Packed:
+    def of(self, arr: NDArray[np.generic], n: int | None = None) -> Packed:
         """This view if it is of ``arr``, else a new one (the caller keeps it)."""
         return self if self.arr is arr else Packed(arr, n)
 
-    def __reduce__(self) -> tuple:
+    def __reduce__(self) -> tuple[type[Packed], tuple[NDArray[np.generic] | None, int | None]]:
         return (Packed, (self.arr, self.n))  # a copy views its copied array (not a memoryview)

@@ -26,6 +26,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 from enum import IntEnum, StrEnum
 from types import TracebackType
+from typing import Self
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -95,7 +96,8 @@ class PresentReading:
     @property
     def ok(self) -> NDArray[np.bool_]:
         """(n,) bool: the servo gave a valid reading with no error and no alert."""
-        return self.status == ReadStatus.OK
+        ok: NDArray[np.bool_] = self.status == ReadStatus.OK  # (numpy types == as Any)
+        return ok
 
     @property
     def all_ok(self) -> bool:
@@ -414,7 +416,7 @@ class ServoBus(ABC):
         self._closed = True
         self._close()
 
-    def __enter__(self) -> ServoBus:
+    def __enter__(self) -> Self:
         return self
 
     def __exit__(

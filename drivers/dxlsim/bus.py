@@ -44,7 +44,7 @@ from operator import itemgetter
 from types import SimpleNamespace
 
 from drivers.clock import Clock, VirtualClock
-from drivers.dxlsim.faults import FaultKind, FaultPlan, parse_fault_plan
+from drivers.dxlsim.faults import Fault, FaultKind, FaultPlan, parse_fault_plan
 from drivers.dxlsim.protocol import (
     BROADCAST_ID,
     HEADER,
@@ -71,6 +71,8 @@ RESET_ALL = b"\xff"
 Inst = SimpleNamespace(**{m.name: int(m) for m in Instruction})
 #: What a servo executes when addressed by its Secondary ID (never answered).
 _BY_SECONDARY_ID = frozenset((Inst.WRITE, Inst.REG_WRITE, Inst.ACTION, Inst.REBOOT, Inst.CLEAR))
+#: One servo's answer to a read: the servo, its ERR byte, its data.
+_Answer = tuple[VirtualServo, int, bytes]
 
 
 @dataclass(frozen=True, slots=True)
@@ -273,7 +275,7 @@ class DxlBus:
             elif ev.kind is FaultKind.DUPLICATE_ID:
                 twin = VirtualServo(
                     servo.model.name,
-                    sid,
+                    servo.id,
                     baud=servo.baud,
                     return_delay_us=servo.return_delay_s * 1e6,
                     t=te,
@@ -405,20 +407,20 @@ class DxlBus:
             ]
             self._read_chain(inst == Inst.FAST_BULK_READ, items, hearing, t)
         elif inst == Inst.BULK_WRITE:
-            k, items = 0, {}
+            k, writes = 0, dict[int, tuple[int, bytes]]()
             while k + 5 <= len(params):
                 sid, addr = params[k], params[k + 1] | params[k + 2] << 8
                 length = params[k + 3] | params[k + 4] << 8
                 if k + 5 + length > len(params):
                     return  # malformed
-                items[sid] = (addr, params[k + 5 : k + 5 + length])
+                writes[sid] = (addr, params[k + 5 : k + 5 + length])
                 k += 5 + length
             if k != len(params):
                 return
             for s in hearing:
-                if s.id in items:
+                if s.id in writes:
                     s.touch(t)
-                    s.write(*items[s.id], t)
+                    s.write(*writes[s.id], t)
         elif inst in (
             Inst.WRITE,
             Inst.REG_WRITE,
@@ -453,7 +455,7 @@ class DxlBus:
         for s in hearing:
             if not fast or s.supports_fast_read:
                 by_id.setdefault(s.id, []).append(s)
-        links: list[tuple[list, int]] = []
+        links: list[tuple[list[_Answer], int]] = []
         for sid, addr, length in items:
             members = by_id.get(sid)
             if members is None:
@@ -480,7 +482,7 @@ class DxlBus:
     def _send_chain(self, results: list[tuple[VirtualServo, int, bytes]], t: float) -> None:
         self._send_chain_groups([[r] for r in results], t)
 
-    def _send_chain_groups(self, chain: list, t: float) -> None:
+    def _send_chain_groups(self, chain: list[list[_Answer] | None], t: float) -> None:
         """Each entry: servos answering the same link (several only with a duplicate ID)."""
         ready = t
         for group in chain:
@@ -513,7 +515,9 @@ class DxlBus:
         self.stats["replies"] += 1
         return end if keep_chain else None
 
-    def _apply_reply_fault(self, fault, data: bytes, start: float) -> tuple[bytes, float, bool]:
+    def _apply_reply_fault(
+        self, fault: Fault, data: bytes, start: float
+    ) -> tuple[bytes, float, bool]:
         rng = self.faults.rng
         kind = fault.kind
         if kind is FaultKind.DROP:
@@ -532,7 +536,7 @@ class DxlBus:
             return junk + data, start, True
         return data, start, True
 
-    def _send_fast(self, links: list[tuple[list, int]], t: float) -> None:
+    def _send_fast(self, links: list[tuple[list[_Answer], int]], t: float) -> None:
         """Fast Sync/Bulk Read: one packet, header and first block from the first servo,
         then each servo appends ``ERR ID data CRC`` (data zero-filled after an error).
 

@@ -34,6 +34,7 @@ from __future__ import annotations
 import random
 from dataclasses import dataclass, field
 from enum import StrEnum
+from typing import Any
 
 
 class FaultKind(StrEnum):
@@ -193,7 +194,7 @@ def parse_fault(text: str) -> Fault:
         raise FaultSpecError(
             f"unknown fault kind {name!r} in {text!r}; choose from: {choices}"
         ) from None
-    kwargs: dict = {}
+    kwargs: dict[str, Any] = {}  # Fault's fields by the names the text gives; Fault checks them
     for item in filter(None, (p.strip() for p in rest.split(","))):
         key, eq, value = item.partition("=")
         key = key.strip().lower()

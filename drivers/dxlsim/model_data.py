@@ -27,6 +27,7 @@ Mode always, from ``"modes"``), ``"axes"``: 2 for a dual-axis case (2XL430).
 from __future__ import annotations
 
 import drivers.protocol2.control_table as _ct
+from drivers.dxlsim.model_spec import ModelOptions, ModelSpec
 
 Row = tuple[int, int, str, str, int, int, int, bool]
 
@@ -149,7 +150,7 @@ _EXTERNAL_PORT_MODES: tuple[Row, ...] = tuple(
 )
 
 
-def _x330(pwm_slope: int, *rows: Row) -> dict:
+def _x330(pwm_slope: int, *rows: Row) -> ModelOptions:
     """What every X330 shares: 4 Mbit/s at most, Protocol Type 2 or the RC protocols
     (``control_table_protocolversion.md``: 2, 20 S.BUS, 21 iBUS, 22 RC-PWM; no Protocol 1.0),
     Temperature Limit 70, 20 indirect pairs, Startup Configuration, PWM Slope, Backup Ready."""
@@ -183,7 +184,7 @@ _XC430_VOLTS = {"max_voltage_limit": (160, 60, 160), "min_voltage_limit": (60, 6
 _24V = {"max_voltage_limit": (300, 110, 300), "min_voltage_limit": (110, 110, 300)}
 
 #: Per model: motor figures and the rows that differ from :data:`X_TABLE`.
-MODEL_DATA: dict[str, dict] = {
+MODEL_DATA: dict[str, ModelSpec] = {
     # --- X430 -------------------------------------------------------------------------
     # xm430-w350.md @ 08551725 (its voltage range "110 ~ 300" is a slip: defaults 160/95)
     "XM430-W350": {

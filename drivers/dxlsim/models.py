@@ -33,7 +33,9 @@ from .model_data import (
     GOAL_RANGE_FROM,
     MODEL_DATA,
     X_TABLE,
+    Row,
 )
+from .model_spec import ModelSpec
 
 PULSES_PER_REV = 4096
 #: Present/Goal/Profile Velocity unit, rev/min.
@@ -222,34 +224,45 @@ def normalize_name(name: str) -> str:
 DEFAULT_FIRMWARE = 46
 
 
-def _build(name: str, data: dict) -> ServoModel:
+def _build(name: str, data: ModelSpec) -> ServoModel:
     """Apply one model's differences to the shared table (the only code for the data)."""
-    rows = {row[2]: list(row) for row in X_TABLE if row[2] not in data.get("drop", ())}
+    firmware = data.get("firmware", DEFAULT_FIRMWARE)
+    rows = {row[2]: row for row in X_TABLE if row[2] not in data.get("drop", ())}
     for row in data.get("add", ()):
-        rows[row[2]] = list(row)
+        rows[row[2]] = row
     for fname, (default, lo, hi) in data["table"].items():
-        rows[fname][4:7] = [default, lo, hi]
-    rows["model_number"][4] = data["model_number"]
-    rows["firmware_version"][4] = data.get("firmware", DEFAULT_FIRMWARE)
+        rows[fname] = _with(rows[fname], default, lo, hi)
+    for fname, default in (("model_number", data["model_number"]), ("firmware_version", firmware)):
+        rows[fname] = _with(rows[fname], default, rows[fname][5], rows[fname][6])
     for goal, limit in GOAL_RANGE_FROM.items():
         if goal in rows:
             hi = rows[limit][6]
-            rows[goal][5:7] = [-hi, hi]
+            rows[goal] = _with(rows[goal], rows[goal][4], -hi, hi)
     choices = {"operating_mode": tuple(data["modes"]), **data.get("choices", {})}
     fields = tuple(Field(*r, choices=choices.get(r[2], ())) for r in sorted(rows.values()))
     family = _ct.series(name)
-    motor = {k: v for k, v in data.items() if k not in _NOT_MOTOR}
     return ServoModel(
         name=name,
+        model_number=data["model_number"],
+        firmware=firmware,
         fields=fields,
-        firmware=data.get("firmware", DEFAULT_FIRMWARE),
+        no_load_speed_rpm=data["no_load_speed_rpm"],
+        nominal_voltage_v=data["nominal_voltage_v"],
+        current_unit_ma=data["current_unit_ma"],
+        stall_torque_nm=data["stall_torque_nm"],
+        stall_current_a=data["stall_current_a"],
         fast_read_min_firmware=_ct.FAST_READ_MIN_FIRMWARE[family],
         backup_min_firmware=BACKUP_MIN_FIRMWARE[family],
-        **motor,
+        axes=data.get("axes", ServoModel.axes),
+        reflected_inertia_kgm2=data["reflected_inertia_kgm2"],
+        running_current_a=data["running_current_a"],
     )
 
 
-_NOT_MOTOR = ("modes", "table", "drop", "add", "choices", "firmware")
+def _with(row: Row, default: int, lo: int, hi: int) -> Row:
+    """``row`` with its default and range replaced."""
+    addr, size, fname, access, _, _, _, signed = row
+    return (addr, size, fname, access, default, lo, hi, signed)
 
 
 #: All known models by name.
@@ -313,14 +326,15 @@ def models_by_id(text: str, ids: Iterable[int]) -> dict[int, ServoModel]:
     missing = [i for i in ids if i not in named and default is None]
     if missing:
         raise ValueError(f"no model for ID {format_ids(missing)}; add one for all, e.g. XM430-W350")
-    models = {i: named.get(i, default) for i in ids}
+    # (no default: every ID is named)
+    models = {i: named[i] if default is None else named.get(i, default) for i in ids}
     dual = [i for i in sorted(ids) if models[i].axes == 2]
     if len(dual) % 2:
         raise ValueError(
             f"a 2XL430-W250 has two axes, each with its own ID: give it an even number of IDs "
             f"(got {format_ids(dual)}; its axes are paired in ID order)"
         )
-    return models  # type: ignore[return-value]
+    return models
 
 
 def format_models(models: dict[int, ServoModel]) -> str:

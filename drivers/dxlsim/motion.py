@@ -59,7 +59,14 @@ from .models import (
     PWM_FULL_SCALE,
     ServoModel,
 )
-from .profile import ProfileType, _segments_end, plan_profile, plan_time_profile, plan_velocity
+from .profile import (
+    ProfileType,
+    Segment,
+    _segments_end,
+    plan_profile,
+    plan_time_profile,
+    plan_velocity,
+)
 from .registers import (
     CURRENT_LIMIT,
     DRIVE_MODE_TIME_PROFILE,
@@ -106,7 +113,7 @@ HOMING_OFFSET_POSITION_MODE_LIMIT = 1024  # e-Manual control_table_homingoffset.
 FOLLOWING_ERROR_PULSES = 128
 #: The goal register that commands each Operating Mode (the "given command" of Drive Mode
 #: bit 3; Goal Current in Current-based Position mode is a limit, not the command).
-COMMAND_GOAL = {
+COMMAND_GOAL: dict[int, int] = {
     OperatingMode.CURRENT: GOAL_CURRENT,
     OperatingMode.VELOCITY: GOAL_VELOCITY,
     OperatingMode.POSITION: GOAL_POSITION,
@@ -145,6 +152,14 @@ class MotionState(NamedTuple):
 class Motion:
     """Horn and trajectory of one servo of ``model`` from time ``t`` (s), on a grid of
     ``step_s``. ``regs`` is the servo's register dict (read only here)."""
+
+    # the trajectory (set by hold() and by a goal): pieces, next due, end, reference, at rest
+    segs: list[Segment]
+    seg_i: int
+    end_p: float
+    r: float
+    rv: float
+    idle: bool
 
     def __init__(self, model: ServoModel, regs: dict[int, int], t: float, step_s: float) -> None:
         self.model = m = model

@@ -21,7 +21,7 @@ from dataclasses import dataclass
 from enum import IntEnum
 
 from drivers.protocol2 import control_table as _ct
-from drivers.protocol2.crc import crc16
+from drivers.protocol2.crc import crc16 as crc16  # re-exported: the codec's CRC
 
 # The error numbers are the same at both ends of the wire: one definition, in the driver's data.
 ErrorCode = _ct.StatusError

@@ -17,27 +17,41 @@ rate only: servos at another rate hear noise and never answer.
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 from serial.serialutil import PortNotOpenError, SerialBase, SerialException
 
 from drivers.dxlsim.url import acquire_bus, release_bus
 
+if TYPE_CHECKING:
+    from collections.abc import Iterable
 
-class Serial(SerialBase):
+    from drivers.clock import Clock
+    from drivers.dxlsim.bus import DxlBus
+
+
+class Serial(SerialBase):  # type: ignore[misc]  # pyserial ships no types
     """A serial port whose other end is a :class:`~drivers.dxlsim.bus.DxlBus`."""
 
-    bus = None
+    bus: DxlBus | None = None
     _bus_key = ""
-    _bus_url = None
+    _bus_url: str | None = None
+    # pyserial's attributes this class uses (pyserial declares none)
+    is_open: bool
+    _port: str | None
+    _baudrate: int
+    _timeout: float | None
 
     def open(self) -> None:
-        if self._port is None:
+        url = self._port  # pyserial's port setter sets portstr to the same
+        if url is None:
             raise SerialException("Port must be configured before it can be used.")
         if self.is_open:
             raise SerialException("Port is already open.")
         try:
-            keep = self.bus if self._bus_url == self.portstr else None
-            self.bus, self._bus_key = acquire_bus(self.portstr, host_baud=self._baudrate, keep=keep)
-            self._bus_url = self.portstr
+            keep = self.bus if self._bus_url == url else None
+            self.bus, self._bus_key = acquire_bus(url, host_baud=self._baudrate, keep=keep)
+            self._bus_url = url
         except ValueError as exc:
             raise SerialException(str(exc)) from exc
         self.is_open = True
@@ -45,9 +59,12 @@ class Serial(SerialBase):
         self.reset_input_buffer()
 
     @property
-    def clock(self):
+    def clock(self) -> Clock:
         """The bus's clock: a PortHandler on this port must use it."""
-        return self.bus.clock
+        bus = self.bus
+        if bus is None:  # never opened: no clock (``getattr(port, "clock", None)`` is None)
+            raise AttributeError("clock")
+        return bus.clock
 
     def _reconfigure_port(self) -> None:
         if self.bus is not None:
@@ -61,24 +78,25 @@ class Serial(SerialBase):
     def from_url(self, url: str) -> str:  # pyserial calls this with the whole URL
         return url
 
-    def _check(self) -> None:
-        if not self.is_open:
+    def _check(self) -> DxlBus:
+        """The bus, while the port is open and the adapter plugged in."""
+        bus = self.bus
+        if not self.is_open or bus is None:  # (open sets the bus before is_open)
             raise PortNotOpenError()
-        if self.bus.unplugged():
+        if bus.unplugged():
             self.close()
             raise SerialException(
                 "device reports readiness to read but returned no data "
                 "(device disconnected or multiple access on port?)"
             )
+        return bus
 
     @property
     def in_waiting(self) -> int:
-        self._check()
-        return self.bus.in_waiting()
+        return self._check().in_waiting()
 
     def read(self, size: int = 1) -> bytes:
-        self._check()
-        bus = self.bus
+        bus = self._check()
         if self._timeout is None:
             due = bus.visible_at(size)
             if due is None:
@@ -95,15 +113,14 @@ class Serial(SerialBase):
             self._check()
         return bus.read(size)
 
-    def write(self, data) -> int:
-        self._check()
+    def write(self, data: bytes | bytearray | memoryview | Iterable[int]) -> int:
+        bus = self._check()
         data = bytes(data)
-        self.bus.write(data)
+        bus.write(data)
         return len(data)
 
     def reset_input_buffer(self) -> None:
-        self._check()
-        self.bus.reset_input()
+        self._check().reset_input()
 
     def reset_output_buffer(self) -> None:
         self._check()  # bytes written are already on the wire
@@ -113,8 +130,8 @@ class Serial(SerialBase):
         return 0
 
     def flush(self) -> None:
-        self._check()
-        self.bus.clock.wait_until(self.bus._tx_free)
+        bus = self._check()
+        bus.clock.wait_until(bus._tx_free)
 
     # modem lines: accepted and ignored (the bus has none)
     def _update_break_state(self) -> None: ...

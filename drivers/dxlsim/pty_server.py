@@ -40,6 +40,7 @@ import sys
 import termios
 import threading
 import tty
+from typing import Self
 
 from drivers.clock import precise_timers
 from drivers.dxlsim.bus import DxlBus
@@ -102,7 +103,7 @@ def piece_due(bus: DxlBus) -> tuple[float | None, int]:
     end = min(bus.pending_rx, USB_CHUNK)
     while n < end:
         t = visible_at(n + 1)
-        if t - last > gap:
+        if t is None or t - last > gap:  # (not None: n + 1 <= pending_rx)
             break
         last, n = t, n + 1
     return last, n
@@ -166,8 +167,8 @@ class PtyServer:
             if n and n >= piece_due(bus)[1]:  # the piece is readable to its last byte
                 os.write(master, bus.read(n))
 
-    def __enter__(self) -> PtyServer:
+    def __enter__(self) -> Self:
         return self
 
-    def __exit__(self, *exc) -> None:
+    def __exit__(self, *exc: object) -> None:
         self.close()

@@ -147,7 +147,9 @@ class VirtualServo:
         self._apply_initial(id, m.baud_index(baud), rdt_units, overrides)
 
     # --- construction helpers ------------------------------------------------------------
-    def _apply_initial(self, id_: int, baud_index: int, rdt: int, overrides: dict) -> None:
+    def _apply_initial(
+        self, id_: int, baud_index: int, rdt: int, overrides: dict[str, int]
+    ) -> None:
         eeprom = {"id": id_, "baud_rate": baud_index, "return_delay_time": rdt}
         ram: dict[str, int] = {}
         state: dict[str, int] = {}

@@ -58,12 +58,13 @@ Named buses (:func:`register_bus`) are kept by their name until :func:`unregiste
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 import threading
 import urllib.parse
 import weakref
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, TypedDict, Unpack
 
 from drivers.clock import DEFAULT_SPIN_S, MonotonicClock, VirtualClock
 from drivers.dxlsim.bus import DxlBus
@@ -108,6 +109,24 @@ def register_bus(name: str, bus: DxlBus) -> str:
 def unregister_bus(name: str) -> None:
     with _lock:
         _registry.pop(name, None)
+
+
+class UrlChanges(TypedDict, total=False):
+    """The keys :meth:`DxlsimUrl.replace` changes: its fields but ``keys`` and ``source``."""
+
+    name: str
+    ids: tuple[int, ...]
+    model: str
+    baud: int | None
+    rdt_us: float
+    turnaround_us: float
+    latency_ms: float
+    clock: str
+    spin_us: float
+    faults: str
+    seed: int
+    firmware: int | None
+    trace: bool
 
 
 @dataclass(frozen=True)
@@ -242,7 +261,7 @@ class DxlsimUrl:
             items.append((key, _text(value)))
         return "dxlsim://?" + urllib.parse.urlencode(items, safe=_SAFE) if items else "dxlsim://"
 
-    def replace(self, **changes: Any) -> DxlsimUrl:
+    def replace(self, **changes: Unpack[UrlChanges]) -> DxlsimUrl:
         """A copy with ``changes``; the keys changed are printed even at their defaults."""
         keys = self.keys + tuple(k for k in changes if k in _KEYS and k not in self.keys)
         return dataclasses.replace(self, **changes, keys=keys, source=None)
@@ -369,17 +388,17 @@ def acquire_bus(
     side is set to ``host_baud``, the servos keep theirs. Raises ValueError."""
     parsed = DxlsimUrl.parse(url)
     if parsed.name:
-        bus = parsed.build_bus(host_baud=host_baud)
-        bus.baud = int(host_baud)
-        return bus, ""
+        named = parsed.build_bus(host_baud=host_baud)
+        named.baud = int(host_baud)
+        return named, ""
     key = str(parsed)
     with _lock:
         entry = _live.get(key)
         bus = entry.ref() if entry is not None else None
-    if bus is None:
+    if entry is None or bus is None:  # (no entry: no bus)
         bus = keep if keep is not None else parsed.build_bus(host_baud=host_baud)
         with _lock:
-            entry = _live[key] = _Live(weakref.ref(bus, lambda ref, key=key: _forget(key, ref)))
+            entry = _live[key] = _Live(weakref.ref(bus, functools.partial(_forget, key)))
     with _lock:
         entry.users += 1
     bus.baud = int(host_baud)

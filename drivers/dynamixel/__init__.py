@@ -10,7 +10,26 @@ The names below are imported on first use (PEP 562), so ``drivers.dynamixel.unit
 from __future__ import annotations
 
 import importlib
-from typing import Any
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:  # what the lazy names are, for type checkers (the import is at first use)
+    from drivers.dynamixel.bus import DynamixelBus as DynamixelBus
+    from drivers.dynamixel.errors import CommError as CommError
+    from drivers.dynamixel.errors import CommTimeout as CommTimeout
+    from drivers.dynamixel.errors import CorruptPacket as CorruptPacket
+    from drivers.dynamixel.errors import DynamixelError as DynamixelError
+    from drivers.dynamixel.errors import ExitNotConfirmed as ExitNotConfirmed
+    from drivers.dynamixel.errors import Mismatch as Mismatch
+    from drivers.dynamixel.errors import PortBusy as PortBusy
+    from drivers.dynamixel.errors import PortGone as PortGone
+    from drivers.dynamixel.errors import ServoError as ServoError
+    from drivers.dynamixel.errors import StartupMismatch as StartupMismatch
+    from drivers.dynamixel.link import LatencyTimerWarning as LatencyTimerWarning
+    from drivers.dynamixel.link import Link as Link
+    from drivers.dynamixel.startup import Expectation as Expectation
+    from drivers.dynamixel.startup import ReadMode as ReadMode
+    from drivers.dynamixel.startup import ServoState as ServoState
+    from drivers.dynamixel.startup import StartupReport as StartupReport
 
 _EXPORTS = {
     "DynamixelBus": "drivers.dynamixel.bus",

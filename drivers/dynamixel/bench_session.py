@@ -14,15 +14,19 @@ from __future__ import annotations
 import os
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import TYPE_CHECKING, Self
 
 import dynamixel_sdk as sdk
 
 from drivers.clock import Clock
-from drivers.dynamixel.port import PortHandler
+from drivers.dynamixel.port import SDK_LATENCY_TIMER_MS, PortHandler
 from drivers.dynamixel.sdk_result import OK
 from drivers.dynamixel.units import decode_position
 from drivers.protocol2 import control_table as ct
 from drivers.protocol2.control_table import Item
+
+if TYPE_CHECKING:
+    from drivers.dxlsim.bus import DxlBus
 
 #: Addresses :mod:`hilsim.bench` passes to :meth:`BenchBus.read` / :meth:`BenchBus.write1`
 #: (the control table's items; :meth:`BenchBus.read_item` takes the items themselves).
@@ -37,11 +41,23 @@ class BenchError(RuntimeError):
 class StampedPortHandler(PortHandler):
     """Our PortHandler that notes the clock time of every ``writePort`` (``write_times``)."""
 
-    def __init__(self, *args, **kw) -> None:
-        super().__init__(*args, **kw)
+    def __init__(
+        self,
+        port_name: str,
+        *,
+        clock: Clock | None = None,
+        latency_timer_ms: float = SDK_LATENCY_TIMER_MS,
+        device_allowance_ms: float = 0.0,
+    ) -> None:
+        super().__init__(
+            port_name,
+            clock=clock,
+            latency_timer_ms=latency_timer_ms,
+            device_allowance_ms=device_allowance_ms,
+        )
         self.write_times: list[float] = []
 
-    def writePort(self, packet):
+    def writePort(self, packet: bytes | bytearray | memoryview | list[int]) -> int:
         self.write_times.append(self.clock.now())
         return super().writePort(packet)
 
@@ -56,8 +72,9 @@ class BenchBus:
     baud: int
 
     @property
-    def bus(self):
-        return getattr(self.port.ser, "bus", None)
+    def bus(self) -> DxlBus | None:
+        bus: DxlBus | None = getattr(self.port.ser, "bus", None)  # a dxlsim:// port's
+        return bus
 
     @property
     def emulated(self) -> bool:
@@ -78,10 +95,10 @@ class BenchBus:
         if self.port.is_open:
             self.port.closePort()
 
-    def __enter__(self) -> BenchBus:
+    def __enter__(self) -> Self:
         return self
 
-    def __exit__(self, *exc) -> None:
+    def __exit__(self, *exc: object) -> None:
         self.close()
 
     # -- single-servo transactions: None when the servo does not answer ------------------
@@ -114,6 +131,8 @@ class BenchBus:
         return sorted(found)
 
     def write1(self, servo_id: int, addr: int, value: int) -> bool:
+        result: int
+        err: int
         result, err = self.ph.write1ByteTxRx(self.port, servo_id, addr, value)
         return result == OK and err == 0
 

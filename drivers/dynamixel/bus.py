@@ -31,7 +31,7 @@ from collections.abc import Iterable, Sequence
 from operator import le
 
 import numpy as np
-from numpy.typing import ArrayLike
+from numpy.typing import ArrayLike, NDArray
 
 from drivers.clock import Clock
 from drivers.dynamixel import health
@@ -111,12 +111,13 @@ class DynamixelBus(ServoBus):
         link.unanswered = self._unanswered  # a show's other reads' late replies, too
         self._set_order()
         self._goal_frame = GoalFrame(self.ids, ct.GOAL_POSITION.addr)  # the tick's Sync Write
-        self._lo = np.zeros(n)  # accepted Goal Position ticks (Position mode until check)
-        self._hi = np.full(n, 4095.0)
+        # accepted Goal Position ticks (Position mode until check)
+        self._lo: NDArray[np.float64] = np.zeros(n)
+        self._hi: NDArray[np.float64] = np.full(n, 4095.0)
         self._lo_l, self._hi_l = self._lo.tolist(), self._hi.tolist()  # the same, as lists
         # read_present's books: the last read all OK; stats.consecutive_bad maybe not all 0
         self._all_ok, self._bad_counted = False, True
-        self._views = (Packed(), Packed(), Packed())  # of a reading's arrays
+        self._views: tuple[Packed, ...] = (Packed(), Packed(), Packed())  # a reading's arrays
         self._rdt_s = np.full(n, FACTORY_RETURN_DELAY_S)
         self._watchdog_units: int | None = None
         #: the bytes of the latest corrupt reply to a tick's read (None until one comes); the
@@ -201,7 +202,7 @@ class DynamixelBus(ServoBus):
             self._bad_counted = False
         return out
 
-    def _write_goals(self, goals: np.ndarray) -> None:
+    def _write_goals(self, goals: NDArray[np.float64]) -> None:
         self._send_goals(goals.tolist())
 
     def _send_goals(self, goals: list[float]) -> None:
@@ -223,6 +224,8 @@ class DynamixelBus(ServoBus):
         pos, status, errors = [math.nan] * n, [STALE] * n, [0] * n
         port, ph = self._port, self._ph
         fast = self._fast
+        untold: tuple[int, ...]
+        late: frozenset[int]
         size, untold, late = _DATA_BYTES, (), frozenset()
         seen = status  # the replies as they came (the order follows them)
         if not fast and self._orders.busy_lengths:  # a late packet may come: another length

@@ -51,6 +51,10 @@ class CommTimeout(CommError, TimeoutError):  # noqa: N818  (names read as what h
 class CorruptPacket(CommError):  # noqa: N818  (names read as what happened)
     """A status packet arrived but was malformed (CRC, length or header)."""
 
+    #: a whole status packet from the servo asked whose CRC fails (line noise, two servos at
+    #: once), not one cut short or never framed: set by :func:`~.sdk_result.raise_for`
+    complete: bool = False
+
 
 class PortBusy(CommError):  # noqa: N818  (names read as what happened)
     """The SDK still marks the port in use (an earlier transaction never finished)."""

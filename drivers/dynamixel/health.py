@@ -13,6 +13,7 @@ Imports neither ``dynamixel_sdk`` nor the bus.
 from __future__ import annotations
 
 from collections.abc import Sequence
+from functools import partial
 from typing import TYPE_CHECKING
 
 from drivers.dynamixel.errors import (
@@ -108,7 +109,7 @@ def write_all(
     failures: list[DynamixelError] = []
     for sid in ids:
         try:
-            retry(attempts, lambda sid=sid: link.write_item(sid, item, value), settle=link.settle)
+            retry(attempts, partial(link.write_item, sid, item, value), settle=link.settle)
         except (CommError, ServoError) as exc:
             failures.append(exc)
     if failures:
@@ -127,12 +128,12 @@ def clear_watchdog_trips(link: Link, ids: Sequence[int], attempts: int) -> tuple
     for sid in ids:
         try:
             value = retry(
-                attempts, lambda sid=sid: link.read_item(sid, ct.BUS_WATCHDOG), settle=link.settle
+                attempts, partial(link.read_item, sid, ct.BUS_WATCHDOG), settle=link.settle
             )
             if value != 0:
                 retry(
                     attempts,
-                    lambda sid=sid: link.write_item(sid, ct.BUS_WATCHDOG, 0),
+                    partial(link.write_item, sid, ct.BUS_WATCHDOG, 0),
                     settle=link.settle,
                 )
         except (CommError, ServoError):

@@ -68,8 +68,10 @@ import serial
 
 try:
     import fcntl
+
+    _HAVE_FCNTL = True
 except ImportError:  # not POSIX: pyserial's own read and write
-    fcntl = None
+    _HAVE_FCNTL = False
 
 from drivers.clock import Clock, MonotonicClock
 
@@ -100,9 +102,9 @@ _monotonic = time.monotonic
 _select = select.select
 
 
-def _non_blocking(ser) -> bool:
+def _non_blocking(ser: serial.SerialBase) -> bool:
     """Whether ``ser`` is pyserial's POSIX port on a non-blocking descriptor."""
-    if fcntl is None or type(ser) is not _POSIX_SERIAL:
+    if not _HAVE_FCNTL or type(ser) is not _POSIX_SERIAL:
         return False
     try:
         return bool(fcntl.fcntl(ser.fd, fcntl.F_GETFL) & os.O_NONBLOCK)
@@ -110,7 +112,7 @@ def _non_blocking(ser) -> bool:
         return False
 
 
-def _write_fd(ser, data) -> int:
+def _write_fd(ser: serial.Serial, data: bytes | bytearray | memoryview) -> int:
     """pyserial's POSIX ``write(data)`` with no write timeout: every byte, waiting (``select``)
     only when the OS takes part of it, without its ``select`` after every write (~3 µs).
     Returns the bytes written: all of them, or fewer if ``cancel_write`` aborted the wait."""
@@ -146,7 +148,7 @@ def register_url_handlers() -> None:
         serial.protocol_handler_packages.append(URL_HANDLER_PACKAGE)
 
 
-class PortHandler(dynamixel_sdk.PortHandler):
+class PortHandler(dynamixel_sdk.PortHandler):  # type: ignore[misc]  # the SDK has no types
     """``dynamixel_sdk.PortHandler`` for any pyserial URL, on an injected clock.
 
     Parameters
@@ -184,6 +186,17 @@ class PortHandler(dynamixel_sdk.PortHandler):
         :attr:`host_stall_s` reports). A caller that takes this from its wall time is left
         with its own work, where a stall outside the port shows.
     """
+
+    # the SDK's attributes this class uses (the SDK declares none): ``ser`` is None until
+    # the port is first opened, and nothing here runs before that
+    ser: serial.SerialBase
+    is_open: bool
+    is_using: bool
+    port_name: str
+    baudrate: int
+    tx_time_per_byte: float
+    packet_start_time: float
+    packet_timeout: float
 
     def __init__(
         self,
@@ -229,7 +242,7 @@ class PortHandler(dynamixel_sdk.PortHandler):
         return max(0.0, self.device_allowance_ms - 2.0 * self.latency_timer_ms)
 
     # -- the two SDK methods that touch the OS ------------------------------------
-    def setupPort(self, cflag_baud):
+    def setupPort(self, cflag_baud: int) -> bool:
         old = self.ser
         if old is not None and getattr(old, "bus", None) is not None and old.port == self.port_name:
             # A dxlsim:// port: re-opened (the SDK's setBaudRate, closePort/openPort) it is
@@ -272,7 +285,7 @@ class PortHandler(dynamixel_sdk.PortHandler):
     def getCurrentTime(self) -> float:
         return self.clock.now() * 1000.0  # the SDK works in ms
 
-    def setPacketTimeout(self, packet_length) -> None:
+    def setPacketTimeout(self, packet_length: int) -> None:
         self._start()
         self.packet_timeout = (
             self.tx_time_per_byte * packet_length
@@ -281,7 +294,7 @@ class PortHandler(dynamixel_sdk.PortHandler):
             + self.timeout_margin_ms
         )
 
-    def setPacketTimeoutMillis(self, msec) -> None:
+    def setPacketTimeoutMillis(self, msec: float) -> None:
         """Exactly ``msec`` (the SDK's meaning; callers add any device allowance)."""
         self._start()
         self.packet_timeout = msec
@@ -305,7 +318,7 @@ class PortHandler(dynamixel_sdk.PortHandler):
         if mark is None:
             return
         stall = 0.0
-        if not self._clock.virtual:
+        if not (self._clock or self.clock).virtual:
             if entry - mark > HOST_STALL_THRESHOLD_S:
                 stall += entry - mark
             late = now - entry - may_wait
@@ -328,17 +341,17 @@ class PortHandler(dynamixel_sdk.PortHandler):
             return True
         return False
 
-    def readPort(self, length):
+    def readPort(self, length: int) -> bytes:
         """Up to ``length`` bytes: all of them as soon as they are readable, or what is
         there at the packet deadline (at once for a poll that begins after it, or while
         no transaction is timed). Nothing spins for the wire: a device is waited on in the
         OS, an emulated bus on its clock."""
-        clock = self._clock
+        clock = self._clock or self.clock  # the property only before the port is opened
         now = clock.now()
         now_ms = now * 1000.0
         self._poll_ms = now_ms
         mode, ser = self._wait, self.ser
-        timeout = 0
+        timeout: float = 0
         if mode != "poll":
             # Wait on the port until the bytes are readable or just past the SDK's
             # deadline, whichever is first (on a virtual clock the wait is a jump: nobody
@@ -354,14 +367,15 @@ class PortHandler(dynamixel_sdk.PortHandler):
                 ser.timeout = timeout
             elif mode != "poll":
                 ser.timeout = timeout
-            return ser.read(length)
+            data: bytes = ser.read(length)  # pyserial ships no types
+            return data
         except serial.SerialException:
             self.is_using = False
             raise
         finally:
             self._watch(now, clock.now(), timeout)  # (a virtual clock's: not watched)
 
-    def _read_fd(self, ser, length: int, timeout: float) -> bytes:
+    def _read_fd(self, ser: serial.Serial, length: int, timeout: float) -> bytes:
         """pyserial's POSIX ``read(length)`` with ``timeout`` (s), without its per-call
         objects (a ``Timeout``, a ``bytearray`` and its copy: ~10 µs a call): read what is
         there first (the rest of a packet whose first bytes woke the last read usually is),
@@ -412,15 +426,16 @@ class PortHandler(dynamixel_sdk.PortHandler):
             if wait <= 0.0:
                 return data
 
-    def writePort(self, packet):
-        clock = self._clock
+    def writePort(self, packet: bytes | bytearray | memoryview | list[int]) -> int:
+        clock = self._clock or self.clock  # the property only before the port is opened
         entry = clock.now()
         ser = self.ser
-        data = packet if type(packet) in _BUFFERS else bytes(packet)  # the SDK gives a list
+        data = packet if isinstance(packet, _BUFFERS) else bytes(packet)  # the SDK gives a list
         try:
             if self._direct and type(ser) is _POSIX_SERIAL and ser._write_timeout is None:
                 return _write_fd(ser, data)
-            return ser.write(data)
+            written: int = ser.write(data)  # pyserial ships no types
+            return written
         except serial.SerialException:
             self.is_using = False
             raise

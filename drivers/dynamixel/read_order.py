@@ -89,7 +89,13 @@ class ReadOrder:
         """The IDs (``ids`` by servo index) that may still send a late packet, of any length."""
         return frozenset(ids[k] for book in self.busy_lengths.values() for k in book)
 
-    def take_back(self, servos, pos, status, errors) -> list[int]:
+    def take_back(
+        self,
+        servos: Iterable[int],
+        pos: MutableSequence[float],
+        status: MutableSequence[int],
+        errors: MutableSequence[int],
+    ) -> list[int]:
         """Take back the readings of ``servos``; returns the statuses as they came."""
         came = list(status)
         for k in servos:
@@ -139,6 +145,7 @@ class ReadOrder:
         the position from which its replies may still come: the first servo really missing,
         else the first reading taken back (None if no servo is STALE)."""
         order, taken_back, self._taken_back = self.order, self._taken_back, set()
+        i: int | None  # the place returned
         stale = [p for p, k in enumerate(order) if status[k] == STALE]
         if not stale:
             return None

@@ -25,15 +25,15 @@ from drivers.dynamixel.errors import (
 from drivers.protocol2 import control_table as ct
 
 #: The transaction succeeded (a reply may still carry an error number: see :func:`raise_for`).
-OK = sdk.COMM_SUCCESS
+OK: int = sdk.COMM_SUCCESS
 #: No status packet within the packet timeout.
-TIMEOUT = sdk.COMM_RX_TIMEOUT
+TIMEOUT: int = sdk.COMM_RX_TIMEOUT
 #: A status packet arrived malformed (CRC, length or header).
-CORRUPT = sdk.COMM_RX_CORRUPT
+CORRUPT: int = sdk.COMM_RX_CORRUPT
 #: What pyserial raises when the adapter vanishes (see :func:`port_gone`).
 SERIAL_ERRORS: tuple[type[BaseException], ...] = (serial.SerialException, OSError)
 
-_RESULT_TEXT = {
+_RESULT_TEXT: dict[int, str] = {
     sdk.COMM_TX_FAIL: "the instruction packet could not be sent",
     sdk.COMM_RX_FAIL: "no status packet could be received",
     sdk.COMM_TX_ERROR: "the instruction packet is malformed",

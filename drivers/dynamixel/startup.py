@@ -15,6 +15,7 @@ import math
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from enum import StrEnum
+from functools import partial
 from typing import TYPE_CHECKING, TypeVar
 
 import numpy as np
@@ -25,6 +26,8 @@ from drivers.protocol2 import control_table as ct
 from drivers.protocol2.control_table import Item, OperatingMode, check_unicast_id
 
 if TYPE_CHECKING:
+    from numpy.typing import NDArray
+
     from drivers.dynamixel.link import Link
 
 T = TypeVar("T")
@@ -120,7 +123,7 @@ class StartupReport:
         return tuple(s.id for s in self.servos if s.torque_on)
 
     @property
-    def positions_rad(self) -> np.ndarray:
+    def positions_rad(self) -> NDArray[np.float64]:
         """(n,) Present Position at check time, rad, servo frame, in ``ids`` order."""
         return np.array([s.position_rad for s in self.servos])
 
@@ -163,7 +166,7 @@ def all_support_fast(link: Link, ids: Iterable[int], attempts: int) -> bool:
     firmware that have Fast Sync Read: ``read_mode = "auto"`` before the check has run."""
     for sid in ids:
         try:
-            model, fw = retry(attempts, lambda sid=sid: link.ping(sid), settle=link.settle)
+            model, fw = retry(attempts, partial(link.ping, sid), settle=link.settle)
         except (CommError, ServoError):
             return False
         if not ct.supports_fast_read(model, fw):

@@ -32,10 +32,13 @@ ID sets and reply streams.
 from __future__ import annotations
 
 import struct
-from collections.abc import Sequence
+from collections.abc import Callable, MutableSequence, Sequence
+from collections.abc import Set as AbstractSet
+from typing import Protocol
 
 import dynamixel_sdk as sdk
 import numpy as np
+from numpy.typing import NDArray
 
 from drivers.dynamixel.fast_reply import (
     ALERT,
@@ -54,14 +57,28 @@ TX_MAX = 1024
 RX_MAX = 1024
 _HEADER = b"\xff\xff\xfd\x00"
 _STUFF = b"\xff\xff\xfd"
-_BROADCAST = sdk.BROADCAST_ID
+_BROADCAST: int = sdk.BROADCAST_ID
 GOAL_ADDR = ct.GOAL_POSITION.addr
 _STATUS = 0x55
-OK = sdk.COMM_SUCCESS
-PORT_BUSY = sdk.COMM_PORT_BUSY
-TX_FAIL = sdk.COMM_TX_FAIL
-TIMEOUT = sdk.COMM_RX_TIMEOUT
-CORRUPT = sdk.COMM_RX_CORRUPT
+#: the SDK's results (ints; the SDK has no types)
+OK: int = sdk.COMM_SUCCESS
+PORT_BUSY: int = sdk.COMM_PORT_BUSY
+TX_FAIL: int = sdk.COMM_TX_FAIL
+TIMEOUT: int = sdk.COMM_RX_TIMEOUT
+CORRUPT: int = sdk.COMM_RX_CORRUPT
+
+
+class SdkPort(Protocol):
+    """What a transaction here uses of a port: the SDK's ``PortHandler`` calls (our
+    :class:`~drivers.dynamixel.port.PortHandler`, the SDK's own, a test's stand-in)."""
+
+    is_using: bool
+
+    def clearPort(self) -> None: ...
+    def writePort(self, packet: bytes | bytearray) -> int: ...
+    def readPort(self, length: int) -> bytes: ...
+    def isPacketTimeout(self) -> bool: ...
+    def setPacketTimeout(self, packet_length: int) -> None: ...
 
 
 def _instruction(inst: int, params: bytes) -> bytearray:
@@ -147,7 +164,7 @@ def sync_read_request(addr: int, size: int, ids: Sequence[int], fast: bool) -> b
     return _finish(packet)
 
 
-def transmit(port, packet: bytes | bytearray) -> int:
+def transmit(port: SdkPort, packet: bytes | bytearray) -> int:
     """``PacketHandler.txPacket`` for a finished packet: refuse a busy port, take it,
     clear its input, write. Leaves the port taken on success, as the SDK does (a broadcast
     write's caller frees it; a read's ``receive`` does)."""
@@ -172,7 +189,7 @@ def _header_at(buf: bytes, n: int) -> int:
     return n - 4
 
 
-def receive_frame(port, max_id: int = _BROADCAST) -> tuple[bytes, int, int]:
+def receive_frame(port: SdkPort, max_id: int = _BROADCAST) -> tuple[bytes, int, int]:
     """``PacketHandler.rxPacket(port, True)`` up to its CRC check: ``(packet, result,
     length)`` with result TIMEOUT or CORRUPT as the SDK's, or OK for a framed packet of
     ``length`` bytes whose CRC is still to be checked (:func:`crc_ok`); the port freed.
@@ -219,7 +236,7 @@ def crc_ok(packet: bytes, length: int) -> bool:
     return crc16_span(packet, 0, length - 2) == packet[length - 2] | packet[length - 1] << 8
 
 
-def receive_fast(port) -> tuple[bytes, int]:
+def receive_fast(port: SdkPort) -> tuple[bytes, int]:
     """``PacketHandler.rxPacket(port, True)``: the Fast Sync Read reply and its result
     (OK, TIMEOUT or CORRUPT), the port freed; what it returns compares equal to the SDK's
     list. (The bus takes :func:`receive_frame` and checks the CRC only where the blocks'
@@ -238,7 +255,9 @@ def read_request(servo_id: int, addr: int, size: int) -> bytes | None:
     return None if _stuffed(packet, len(packet) - 2) else _finish(packet)
 
 
-def read_transaction(port, request: bytes, servo_id: int, size: int) -> tuple[bytes, int, int]:
+def read_transaction(
+    port: SdkPort, request: bytes, servo_id: int, size: int
+) -> tuple[bytes, int, int]:
     """``PacketHandler.txRxPacket(port, <Read of size bytes>)`` for a finished ``request``
     (:func:`read_request`): ``(status packet, result, error)`` as the SDK's, the same port
     calls in the same order. Status packets from other IDs are skipped, as the SDK skips
@@ -260,7 +279,7 @@ def read_transaction(port, request: bytes, servo_id: int, size: int) -> tuple[by
 
 
 # ----------------------------------------------------------------------- the transactions
-def finite_goals(goals, n: int) -> list[float] | None:
+def finite_goals(goals: object, n: int) -> list[float] | None:
     """``goals`` as n finite Python numbers when they are a list or an ``(n,)`` float64
     array of them (the tick's case), else None (then ServoBus checks them, and raises)."""
     if type(goals) is list:
@@ -278,13 +297,16 @@ def finite_goals(goals, n: int) -> list[float] | None:
     return values if total - total == 0.0 else None  # a NaN or inf makes the sum one
 
 
-def send_goals(port, ph, frame: GoalFrame, ticks: Sequence[int]) -> int:
+def send_goals(
+    port: SdkPort, ph: sdk.Protocol2PacketHandler, frame: GoalFrame, ticks: Sequence[int]
+) -> int:
     """``PacketHandler.syncWriteTxOnly`` of these goal ticks: :func:`transmit` of the
     frame's packet, the port freed at once (a broadcast: no status packet). A packet the
     SDK would stuff, or refuse as too long, the SDK builds and sends itself."""
     packet = frame.packet(ticks) if frame.fits else None
     if packet is None:
-        return ph.syncWriteTxOnly(port, GOAL_ADDR, 4, frame.params(ticks), 5 * len(ticks))
+        sent: int = ph.syncWriteTxOnly(port, GOAL_ADDR, 4, frame.params(ticks), 5 * len(ticks))
+        return sent
     result = transmit(port, packet)
     if result == OK:
         port.is_using = False
@@ -292,7 +314,10 @@ def send_goals(port, ph, frame: GoalFrame, ticks: Sequence[int]) -> int:
 
 
 def goal_range_error(
-    ids: Sequence[int], goals: Sequence[float], lo: Sequence[float], hi: Sequence[float]
+    ids: Sequence[int],
+    goals: Sequence[float] | NDArray[np.float64],
+    lo: Sequence[float] | NDArray[np.float64],
+    hi: Sequence[float] | NDArray[np.float64],
 ) -> ValueError:
     """The error for goals outside what the servos accept: each one named, rad and tick."""
     t = np.rint(np.asarray(goals, dtype=np.float64) * TICKS_PER_RAD) + CENTER_TICK
@@ -304,7 +329,15 @@ def goal_range_error(
     return ValueError("goal out of range, nothing sent: " + "; ".join(bad))
 
 
-def receive_fast_reply(port, want, order, pos, status, errors, on_corrupt) -> None:
+def receive_fast_reply(
+    port: SdkPort,
+    want: Sequence[int],
+    order: Sequence[int],
+    pos: MutableSequence[float],
+    status: MutableSequence[int],
+    errors: MutableSequence[int],
+    on_corrupt: Callable[[bytes], object],
+) -> None:
     """The reply to a Fast Sync Read of ``want`` (IDs in request order; ``order[p]`` the
     index of the servo asked at ``p``): :func:`receive_frame`, its blocks parsed into
     ``pos``/``status``/``errors`` (:func:`~drivers.dynamixel.fast_reply.parse_blocks`),
@@ -323,7 +356,16 @@ def receive_fast_reply(port, want, order, pos, status, errors, on_corrupt) -> No
 
 
 def receive_plain_replies(
-    ph, port, want, order, pos, status, errors, on_corrupt, size: int = 4, late=frozenset()
+    ph: sdk.Protocol2PacketHandler,
+    port: SdkPort,
+    want: Sequence[int],
+    order: Sequence[int],
+    pos: MutableSequence[float],
+    status: MutableSequence[int],
+    errors: MutableSequence[int],
+    on_corrupt: Callable[[bytes], object],
+    size: int = 4,
+    late: AbstractSet[int] = frozenset(),
 ) -> None:
     """The chain of status packets answering a plain Sync Read of ``size`` bytes from
     Present Position, in the order asked (each servo answers after the one before it),

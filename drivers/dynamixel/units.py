@@ -13,6 +13,8 @@ passes bounds. Pure numpy, no I/O.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
+from typing import overload
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -27,6 +29,21 @@ TICKS_PER_RAD = TICKS_PER_REV / (2.0 * math.pi)
 #: Present/Goal/Profile Velocity unit, rev/min, and the same in rad/s.
 VELOCITY_UNIT_RPM = 0.229
 RAD_S_PER_VELOCITY_UNIT = VELOCITY_UNIT_RPM * 2.0 * math.pi / 60.0
+
+#: what the functions below take as "an array" for their overloads (a scalar: a float)
+_Array = NDArray[np.generic] | Sequence[float]
+
+
+@overload
+def rad_to_ticks(rad: float, *, lo: int | None = None, hi: int | None = None) -> int: ...
+@overload
+def rad_to_ticks(
+    rad: _Array, *, lo: int | ArrayLike | None = None, hi: int | ArrayLike | None = None
+) -> NDArray[np.int64]: ...
+@overload
+def rad_to_ticks(
+    rad: ArrayLike, *, lo: int | ArrayLike | None = None, hi: int | ArrayLike | None = None
+) -> NDArray[np.int64] | int: ...
 
 
 def rad_to_ticks(
@@ -54,18 +71,36 @@ def decode_position(raw: int) -> int:
     return raw - 0x1_0000_0000 if raw & 0x8000_0000 else raw
 
 
+@overload
+def ticks_to_rad(ticks: float) -> float: ...
+@overload
+def ticks_to_rad(ticks: _Array) -> NDArray[np.float64]: ...
+@overload
+def ticks_to_rad(ticks: ArrayLike) -> NDArray[np.float64] | float: ...
 def ticks_to_rad(ticks: ArrayLike) -> NDArray[np.float64] | float:
     """Ticks -> radians (servo frame). Scalar in, float out."""
     x = (np.asarray(ticks, dtype=np.float64) - CENTER_TICK) * RAD_PER_TICK
     return float(x) if x.ndim == 0 else x
 
 
+@overload
+def velocity_to_rad_s(units: float) -> float: ...
+@overload
+def velocity_to_rad_s(units: _Array) -> NDArray[np.float64]: ...
+@overload
+def velocity_to_rad_s(units: ArrayLike) -> NDArray[np.float64] | float: ...
 def velocity_to_rad_s(units: ArrayLike) -> NDArray[np.float64] | float:
     """Velocity units (0.229 rev/min) -> rad/s."""
     x = np.asarray(units, dtype=np.float64) * RAD_S_PER_VELOCITY_UNIT
     return float(x) if x.ndim == 0 else x
 
 
+@overload
+def rad_s_to_velocity(rad_s: float) -> int: ...
+@overload
+def rad_s_to_velocity(rad_s: _Array) -> NDArray[np.int64]: ...
+@overload
+def rad_s_to_velocity(rad_s: ArrayLike) -> NDArray[np.int64] | int: ...
 def rad_s_to_velocity(rad_s: ArrayLike) -> NDArray[np.int64] | int:
     """rad/s -> nearest velocity unit (0.229 rev/min). Non-finite input raises ValueError."""
     x = np.asarray(rad_s, dtype=np.float64)
@@ -92,6 +127,12 @@ def goal_tick_range(
     raise ValueError(f"{mode.name} mode does not follow Goal Position")
 
 
+@overload
+def fold_ticks(ticks: int) -> int: ...
+@overload
+def fold_ticks(ticks: NDArray[np.generic] | Sequence[int]) -> NDArray[np.int64]: ...
+@overload
+def fold_ticks(ticks: ArrayLike) -> NDArray[np.int64] | int: ...
 def fold_ticks(ticks: ArrayLike) -> NDArray[np.int64] | int:
     """Fold multi-turn ticks into one turn 0..4095 (what Position mode reports after a
     switch from Extended mode, a Reboot or torque on)."""

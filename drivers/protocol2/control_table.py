@@ -172,7 +172,7 @@ class HardwareError(IntFlag):
 
 def describe_hardware_error(bits: int) -> str:
     """``0x24`` -> ``"overheating, overload"``; unknown bits are shown in hex."""
-    names = [f.name.lower() for f in HardwareError if bits & f]
+    names = [name.lower() for name, f in HardwareError.__members__.items() if bits & f]
     rest = bits & ~sum(HardwareError)
     if rest:
         names.append(f"0x{rest:02X}")

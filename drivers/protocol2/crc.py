@@ -63,7 +63,7 @@ def make_word_table(little: bool) -> list[int]:
 
 
 @cache
-def big_endian_word_table() -> array:
+def big_endian_word_table() -> array[int]:
     """:func:`make_word_table` for words read big-endian (``struct`` ``">H"``), as an array
     of 16-bit values: the driver's tick reads its packets that way, and in a tick, whose
     code and data crowd the caches, an array costs fewer misses than a list of 65536 ints."""
@@ -107,6 +107,7 @@ def _byte_view(data: object) -> memoryview | None:
     """A flat view of ``data``'s bytes, or None when it is no such buffer (a list of ints, a
     view of other items or with gaps): those take the byte loop, as they always did."""
     try:
+        # any object may come here; memoryview's TypeError is the test (3.11 has no Buffer type)
         view = memoryview(data)  # type: ignore[arg-type]
     except TypeError:
         return None

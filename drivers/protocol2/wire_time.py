@@ -140,6 +140,23 @@ def cycle_time_s(
     return wire + delays + latency_term_s(read_reply_bytes(n, fast, data_bytes), latency_s)
 
 
-def cycle_rate_hz(n: int, baud: float, fast: bool, **kw) -> float:
+def cycle_rate_hz(
+    n: int,
+    baud: float,
+    fast: bool,
+    *,
+    return_delay_s: float | Sequence[float] = 0.0,
+    turnaround_s: float = DEFAULT_TURNAROUND_S,
+    latency_s: float = 0.0,
+    data_bytes: int = 4,
+) -> float:
     """``1 / cycle_time_s(...)``: the most write+read cycles per second the bus allows."""
-    return 1.0 / cycle_time_s(n, baud, fast, **kw)
+    return 1.0 / cycle_time_s(
+        n,
+        baud,
+        fast,
+        return_delay_s=return_delay_s,
+        turnaround_s=turnaround_s,
+        latency_s=latency_s,
+        data_bytes=data_bytes,
+    )

@@ -131,7 +131,8 @@ def measure_latency(
     """
     ids = tuple(ids)
     clock = bb.clock
-    trace = bb.bus.trace if bb.emulated else None
+    bus = bb.bus  # (bb.emulated: bus is not None)
+    trace = bus.trace if bus is not None else None
     write_times = getattr(bb.port, "write_times", None)
     if trace is None and write_times is None:
         raise ValueError("open the bus with stamped=True (hardware) or trace=True (emulator)")

@@ -104,11 +104,7 @@ def plot_bus_rate(rows: list[BusRate], path: str | Path) -> Path:
         1, len(bauds), figsize=(5.2 * len(bauds), 4.6), layout="constrained", squeeze=False
     )
     r0 = rows[0]
-    params = dict(
-        return_delay_s=r0.return_delay_us * 1e-6,
-        turnaround_s=r0.turnaround_us * 1e-6,
-        latency_s=r0.latency_timer_ms * 1e-3,
-    )
+    rdt, turn, lat = r0.return_delay_us * 1e-6, r0.turnaround_us * 1e-6, r0.latency_timer_ms * 1e-3
     for ax, baud in zip(axes[0], bauds, strict=True):
         ns = sorted({len(r.ids) for r in rows if r.baud == baud})
         n_line = np.arange(min(ns), max(ns) + 1)
@@ -117,7 +113,12 @@ def plot_bus_rate(rows: list[BusRate], path: str | Path) -> Path:
             if not sel:
                 continue
             name = "Fast Sync Read" if fast else "plain Sync Read"
-            model = [cycle_rate_hz(int(n), baud, fast, **params) for n in n_line]
+            model = [
+                cycle_rate_hz(
+                    int(n), baud, fast, return_delay_s=rdt, turnaround_s=turn, latency_s=lat
+                )
+                for n in n_line
+            ]
             ax.plot(n_line, model, ls="--", color=color, lw=1.5, label=f"{name}: model")
             achieved = [r.achieved_hz for r in sel]
             ax.plot(

@@ -350,7 +350,7 @@ class HilLoop:
         slack = getattr(self.telemetry, "slack", None) if not clock.virtual else None
         shared = slack is not None and getattr(clock, "idle", False) is None
         if shared:
-            clock.idle = slack  # type: ignore[attr-defined]
+            clock.idle = slack
         try:
             # tick 0 as warm as later ones
             cold = (
@@ -372,7 +372,7 @@ class HilLoop:
             return k
         finally:
             if shared:
-                clock.idle = None  # type: ignore[attr-defined]
+                clock.idle = None
 
     def _begin(self) -> float:
         """The books the ticks keep, started at tick 0 (``hilsim bench`` starts them too, to

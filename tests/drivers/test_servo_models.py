@@ -22,6 +22,8 @@ import pytest
 
 import drivers.protocol2.control_table as ct
 from drivers.dxlsim import DxlsimUrl, VirtualServo, register_bus, unregister_bus
+from drivers.dxlsim.model_data import MODEL_DATA
+from drivers.dxlsim.model_spec import ModelSpec
 from drivers.dxlsim.models import MODELS, get_model, models_by_id
 from drivers.dxlsim.servo import pair_axes
 from drivers.dynamixel.port import PortHandler
@@ -90,6 +92,15 @@ def test_x330_indirect_block_and_protocol_types():
     assert xc.write(PROTOCOL_TYPE, bytes([5]), 0.0) == StatusError.DATA_RANGE
     assert xc.write(PROTOCOL_TYPE, bytes([22]), 0.0) == 0
     assert xc.listening_baud == 0  # RC-PWM: deaf to Protocol 2.0
+
+
+def test_each_models_data_has_the_keys_of_a_model_spec():
+    """What the type checker holds the data to, checked here too: a key the spec does not
+    name would be dropped when the model is built."""
+    allowed = ModelSpec.__required_keys__ | ModelSpec.__optional_keys__
+    for name, data in MODEL_DATA.items():
+        assert ModelSpec.__required_keys__ <= data.keys() <= allowed, name
+    assert MODELS["2XL430-W250"].axes == 2 and MODELS["XM430-W350"].axes == 1
 
 
 def test_several_models_on_one_url_and_scan_names_each():
