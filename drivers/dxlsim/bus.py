@@ -13,21 +13,12 @@ from an injected clock (virtual or real); every byte has a time:
   it (they wait for a packet that never comes), which is how Protocol 2.0 slaves behave;
 * Fast Sync/Bulk Read is one packet: the first servo sends the header and its block
   after its delay, the others append their blocks;
-* the USB adapter (latency timer ``L``): received bytes reach the host when 62 have
-  accumulated, or ``L`` after the line went quiet. ``L = 0`` means every byte is
-  readable the moment its stop bit ends.
+* the USB adapter (latency timer ``L``) hands bytes to the host in chunks
+  (:mod:`drivers.dxlsim.usb`).
 
 So "instruction start -> last reply byte readable" = wire time + Return Delay +
-turnaround (+ L), exactly, on either clock.
-
-Addressing (e-Manual protocol2.md, ``control_table_shadowid.md``): a packet to an ID is
-executed and answered by the servo with that ID (ID(7) has priority) and executed, never
-answered, by every other servo whose Secondary ID(12) is that ID (0-252; 253-255 turn it
-off). Through a Secondary ID the EEPROM area cannot be changed: a Write or Reg Write that
-touches an address below 64 is dropped there, as are Factory Reset and Control Table
-Backup; Ping and Read would only produce an answer, which is never sent. A broadcast
-Factory Reset with option 0xFF is ignored by firmware 42 and up (nothing executed, no
-reply, as for every broadcast but Ping and the reads).
+turnaround (+ L), exactly, on either clock. Addressing and what each instruction does:
+:mod:`drivers.dxlsim.dispatch`.
 
 Not modelled (host/servo collisions, noise beyond the fault plan, ...): the one list is
 ``docs/dxlsim.md``.
@@ -39,38 +30,37 @@ import bisect
 import math
 from collections.abc import Iterable
 from dataclasses import dataclass
-from itertools import repeat
 from operator import itemgetter
-from types import SimpleNamespace
 
 from drivers.clock import Clock, VirtualClock
+from drivers.dxlsim.dispatch import (
+    BROADCAST_EXECUTED,
+    Inst,
+    bulk_write,
+    error_byte,
+    execute,
+    execute_broadcast,
+    execute_secondary,
+    read_items,
+    replies_to,
+    sync_write,
+)
 from drivers.dxlsim.faults import Fault, FaultKind, FaultPlan, parse_fault_plan
 from drivers.dxlsim.protocol import (
     BROADCAST_ID,
     HEADER,
     ErrorCode,
-    Instruction,
     StreamParser,
     crc16,
     encode_status,
 )
 from drivers.dxlsim.servo import VirtualServo
-from drivers.protocol2.control_table import EEPROM_END
+from drivers.dxlsim.usb import UsbChunks
 from drivers.protocol2.crc import crc16_blocks, word_table
-from drivers.protocol2.wire_time import DEFAULT_TURNAROUND_S, USB_CHUNK
+from drivers.protocol2.wire_time import DEFAULT_TURNAROUND_S
 
 #: A servo drops a half-received instruction packet after this much silence (e-Manual).
 INTER_BYTE_TIMEOUT_S = 1.5e-3
-#: From this firmware a broadcast Factory Reset with option 0xFF (Reset All) is not
-#: executed (protocol2.md Factory Reset: "MX(2.0) FW42, X-series FW42 or above").
-BROADCAST_RESET_ALL_MIN_FIRMWARE = 42
-RESET_ALL = b"\xff"
-
-#: The instruction codes as plain ints: each lookup of an enum member through its class
-#: costs ~0.15 µs on CPython 3.11, several per packet; the comparisons are the same.
-Inst = SimpleNamespace(**{m.name: int(m) for m in Instruction})
-#: What a servo executes when addressed by its Secondary ID (never answered).
-_BY_SECONDARY_ID = frozenset((Inst.WRITE, Inst.REG_WRITE, Inst.ACTION, Inst.REBOOT, Inst.CLEAR))
 #: One servo's answer to a read: the servo, its ERR byte, its data.
 _Answer = tuple[VirtualServo, int, bytes]
 
@@ -144,13 +134,8 @@ class DxlBus:
         self._rx_data = bytearray()
         self._rx_wire: list[float] = []
         self._rx_vis: list[float] = []
-        # What the last visibility computation found (see _update_visibility): the stream
-        # index of _rx_data[0], the stream indices where its USB chunks started, and the
-        # clock and latency it ran with.
-        self._rx_base = 0
-        self._chunk_starts: list[int] = []
-        self._vis_now = -math.inf
-        self._vis_latency = self.latency_s
+        self._rx_base = 0  # the stream index of _rx_data[0]
+        self._usb = UsbChunks(self.latency_s)  # the adapter's chunks of the unread bytes
         self._fast_headers: dict[int, tuple[bytes, int]] = {}  # size -> (header, its CRC)
         self._steps: list[float] = []  # k · byte time, k = 1, 2, ... (see _byte_steps)
         self._steps_bt = 0.0
@@ -299,7 +284,7 @@ class DxlBus:
             for s in targets:
                 s.touch(t)
             replies = [
-                (s, encode_status(s.id, self._err(s, ErrorCode.CRC)))
+                (s, encode_status(s.id, error_byte(s, ErrorCode.CRC)))
                 for s in targets
                 if s.status_return_level >= 2
             ]
@@ -312,133 +297,42 @@ class DxlBus:
         replies = []
         for s in targets:
             s.touch(t)
-            err, data = self._execute(s, inst, params, t)
-            if self._replies(s, inst):  # answers as the ID it was asked as, even after an ID write
+            err, data = execute(s, inst, params, t)
+            if replies_to(s, inst):  # answers as the ID it was asked as, even after an ID write
                 replies.append((s, encode_status(fid, err, data)))
         for s in hearing:
             if s.id != fid and s.secondary_id == fid and s not in targets:
                 s.touch(t)
-                self._execute_secondary(s, inst, params, t)
+                execute_secondary(s, inst, params, t)
         self._send_unicast(replies, t)
 
-    @staticmethod
-    def _err(servo: VirtualServo, code: int) -> int:
-        return code | (0x80 if servo.alert else 0)
-
-    @staticmethod
-    def _replies(servo: VirtualServo, inst: int) -> bool:
-        level = servo.status_return_level
-        if inst == Inst.PING:
-            return True
-        if inst == Inst.READ:
-            return level >= 1
-        return level >= 2
-
-    def _execute(self, s: VirtualServo, inst: int, params: bytes, t: float) -> tuple[int, bytes]:
-        """One instruction addressed to one servo -> (ERR byte, status params)."""
-        bad = self._err(s, ErrorCode.INSTRUCTION)
-        if inst == Inst.PING:
-            return s.ping(t) if not params else (bad, b"")
-        if inst == Inst.READ:
-            if len(params) != 4:
-                return bad, b""
-            return s.read(params[0] | params[1] << 8, params[2] | params[3] << 8, t)
-        if inst in (Inst.WRITE, Inst.REG_WRITE):
-            if len(params) < 3:
-                return bad, b""
-            fn = s.write if inst == Inst.WRITE else s.reg_write
-            return fn(params[0] | params[1] << 8, params[2:], t), b""
-        if inst == Inst.ACTION:
-            return (s.action(t), b"") if not params else (bad, b"")
-        if inst == Inst.REBOOT:
-            return (s.reboot(t), b"") if not params else (bad, b"")
-        if inst == Inst.FACTORY_RESET:
-            return (s.factory_reset(params[0], t), b"") if len(params) == 1 else (bad, b"")
-        if inst == Inst.CLEAR:
-            return s.clear(params, t), b""
-        if inst == Inst.BACKUP:
-            return s.backup(params, t), b""
-        return bad, b""  # unknown, or a broadcast-only instruction sent to one ID
-
-    def _execute_secondary(self, s: VirtualServo, inst: int, params: bytes, t: float) -> None:
-        """An instruction for ``s``'s Secondary ID: RAM only, executed, never answered."""
-        if inst not in _BY_SECONDARY_ID:
-            return
-        if inst in (Inst.WRITE, Inst.REG_WRITE) and (
-            len(params) < 3 or (params[0] | params[1] << 8) < EEPROM_END
-        ):
-            return  # the EEPROM area cannot be modified with the Secondary ID
-        self._execute(s, inst, params, t)
-
     def _broadcast(self, inst: int, params: bytes, hearing: list[VirtualServo], t: float) -> None:
-        # the instructions of every tick first (the branches exclude each other)
-        if inst == Inst.SYNC_WRITE:
-            if len(params) < 4:
-                return
-            addr, length = params[0] | params[1] << 8, params[2] | params[3] << 8
-            body = params[4:]
-            if length == 0 or len(body) % (length + 1):
-                return  # malformed: every servo ignores it
-            by_id = {}
-            for k in range(0, len(body), length + 1):
-                by_id[body[k]] = body[k + 1 : k + 1 + length]
-            for s in hearing:
-                data = by_id.get(s.id)
-                if data is not None:
-                    s.touch(t)
-                    s.write(addr, data, t)
-        elif inst in (Inst.SYNC_READ, Inst.FAST_SYNC_READ):
-            if len(params) < 5:
-                return
-            addr, length = params[0] | params[1] << 8, params[2] | params[3] << 8
-            items = list(zip(params[4:], repeat(addr), repeat(length)))  # (id, addr, length)
-            self._read_chain(inst == Inst.FAST_SYNC_READ, items, hearing, t)
+        if inst == Inst.SYNC_WRITE:  # the instruction of every tick first
+            parsed = sync_write(params)
+            if parsed is not None:
+                addr, by_id = parsed
+                for s in hearing:
+                    data = by_id.get(s.id)
+                    if data is not None:
+                        s.touch(t)
+                        s.write(addr, data, t)
+        elif (read := read_items(inst, params)) is not None:
+            self._read_chain(read[0], read[1], hearing, t)
         elif inst == Inst.PING:
             chain = sorted(hearing, key=lambda s: s.id)
             for s in chain:
                 s.touch(t)
             self._send_chain([(s, *s.ping(t)) for s in chain], t)
-        elif inst in (Inst.BULK_READ, Inst.FAST_BULK_READ):
-            if len(params) < 5 or len(params) % 5:
-                return
-            items = [
-                (params[k], params[k + 1] | params[k + 2] << 8, params[k + 3] | params[k + 4] << 8)
-                for k in range(0, len(params), 5)
-            ]
-            self._read_chain(inst == Inst.FAST_BULK_READ, items, hearing, t)
         elif inst == Inst.BULK_WRITE:
-            k, writes = 0, dict[int, tuple[int, bytes]]()
-            while k + 5 <= len(params):
-                sid, addr = params[k], params[k + 1] | params[k + 2] << 8
-                length = params[k + 3] | params[k + 4] << 8
-                if k + 5 + length > len(params):
-                    return  # malformed
-                writes[sid] = (addr, params[k + 5 : k + 5 + length])
-                k += 5 + length
-            if k != len(params):
-                return
+            writes = bulk_write(params) or {}
             for s in hearing:
-                if s.id in writes:
+                if (w := writes.get(s.id)) is not None:
                     s.touch(t)
-                    s.write(*writes[s.id], t)
-        elif inst in (
-            Inst.WRITE,
-            Inst.REG_WRITE,
-            Inst.ACTION,
-            Inst.REBOOT,
-            Inst.FACTORY_RESET,
-            Inst.CLEAR,
-            Inst.BACKUP,
-        ):
+                    s.write(w[0], w[1], t)
+        elif inst in BROADCAST_EXECUTED:
             for s in hearing:
                 s.touch(t)
-                if (
-                    inst == Inst.FACTORY_RESET
-                    and params == RESET_ALL
-                    and s.firmware >= BROADCAST_RESET_ALL_MIN_FIRMWARE
-                ):
-                    continue  # the FW42+ safety rule: a broadcast Reset All is not executed
-                self._execute(s, inst, params, t)  # broadcast: executed, never answered
+                execute_broadcast(s, inst, params, t)  # executed, never answered
 
     def _read_chain(
         self, fast: bool, items: list[tuple[int, int, int]], hearing: list[VirtualServo], t: float
@@ -663,7 +557,7 @@ class DxlBus:
             )
             self._rx_wire = [w for w, _ in merged]
             self._rx_data = bytearray(b for _, b in merged)
-            self._chunk_starts = []  # chunks no longer line up: recompute them all
+            self._usb.forget()  # chunks no longer line up: recompute them all
             self._update_visibility(False)
         self.stats["bytes_rx"] += n
         if self.trace is not None:
@@ -687,117 +581,12 @@ class DxlBus:
         return steps
 
     def _update_visibility(self, even: bool) -> None:
-        """When each unread byte reaches the host through the USB adapter, after bytes joined
-        the buffer (``even``: they came at the end, one burst with no gap over the latency).
-
-        Equal to :func:`full_visibility` (the definition; a test holds the two equal), but it
-        only redoes the part that can change. The full computation cuts the unread bytes
-        into chunks from the first one: a chunk ends after 62 bytes (readable when its last
-        byte arrives), at a gap longer than the latency timer or at the last byte (readable
-        ``latency`` after its last byte); then a byte the host could already see keeps its
-        earlier time. Bytes appended at the end change neither the chunks that closed before
-        the last one nor their times: the same cuts come back, and a kept earlier time is
-        kept again (the clock has not gone back). So the chunks are cut again from the last
-        chunk's start only, provided the host's reads since ended on a chunk boundary (else
-        the chunks start elsewhere now, and all unread bytes are cut again). Inside the last
-        chunk and inside one burst there is no gap over the latency, so with ``even`` the
-        only possible cut by a gap is where the burst joins the buffer.
-        """
-        wire = self._rx_wire
-        latency = self.latency_s
-        if latency <= 0.0:  # an ideal adapter: readable when the stop bit ends
-            self._rx_vis = list(wire)
-            self._chunk_starts = []
-            return
-        now = self.clock.now()
-        vis = self._rx_vis
-        m = len(vis)
-        base = self._rx_base
-        starts = self._chunk_starts
-        lo, kept, incremental = 0, [], False
-        if starts and now >= self._vis_now and latency == self._vis_latency:
-            i = bisect.bisect_left(starts, base)
-            if i < len(starts) and starts[i] == base:
-                lo, kept, incremental = starts[-1] - base, starts[i:-1], True
-        if even and (incremental or m == 0):
-            values, cuts = _even_chunks(wire, lo, m, latency)
-        else:
-            values, cuts = _chunks(wire, lo, latency)
-        if lo < m and min(vis[lo:m]) <= now:  # a byte the host could already see stays visible
-            for j in range(lo, m):
-                old = vis[j]
-                if old <= now and wire[j] <= old:
-                    values[j - lo] = min(values[j - lo], old)
-        vis[lo:] = values
-        kept.extend(base + c for c in cuts)
-        self._chunk_starts = kept
-        self._vis_now = now
-        self._vis_latency = latency
-
-
-def _chunks(wire: list[float], lo: int, latency: float) -> tuple[list[float], list[int]]:
-    """USB chunks of ``wire[lo:]`` cut from ``lo``, byte by byte: ``(the time each byte is
-    readable, the chunks' first indices)``. Any gaps."""
-    n = len(wire)
-    values: list[float] = []
-    cuts = []
-    chunk_start = lo
-    for i in range(lo, n):
-        full = i + 1 - chunk_start == USB_CHUNK
-        if full or i + 1 == n or wire[i + 1] - wire[i] > latency:
-            flush = wire[i] if full else wire[i] + latency
-            values += [flush] * (i + 1 - chunk_start)
-            cuts.append(chunk_start)
-            chunk_start = i + 1
-    return values, cuts
-
-
-def _even_chunks(
-    wire: list[float], lo: int, m: int, latency: float
-) -> tuple[list[float], list[int]]:
-    """:func:`_chunks` when no gap in ``wire[lo:]`` can exceed ``latency`` but the one
-    between ``m - 1`` and ``m`` (where a burst joined the last chunk): whole chunks at a
-    time instead of byte by byte."""
-    n = len(wire)
-    runs = [(lo, n)]
-    if lo < m and wire[m] - wire[m - 1] > latency:
-        runs = [(lo, m), (m, n)]
-    values: list[float] = []
-    cuts = []
-    for a, b in runs:
-        for c in range(a, b, USB_CHUNK):
-            e = c + USB_CHUNK
-            if e <= b:
-                values += [wire[e - 1]] * USB_CHUNK
-            else:
-                e = b
-                values += [wire[e - 1] + latency] * (e - c)
-            cuts.append(c)
-    return values, cuts
-
-
-def full_visibility(wire: list[float], old: list[float], now: float, latency: float) -> list[float]:
-    """When each unread byte (arriving at ``wire``) reaches the host through a USB adapter
-    with latency timer ``latency`` > 0, given the times ``old`` computed before and the
-    clock ``now``: the definition :meth:`DxlBus._update_visibility` computes incrementally.
-
-    Chunks are cut from the first byte: a chunk ends after 62 bytes (readable when its last
-    byte arrives), at a gap longer than ``latency`` or at the last byte (readable
-    ``latency`` after its last byte). A byte the host could already see stays visible.
-    """
-    vis = [0.0] * len(wire)
-    chunk_start = 0
-    for i in range(len(wire)):
-        last = i + 1 == len(wire) or wire[i + 1] - wire[i] > latency
-        if i + 1 - chunk_start == USB_CHUNK or last:
-            flush = wire[i] if i + 1 - chunk_start == USB_CHUNK else wire[i] + latency
-            for j in range(chunk_start, i + 1):
-                vis[j] = flush
-            chunk_start = i + 1
-    for j in range(min(len(old), len(vis))):
-        if old[j] <= now and wire[j] <= old[j]:
-            vis[j] = min(vis[j], old[j])
-    return vis
+        """When each unread byte reaches the host (:mod:`drivers.dxlsim.usb`), after bytes
+        joined the buffer (``even``: they came at the end, one burst with no gap over the
+        latency)."""
+        self._rx_vis = self._usb.update(
+            self._rx_wire, self._rx_vis, self._rx_base, self.clock, self.latency_s, even
+        )
 
 
 def _merge(packets: list[bytes]) -> bytes:

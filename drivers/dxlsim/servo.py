@@ -1,47 +1,16 @@
 """One virtual Dynamixel X-series servo: control table, instruction semantics, motion.
 
-The device side only: no bytes on a wire, no timing of the wire. The bus decodes an
-instruction packet, decides addressing, calls one method here per servo and encodes the
-status packet from the returned ``(error, params)``. Every method takes the current
-time ``t`` (float seconds, non-decreasing); the servo holds no clock.
+The device side only, no wire: the bus (:mod:`drivers.dxlsim.dispatch`) calls one method
+here per servo and encodes the status packet from the returned ``(error, params)``. Every
+method takes the time ``t`` (s, non-decreasing); the servo holds no clock. The error byte
+is the error number (:class:`StatusError`) with bit 7 (:data:`ALERT`) set while Hardware
+Error Status (addr 70) is non-zero.
 
-Error byte (Protocol 2.0): bits 0-6 the error number (:class:`StatusError`), bit 7
-(:data:`ALERT`) set whenever Hardware Error Status (addr 70) is non-zero.
-
-The servo owns two parts: a :class:`~drivers.dxlsim.registers.RegisterFile` (the
-control table: Read spans, Write validation, the Alert bit) and a
-:class:`~drivers.dxlsim.motion.Motion` (the horn and its trajectory on a fixed time grid,
-and the Present values computed from them). This module holds the instructions, the
-side effects of writes, the Bus Watchdog and the faults the bus injects.
-
-Choices where the e-Manual is silent or ambiguous (all deliberate, all tested):
-
-- Read and Write: see :mod:`drivers.dxlsim.registers` (gaps, spans, the order of the
-  Write checks).
-- Torque on holds the present position and copies it into Goal Position, so torque-on
-  never jumps and Goal Position reads what the servo holds. In Position Control Mode it
-  also folds Present Position into one turn (e-Manual Present Position note), as do a
-  change to Position Control Mode and Reboot.
-- Torque off stops the horn where it is (no coasting); the trajectory follows it. A hand
-  (:meth:`VirtualServo.hand`, :mod:`drivers.dxlsim.hand`) then moves it; with torque on
-  nothing back-drives the horn.
-- Bus Watchdog trip stops at once (the e-Manual: profile applied as 0): the trajectory
-  holds where the horn is.
-- Action with nothing registered -> Instruction Error (protocol2.md error table). Action
-  re-validates the registered write against the state at Action time.
-- Control Table Backup (0x20, protocol2.md): on firmware below the model's
-  ``backup_min_firmware`` an undefined instruction (Instruction Error); torque on ->
-  Result Fail; P1 0x01 stores, 0x02 restores the EEPROM part and reboots (Result Fail
-  when nothing was stored); P2-P5 other than ``43 54 52 4C`` or another P1 -> Data Range
-  Error, other lengths -> Data Length Error. Every boot (Reboot, Restore, brownout) then
-  applies Startup Configuration (60): RAM Restore, Startup Torque On.
-- Factory Reset while torque is on -> Access Error (it writes EEPROM).
-- Clear (multi-turn) while moving -> Result Fail; other Clear parameters -> Data Range
-  Error, wrong length -> Data Length Error. After it Goal Position = Present Position.
-- Reboot/brownout: RAM to defaults, Goal Position = Present Position (folded), Realtime
-  Tick restarts at 0. Reboot's returned error still carries the pre-reboot Alert bit
-  (the real servo replies before it reboots).
-- Not modelled: ``docs/dxlsim.md`` has the one list.
+The servo owns a :class:`~drivers.dxlsim.registers.RegisterFile` (the control table) and a
+:class:`~drivers.dxlsim.motion.Motion` (the horn and its Present values). This module holds
+the instructions, the side effects of writes, the Bus Watchdog and the injected faults.
+The choices made where the e-Manual is silent, and what is not modelled:
+``docs/dxlsim.md``.
 """
 
 from __future__ import annotations
@@ -52,6 +21,7 @@ import drivers.protocol2.control_table as ct
 from drivers.protocol2.control_table import OperatingMode, StatusError
 
 from . import registers as rg
+from .dual_axis import share_module
 from .hand import Hand, HandFn
 from .models import ServoModel, get_model
 from .motion import Motion, MotionState, torque_on_by_goal
@@ -360,7 +330,7 @@ class VirtualServo:
         if not err:
             self._apply(updates)
             if partner is not None:
-                self._share_module()
+                share_module(self)
         return err | (ALERT if self._regs[_HARDWARE_ERROR_STATUS] else 0)  # + Alert
 
     def reg_write(self, addr: int, data: bytes, t: float) -> int:
@@ -411,7 +381,7 @@ class VirtualServo:
             return alert | StatusError.ACCESS
         self._reg.reset_eeprom(keep)
         self._restart(t)
-        self._share_module()
+        share_module(self)
         return alert
 
     def backup(self, params: bytes, t: float) -> int:
@@ -432,7 +402,7 @@ class VirtualServo:
             self._reg.store_backup()
         elif self._reg.restore_eeprom():
             self._restart(t)
-            self._share_module()
+            share_module(self)
         else:
             return alert | StatusError.RESULT_FAIL  # nothing stored to restore
         return alert
@@ -614,15 +584,6 @@ class VirtualServo:
         if startup_torque:
             self._torque_on()
 
-    def _share_module(self) -> None:
-        """A 2XL430's axes have one communication module: Baud Rate and Protocol Type, once
-        changed on one axis, are the other's too (2xl430-w250.md, Baud Rate and Protocol
-        Type cautions)."""
-        partner = self.partner
-        if partner is not None:
-            for a in (rg.BAUD_RATE, rg.PROTOCOL_TYPE):
-                partner._regs[a] = self._regs[a]
-
     # --- registers computed on read the motion does not own ------------------------------
     def _realtime_tick(self) -> int:
         return int((self._mo.now - self._boot_t) * 1000.0 + 1e-6) % 32768
@@ -635,16 +596,3 @@ class VirtualServo:
             f"VirtualServo({self.model.name!r}, id={self.id}, t={self._mo.now:.6f}, "
             f"position={self._mo.present_position()}, torque={self._regs[rg.TORQUE_ENABLE]})"
         )
-
-
-def pair_axes(a: VirtualServo, b: VirtualServo) -> None:
-    """Make ``a`` and ``b`` the two axes of one dual-axis case (2XL430-W250): one Baud Rate
-    and Protocol Type between them (``b`` takes ``a``'s), and neither may take the other's
-    ID. Raises ValueError when the model has no second axis or the IDs are equal."""
-    for s in (a, b):
-        if s.model.axes != 2:
-            raise ValueError(f"{s.model.name} has one axis; only a dual-axis model pairs")
-    if a.id == b.id:
-        raise ValueError(f"the two axes of one {a.model.name} need two IDs, got {a.id} twice")
-    a.partner, b.partner = b, a
-    a._share_module()

@@ -68,9 +68,10 @@ from typing import Any, TypedDict, Unpack
 
 from drivers.clock import DEFAULT_SPIN_S, MonotonicClock, VirtualClock
 from drivers.dxlsim.bus import DxlBus
+from drivers.dxlsim.dual_axis import pair_axes
 from drivers.dxlsim.faults import FaultPlan, parse_fault_plan
 from drivers.dxlsim.models import format_models, models_by_id
-from drivers.dxlsim.servo import VirtualServo, pair_axes
+from drivers.dxlsim.servo import VirtualServo
 from drivers.protocol2.ids import format_ids, parse_ids
 from drivers.protocol2.wire_time import DEFAULT_TURNAROUND_S
 

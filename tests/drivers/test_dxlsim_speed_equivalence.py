@@ -3,7 +3,7 @@
 Each fast path must give the same result, bit for bit, as the simple code it stands for:
 the two-byte CRC table against the byte loop it replaced and the bitwise definition, the
 incremental USB visibility of :class:`~drivers.dxlsim.bus.DxlBus` against
-:func:`~drivers.dxlsim.bus.full_visibility` recomputed from scratch after every burst of reply
+:func:`~drivers.dxlsim.usb.full_visibility` recomputed from scratch after every burst of reply
 bytes, a Fast Sync Read reply put on the wire at once against block by block, the parser's
 whole-frame shortcut against the same bytes fed one at a time. No wall-clock time is measured.
 """
@@ -17,9 +17,10 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from drivers.clock import VirtualClock
-from drivers.dxlsim.bus import DxlBus, full_visibility
+from drivers.dxlsim.bus import DxlBus
 from drivers.dxlsim.protocol import HEADER, Instruction, StreamParser, encode_instruction
 from drivers.dxlsim.servo import VirtualServo
+from drivers.dxlsim.usb import full_visibility
 from drivers.protocol2.crc import CRC_TABLE, crc16, crc16_blocks, make_word_table
 from drivers.protocol2.wire_time import USB_CHUNK
 

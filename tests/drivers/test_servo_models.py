@@ -22,10 +22,10 @@ import pytest
 
 import drivers.protocol2.control_table as ct
 from drivers.dxlsim import DxlsimUrl, VirtualServo, register_bus, unregister_bus
+from drivers.dxlsim.dual_axis import pair_axes
 from drivers.dxlsim.model_data import MODEL_DATA
 from drivers.dxlsim.model_spec import ModelSpec
 from drivers.dxlsim.models import MODELS, get_model, models_by_id
-from drivers.dxlsim.servo import pair_axes
 from drivers.dynamixel.port import PortHandler
 from drivers.dynamixel.scan import Found, scan
 from drivers.protocol2.control_table import StatusError
