@@ -19,15 +19,20 @@ The list path and the array path do the same operations in the same order: the s
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
+from typing import overload
 
 import numpy as np
 import numpy.typing as npt
 
 from drivers.fill import Packed
+from hilsim._types import FloatArray
 
 #: a linear combination Σ a_j·K_j of stage slopes with its zero terms dropped, as
 #: (first j, first a, ((j, a), …) for the rest); None when every coefficient is zero
 Combo = tuple[int, float, tuple[tuple[int, float], ...]]
+#: u or u' for every joint as a step takes it (rad, rad/s): one number for all, n numbers (the
+#: loop's tuples, used as they are) or a float64 array broadcastable to ``(n,)``
+Sample = float | Sequence[float] | FloatArray
 
 
 def combo(coeffs: npt.ArrayLike) -> Combo | None:
@@ -35,6 +40,10 @@ def combo(coeffs: npt.ArrayLike) -> Combo | None:
     return (terms[0][0], terms[0][1], tuple(terms[1:])) if terms else None
 
 
+@overload
+def scale(c: Combo, h: float) -> Combo: ...
+@overload
+def scale(c: Combo | None, h: float) -> Combo | None: ...
 def scale(c: Combo | None, h: float) -> Combo | None:
     if c is None:
         return None
@@ -42,42 +51,46 @@ def scale(c: Combo | None, h: float) -> Combo | None:
     return (j0, h * a0, tuple((j, h * a) for j, a in rest))
 
 
-def as_list(value: npt.ArrayLike, n: int) -> Sequence[float]:
+def as_list(value: Sample, n: int) -> Sequence[float]:
     """A target value (a number, or anything broadcastable to ``(n,)``) as n floats (a list
     or tuple of n numbers as it is: the same arithmetic as on their float64 conversions)."""
+    # type(value) is read once (this runs every substep); mypy does not narrow value through
+    # kind, hence the ignores where kind says what value is
     kind = type(value)
     if kind is list or kind is tuple:
-        if len(value) == n:  # type: ignore[arg-type]
-            return value  # type: ignore[return-value]
-    elif kind is np.ndarray and value.shape == (n,) and value.dtype.char == "d":  # type: ignore[union-attr]
-        return value.tolist()  # type: ignore[union-attr]  # the loop's buffers
+        if len(value) == n:  # type: ignore[arg-type]  # a list or tuple
+            return value  # type: ignore[return-value]  # a list or tuple
+    elif kind is np.ndarray and value.shape == (n,) and value.dtype.char == "d":  # type: ignore[union-attr]  # an ndarray
+        floats: list[float] = value.tolist()  # type: ignore[union-attr]  # the loop's buffers
+        return floats
     if isinstance(value, float | int):
         return [float(value)] * n
     arr = np.asarray(value, dtype=np.float64)
-    return (arr if arr.shape == (n,) else np.broadcast_to(arr, (n,))).tolist()
+    floats = (arr if arr.shape == (n,) else np.broadcast_to(arr, (n,))).tolist()
+    return floats
 
 
-def tableau_matrix(A: np.ndarray, B: np.ndarray, M: np.ndarray, h: float) -> np.ndarray:
+def tableau_matrix(A: FloatArray, B: FloatArray, M: FloatArray, h: float) -> FloatArray:
     """The step of the explicit Runge–Kutta method (A, B) on d/dt y = M·y, as a matrix per
     system (``M`` shaped ``(n, k, k)``): slope K_i = M·(I + h·Σ_j a_ij·K_j), step
     I + h·Σ_i b_i·K_i."""
     eye = np.broadcast_to(np.eye(M.shape[-1]), M.shape)
-    K: list[np.ndarray] = []
+    K: list[FloatArray] = []
     for i in range(len(B)):
         K.append(M @ (eye + h * sum((a * K[j] for j, a in enumerate(A[i, :i])), np.zeros(M.shape))))
     return eye + h * sum((b * k for b, k in zip(B, K, strict=True)), np.zeros(M.shape))
 
 
 def solve_tableau(
-    A: np.ndarray,
-    B: np.ndarray,
-    C: np.ndarray,
-    f: Callable[[float, np.ndarray], npt.ArrayLike],
+    A: FloatArray,
+    B: FloatArray,
+    C: FloatArray,
+    f: Callable[[float, FloatArray], npt.ArrayLike],
     y0: npt.ArrayLike,
     h: float,
     n_steps: int,
     t0: float = 0.0,
-) -> tuple[np.ndarray, np.ndarray]:
+) -> tuple[FloatArray, FloatArray]:
     """Integrate a general first-order system y' = f(t, y) with the explicit Runge–Kutta
     tableau (A, B, C). A plain, allocating reference implementation (the paper's dy/dt = y
     example, cross-checks of the spring steps); not for the real-time loop.
@@ -95,15 +108,15 @@ def solve_tableau(
             k[i] = f(t + C[i] * h, y + h * np.tensordot(A[i, :i], k[:i], axes=1))
         y = y + h * np.tensordot(B, k, axes=1)
         ys.append(y.copy())
-    return t0 + h * np.arange(n_steps + 1), np.array(ys)
+    return t0 + h * np.arange(n_steps + 1, dtype=np.float64), np.array(ys)
 
 
-def kick_drift_matrix(M: np.ndarray, h: float) -> np.ndarray:
+def kick_drift_matrix(M: FloatArray, h: float) -> FloatArray:
     """Semi-implicit Euler's step on d/dt (x, v, g) = M·(x, v, g) as a matrix per spring:
     v += h·a(x, v, g), then x += h·v with the new v."""
     eye = np.broadcast_to(np.eye(3), M.shape)
-    kick = eye + h * (M * np.array([0.0, 1.0, 0.0])[:, None])
-    return (eye + h * (M * np.array([1.0, 0.0, 0.0])[:, None])) @ kick
+    kick = eye + h * (M * np.array([0.0, 1.0, 0.0], dtype=np.float64)[:, None])
+    return (eye + h * (M * np.array([1.0, 0.0, 0.0], dtype=np.float64)[:, None])) @ kick
 
 
 class HeldStep:
@@ -116,7 +129,7 @@ class HeldStep:
     __slots__ = ("_cols", "_rows", "_tmp", "_vv", "_xv", "bm", "h", "n", "vectorized", "w2")
 
     def __init__(
-        self, S: np.ndarray, h: float, w2: np.ndarray, bm: np.ndarray | None, vectorized: bool
+        self, S: FloatArray, h: float, w2: FloatArray, bm: FloatArray | None, vectorized: bool
     ) -> None:
         self.h, self.n, self.vectorized = h, len(w2), vectorized
         self.w2, self.bm = w2, bm
@@ -131,7 +144,7 @@ class HeldStep:
         self._cols = tuple(np.ascontiguousarray(S[:, r, c]) for r in (0, 1) for c in (0, 1, 2))
         self._tmp = np.empty((4, self.n))
 
-    def step(self, x: np.ndarray, v: np.ndarray, u: npt.ArrayLike, du: npt.ArrayLike) -> None:
+    def step(self, x: FloatArray, v: FloatArray, u: Sample, du: Sample) -> None:
         if self.vectorized:
             self.arrays(x, v, u, du)
             return
@@ -143,7 +156,7 @@ class HeldStep:
         xv.put(*xl)
         vv.put(*vl)
 
-    def lists(self, x: list[float], v: list[float], u: npt.ArrayLike, du: npt.ArrayLike) -> None:
+    def lists(self, x: list[float], v: list[float], u: Sample, du: Sample) -> None:
         n = self.n
         if type(u) is not tuple or len(u) != n:  # the loop's samples are tuples: as they are
             u = as_list(u, n)
@@ -159,11 +172,11 @@ class HeldStep:
             du = as_list(du, n)
         for j in range(n):
             sxx, sxv, sxg, svx, svv, svg, w, b = rows[j]
-            xj, vj, g = x[j], v[j], w * u[j] + b * du[j]  # type: ignore[index]
+            xj, vj, g = x[j], v[j], w * u[j] + b * du[j]
             x[j] = sxx * xj + sxv * vj + sxg * g
             v[j] = svx * xj + svv * vj + svg * g
 
-    def arrays(self, x: np.ndarray, v: np.ndarray, u: npt.ArrayLike, du: npt.ArrayLike) -> None:
+    def arrays(self, x: FloatArray, v: FloatArray, u: Sample, du: Sample) -> None:
         g, tmp, xn, vn = self._tmp
         np.multiply(self.w2, u, out=g)
         if self.bm is not None:

@@ -34,16 +34,22 @@ import numpy.typing as npt
 from drivers.fill import Packed
 from hilsim._types import FloatArray
 from hilsim.dynamics.held_step import Combo as _Combo
-from hilsim.dynamics.held_step import HeldStep, kick_drift_matrix, solve_tableau, tableau_matrix
+from hilsim.dynamics.held_step import (
+    HeldStep,
+    Sample,
+    kick_drift_matrix,
+    solve_tableau,
+    tableau_matrix,
+)
 from hilsim.dynamics.held_step import as_list as _as_list
 from hilsim.dynamics.held_step import combo as _combo
 from hilsim.dynamics.held_step import scale as _scale
 from hilsim.dynamics.springs import Spring
 
 #: u(t), u'(t) for every joint at time t (floats or arrays broadcastable to ``(n,)``; rad, rad/s).
-Target = Callable[[float], tuple[npt.ArrayLike, npt.ArrayLike]]
+Target = Callable[[float], tuple[Sample, Sample]]
 #: what :meth:`Integrator.step` accepts: None (u = u' = 0), (u, u') held over the step, or u(t)
-TargetLike = Target | tuple[npt.ArrayLike, npt.ArrayLike] | None
+TargetLike = Target | tuple[Sample, Sample] | None
 
 
 class Integrator(ABC):

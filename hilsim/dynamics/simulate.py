@@ -14,13 +14,14 @@ import numpy as np
 import numpy.typing as npt
 
 from hilsim._types import FloatArray
+from hilsim.dynamics.held_step import Sample
 from hilsim.dynamics.integrators import TargetLike, get_method
 from hilsim.dynamics.springs import Spring
 
 #: a run longer than this many steps is almost surely a unit slip in h (ms for s)
 MAX_STEPS = 50_000_000
 
-TargetArg = float | npt.ArrayLike | Callable[[float], npt.ArrayLike] | None
+TargetArg = float | npt.ArrayLike | Callable[[float], Sample] | None
 
 
 @dataclass(frozen=True, eq=False)
@@ -88,7 +89,7 @@ def _target_function(spring: Spring, target: TargetArg, target_rate: TargetArg) 
             "u'(t); pass target_rate=callable or number"
         )
 
-    def constant(value: npt.ArrayLike) -> Callable[[float], npt.ArrayLike]:
+    def constant(value: FloatArray) -> Callable[[float], FloatArray]:
         return lambda t: value
 
     u_of = target if callable(target) else constant(_finite("target", target, shape))
@@ -149,7 +150,7 @@ def simulate(
     forcing = _target_function(spring, target, target_rate)
     xs, vs = integrator.run(x0_arr, v0_arr, h, n_steps, 0.0, forcing)
     return Trajectory(
-        t=h * np.arange(n_steps + 1),
+        t=h * np.arange(n_steps + 1, dtype=np.float64),
         x=xs.reshape((n_steps + 1, *shape)),
         v=vs.reshape((n_steps + 1, *shape)),
         spring=spring,

@@ -72,7 +72,7 @@ def oscillator_eigenvalues(w2: npt.ArrayLike, cm: npt.ArrayLike) -> npt.NDArray[
     return np.stack([lam1, lam2], axis=-1)
 
 
-@dataclass(frozen=True, eq=False)
+@dataclass(frozen=True, eq=False, init=False)
 class Spring:
     """One damped spring, or a bank of them, following targets: ``m·x'' + c·x' + k·x = k·u + b·u'``.
 
@@ -97,17 +97,20 @@ class Spring:
     ``cm`` = c/m (= 2γ, 1/s) and ``bm`` = b/m (1/s).
     """
 
-    m: npt.ArrayLike
-    c: npt.ArrayLike
-    k: npt.ArrayLike
-    b: npt.ArrayLike = 0.0
+    m: FloatArray
+    c: FloatArray
+    k: FloatArray
+    b: FloatArray
 
-    def __post_init__(self) -> None:
+    def __init__(
+        self, m: npt.ArrayLike, c: npt.ArrayLike, k: npt.ArrayLike, b: npt.ArrayLike = 0.0
+    ) -> None:
+        # written out (not generated) so the fields are typed as what they hold after it
         params = {
-            "m": _parameter("m", self.m, lower=0.0, strict=True),
-            "c": _parameter("c", self.c, lower=0.0, strict=False),
-            "k": _parameter("k", self.k, lower=0.0, strict=True),
-            "b": _parameter("b", self.b, lower=-math.inf, strict=False),
+            "m": _parameter("m", m, lower=0.0, strict=True),
+            "c": _parameter("c", c, lower=0.0, strict=False),
+            "k": _parameter("k", k, lower=0.0, strict=True),
+            "b": _parameter("b", b, lower=-math.inf, strict=False),
         }
         try:
             shape = np.broadcast_shapes(*(p.shape for p in params.values()))
@@ -237,9 +240,9 @@ class Spring:
         With the default ``u = 0`` this is the free spring's energy, which only damping removes; an
         integrator that changes it on an undamped spring is adding or destroying energy.
         """
-        x = np.asarray(x, dtype=np.float64)
-        v = np.asarray(v, dtype=np.float64)
-        return 0.5 * self.m * v**2 + 0.5 * self.k * (x - np.asarray(u)) ** 2
+        xa = np.asarray(x, dtype=np.float64)
+        va = np.asarray(v, dtype=np.float64)
+        return 0.5 * self.m * va**2 + 0.5 * self.k * (xa - np.asarray(u, dtype=np.float64)) ** 2
 
     def exact(
         self, t: npt.ArrayLike, x0: npt.ArrayLike, v0: npt.ArrayLike = 0.0

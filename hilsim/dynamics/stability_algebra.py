@@ -87,7 +87,7 @@ def _rk_growth(cls: type[RungeKutta], z: npt.ArrayLike) -> npt.NDArray[np.float6
     poly = _poly(cls)
     z = np.asarray(z, dtype=np.complex128)
     # |1 + w|² − 1 = 2·Re(w) + |w|² with w = R(z) − 1, so small growth is not lost to rounding
-    w = np.full(z.shape, poly[-1], dtype=np.complex128)
+    w: npt.NDArray[np.complex128] = np.full(z.shape, poly[-1], dtype=np.complex128)
     for coeff in poly[-2:0:-1]:
         w = w * z + coeff
     w = w * z
@@ -190,7 +190,8 @@ def spectral_growth(
         # M = R(h·J): its eigenvalues are R(h·λ) for the two eigenvalues λ of J
         lam = oscillator_eigenvalues(w2, cm)
         g = _rk_growth(cls, np.asarray(h, dtype=np.float64)[..., np.newaxis] * lam)
-        return g.max(axis=-1)
+        worst: FloatArray = g.max(axis=-1)  # of the pair
+        return worst
     if issubclass(cls, SemiImplicitEuler):
         h = np.asarray(h, dtype=np.float64)
         hc = h * np.asarray(cm, dtype=np.float64)

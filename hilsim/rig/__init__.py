@@ -33,7 +33,9 @@ metadata; the bus's in :mod:`~hilsim.rig.bus`), :mod:`~hilsim.rig.keys` (that me
 
 from __future__ import annotations
 
-from hilsim.rig.bus import SUPPORTED_BAUDS, BusConfig, ReadMode
+from drivers.dynamixel.startup import ReadMode
+from drivers.servo_bus import ExitPolicy
+from hilsim.rig.bus import SUPPORTED_BAUDS, BusConfig
 from hilsim.rig.forms import MAX_DAMPING_RATIO, MAX_FEEDFORWARD, MAX_RESPONSE, SPRING_HZ_RANGE
 from hilsim.rig.load import load_rig, load_rigs, select_bus
 from hilsim.rig.model import (
@@ -50,7 +52,6 @@ from hilsim.rig.model import (
     TRACKING_TOLERANCE_DEG,
     WATCHDOG_MAX_MS,
     WATCHDOG_UNIT_MS,
-    ExitPolicy,
     JointConfig,
     LoopConfig,
     OverrunPolicy,

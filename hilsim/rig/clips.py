@@ -30,6 +30,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from hilsim.rig.keys import rig_key
+from hilsim.rig.model import JointConfig
 from hilsim.rig.reader import Reader, finish, read_key
 
 CLIP_NAME_RE = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_.+-]{0,63}")
@@ -52,7 +53,7 @@ class PlayEntry:
 
 
 def read_clips(
-    top: Reader, joints: tuple[Any, ...]
+    top: Reader, joints: tuple[JointConfig, ...]
 ) -> tuple[tuple[tuple[str, dict[str, Any]], ...], tuple[PlayEntry, ...]]:
     """``(clips, play)`` from the top level (``joints``: the rig's, for their names): clips as
     ``((name, {joint: target table}), ...)`` in file order, play entries in time order. Raises
@@ -75,7 +76,7 @@ def read_clips(
                 raise top.fail(f"{where}.{joint}", f"must be a target table, got {target!r}")
         clips.append((name, dict(table)))
     entries = top.get("play", list, [])
-    play = []
+    play: list[PlayEntry] = []
     for i, table in enumerate(entries):
         if not isinstance(table, dict):
             raise top.fail(f"play[{i}]", f"must be a table (at_s, clip, loop), got {table!r}")

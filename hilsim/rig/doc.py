@@ -15,10 +15,11 @@ import sys
 from enum import StrEnum
 from typing import Any
 
+from hilsim.rig.bus import BusConfig
 from hilsim.rig.clips import PlayEntry
 from hilsim.rig.forms import TARGET_KEYS, TARGET_TYPES, AnimatorSpring, PhysicsSpring
 from hilsim.rig.keys import REQUIRED, Key, allowed_text, default_value, key_fields, toml_name
-from hilsim.rig.model import BusConfig, JointConfig, LoopConfig, Rig, SafetyConfig, TelemetryConfig
+from hilsim.rig.model import JointConfig, LoopConfig, Rig, SafetyConfig, TelemetryConfig
 from hilsim.targets.spec import SPEC_KEYS
 from hilsim.telemetry.format import JOINT_FIELDS
 

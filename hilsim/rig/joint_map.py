@@ -15,10 +15,20 @@ and ``(s − home)·d`` — so results are bit-for-bit what the loop has always 
 from __future__ import annotations
 
 from collections.abc import Sequence
+from typing import Protocol
 
 import numpy as np
 
 from hilsim._types import FloatArray
+
+
+class Mounted(Protocol):
+    """What :meth:`JointMap.of` reads of a joint (a rig's :class:`~hilsim.rig.JointConfig`)."""
+
+    @property
+    def home_rad(self) -> float: ...
+    @property
+    def direction(self) -> int: ...
 
 
 class JointMap:
@@ -44,7 +54,7 @@ class JointMap:
         self._direction_l: list[float] = self.direction.tolist()
 
     @classmethod
-    def of(cls, joints: Sequence) -> JointMap:
+    def of(cls, joints: Sequence[Mounted]) -> JointMap:
         """From rig joints (anything with ``home_rad`` and ``direction``)."""
         return cls([j.home_rad for j in joints], [float(j.direction) for j in joints])
 

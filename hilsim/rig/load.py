@@ -216,7 +216,9 @@ def _buses(top: Reader, port: str | None) -> tuple[tuple[str, BusConfig], ...]:
     return tuple(buses)
 
 
-def _on_buses(path: Path, joints: tuple[JointConfig, ...], buses: tuple) -> tuple:
+def _on_buses(
+    path: Path, joints: tuple[JointConfig, ...], buses: tuple[tuple[str, BusConfig], ...]
+) -> tuple[JointConfig, ...]:
     """Each joint's ``bus`` checked against the rig's buses (the only one filled in); a servo
     ID once per bus; every bus with a joint."""
     names = [name for name, _ in buses]
@@ -359,7 +361,9 @@ def _read_toml(path: Path) -> tuple[str, dict[str, Any]]:
         raise RigError(f"{path}: not valid TOML: {exc}") from None
 
 
-def _check_stable(path: Path, loop: LoopConfig, max_substeps: int, joints: tuple) -> None:
+def _check_stable(
+    path: Path, loop: LoopConfig, max_substeps: int, joints: tuple[JointConfig, ...]
+) -> None:
     for i, j in enumerate(joints):
         try:
             report = check_stability(j.spring, loop.h_s, loop.integrator)
@@ -428,7 +432,7 @@ def load_rigs(path: str | Path, *, port: str | None = None) -> tuple[Rig, ...]:
             f"(at most 100; no / or .., no leading dot or dash), got {name!r}{given}",
         )
     buses = _buses(top, port)
-    bus = None if buses else _bus(top.sub("bus", required=True), port)
+    bus = None if buses else _bus(top.sub("bus", required=True), port)  # None: buses
     loop, max_substeps = _loop(top)
     safety = _safety(top, loop)
     telemetry = _telemetry(top)
@@ -436,7 +440,7 @@ def load_rigs(path: str | Path, *, port: str | None = None) -> tuple[Rig, ...]:
     clips, play = read_clips(top, joints)
     finish(top, Rig)
 
-    by_name = dict(buses) if buses else {None: bus}
+    by_name: dict[str | None, BusConfig] = dict(buses) if bus is None else {None: bus}
     for i, j in enumerate(joints):
         top_baud = SERIES_MAX_BAUD.get(series(j.model.strip().upper()))
         baud = by_name[j.bus].baud
@@ -451,7 +455,7 @@ def load_rigs(path: str | Path, *, port: str | None = None) -> tuple[Rig, ...]:
         raise top.fail("loop.cpu", "would pin every bus's process to one CPU; leave it out")
     shared = dict(path=path, name=name, loop=loop, safety=safety, telemetry=telemetry, text=text)
     shared.update(clips=clips, play=play)
-    if not buses:
+    if bus is not None:
         return (Rig(bus=bus, joints=joints, **shared),)
     return tuple(
         Rig(bus=cfg, buses=((b, cfg),), joints=tuple(j for j in joints if j.bus == b), **shared)

@@ -12,7 +12,7 @@ import re
 from dataclasses import dataclass, field
 from enum import StrEnum
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from drivers.clock import DEFAULT_SPIN_S
 from drivers.protocol2.control_table import MODEL_NAMES
@@ -23,6 +23,9 @@ from hilsim.rig.bus import BusConfig  # the [bus] table, and each of [buses]
 from hilsim.rig.keys import rig_key
 from hilsim.safety.limits import DEFAULT_SOFT_START_S
 from hilsim.telemetry.format import TelemetryFormat  # the [telemetry] format key's choices
+
+if TYPE_CHECKING:
+    from hilsim.rig.clips import PlayEntry  # clips reads through the reader, which needs this
 
 
 class RigError(ValueError):
@@ -418,14 +421,14 @@ class Rig:
         "One `[[joints]]` table per joint; see [[[joints]]](#joints).",
         allowed="at least one",
     )
-    clips: tuple = rig_key(
+    clips: tuple[tuple[str, dict[str, Any]], ...] = rig_key(
         "table",
         "Named clips, `[clips.<name>]` tables of `<joint> = <target table>`; see [Clips](#clips).",
         default=(),
         default_doc="none",
         compare=False,
     )
-    play: tuple = rig_key(
+    play: tuple[PlayEntry, ...] = rig_key(
         "list",
         "The clips the show plays, `[[play]]` tables in time order; see [Clips](#clips).",
         default=(),

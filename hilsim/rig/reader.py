@@ -7,13 +7,19 @@ from __future__ import annotations
 import difflib
 import math
 from enum import StrEnum
-from typing import TYPE_CHECKING, Any
+from types import EllipsisType
+from typing import TYPE_CHECKING, Any, TypeVar
 
 from hilsim.rig.keys import REQUIRED, key_fields, key_of, toml_keys, toml_name
 from hilsim.rig.model import RigError
 
 if TYPE_CHECKING:
     from pathlib import Path
+
+#: a default: a number, or None for a key that may be left out (then the value may be None)
+_Number = TypeVar("_Number", float, None)
+_Integer = TypeVar("_Integer", int, None)
+_T = TypeVar("_T")
 
 
 class Reader:
@@ -57,16 +63,16 @@ class Reader:
     def number(
         self,
         name: str,
-        default: Any = ...,
+        default: _Number | EllipsisType = ...,
         *,
         positive: bool = False,
         nonnegative: bool = False,
         at_least: float | None = None,
         at_most: float | None = None,
         why: str = "",
-    ) -> float:
+    ) -> float | _Number:
         """A finite float; ``at_least``/``at_most`` bound it, ``why`` is said when they refuse."""
-        value = self.get(name, float, default)
+        value: float | _Number = self.get(name, float, default)
         if value is None:
             return value
         if not math.isfinite(value):
@@ -85,15 +91,15 @@ class Reader:
     def integer(
         self,
         name: str,
-        default: Any,
+        default: _Integer | EllipsisType,
         *,
         lo: int,
         hi: int | None = None,
         why: str = "",
         why_lo: str = "",
-    ) -> int:
+    ) -> int | _Integer:
         """An int in lo..hi (hi None: no upper bound); ``why``/``why_lo`` explain the bounds."""
-        value = self.get(name, int, default)
+        value: int | _Integer = self.get(name, int, default)
         if value is None:
             return value
         if value < lo:
@@ -144,7 +150,7 @@ def read_key(r: Reader, cls: type, field_name: str, *, hint: str = "", **bounds:
     return r.get(name, _TYPES[key.kind], default, allowed=hint)
 
 
-def build(cls: type, values: dict[str, Any], **fixed: Any) -> Any:
+def build(cls: type[_T], values: dict[str, Any], **fixed: Any) -> _T:
     """``cls`` from file values keyed by field name (each passed through its key's ``convert``)
     and ``fixed`` field values taken as they are."""
     keys = dict(key_fields(cls))

@@ -100,7 +100,7 @@ def _array(name: str, value: npt.ArrayLike, n: int | None) -> FloatArray:
     return arr
 
 
-@dataclass(frozen=True, eq=False)
+@dataclass(frozen=True, eq=False, init=False)
 class SafetyParams:
     """Validated safety parameters; arrays are read-only float64 shaped ``(n,)``.
 
@@ -113,31 +113,39 @@ class SafetyParams:
         joint_names: for messages; default ``joint0``, ``joint1``, …
     """
 
-    lower_rad: npt.ArrayLike
-    upper_rad: npt.ArrayLike
-    max_speed_rad_s: npt.ArrayLike
-    max_accel_rad_s2: npt.ArrayLike
+    lower_rad: FloatArray
+    upper_rad: FloatArray
+    max_speed_rad_s: FloatArray
+    max_accel_rad_s2: FloatArray
     dt_s: float
-    soft_start_s: float = 1.0
-    joint_names: Sequence[str] | None = None
+    soft_start_s: float
+    joint_names: tuple[str, ...]
 
-    def __post_init__(self) -> None:
-        lower = _array("lower_rad", self.lower_rad, None)
+    def __init__(
+        self,
+        lower_rad: npt.ArrayLike,
+        upper_rad: npt.ArrayLike,
+        max_speed_rad_s: npt.ArrayLike,
+        max_accel_rad_s2: npt.ArrayLike,
+        dt_s: float,
+        soft_start_s: float = 1.0,
+        joint_names: Sequence[str] | None = None,
+    ) -> None:
+        # written out (not generated) so the fields are typed as what they hold after it
+        lower = _array("lower_rad", lower_rad, None)
         n = lower.size
-        upper = _array("upper_rad", self.upper_rad, n)
-        speed = _array("max_speed_rad_s", self.max_speed_rad_s, n)
-        accel = _array("max_accel_rad_s2", self.max_accel_rad_s2, n)
-        names = (
-            tuple(f"joint{i}" for i in range(n)) if self.joint_names is None else self.joint_names
-        )
+        upper = _array("upper_rad", upper_rad, n)
+        speed = _array("max_speed_rad_s", max_speed_rad_s, n)
+        accel = _array("max_accel_rad_s2", max_accel_rad_s2, n)
+        names = tuple(f"joint{i}" for i in range(n)) if joint_names is None else joint_names
         names = tuple(str(s) for s in names)
         if len(names) != n:
             raise ValueError(f"{len(names)} joint_names for {n} joints")
-        dt, soft = float(self.dt_s), float(self.soft_start_s)
+        dt, soft = float(dt_s), float(soft_start_s)
         if not (math.isfinite(dt) and dt > 0.0):
-            raise ValueError(f"dt_s must be finite and > 0, got {self.dt_s!r}")
+            raise ValueError(f"dt_s must be finite and > 0, got {dt_s!r}")
         if not (math.isfinite(soft) and soft >= 0.0):
-            raise ValueError(f"soft_start_s must be finite and >= 0, got {self.soft_start_s!r}")
+            raise ValueError(f"soft_start_s must be finite and >= 0, got {soft_start_s!r}")
         for name, lo, hi, v, a in zip(
             names, lower.tolist(), upper.tolist(), speed.tolist(), accel.tolist(), strict=True
         ):

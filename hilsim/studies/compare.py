@@ -21,6 +21,7 @@ import math
 from typing import Any
 
 import numpy as np
+import numpy.typing as npt
 
 from hilsim.dynamics.integrators import INTEGRATORS, RungeKutta, rk_solve
 from hilsim.dynamics.simulate import simulate
@@ -88,7 +89,7 @@ STEPS = (0.02, 0.01, 0.005, 0.0025, 0.00125, 0.000625)
 ORDER_PAIR = (0.0025, 0.00125)
 
 
-def _floats(a: Any) -> list[float | None]:
+def _floats(a: npt.ArrayLike) -> list[float | None]:
     """A flat list for JSON; a non-finite value (an unbounded stability ray) becomes null."""
     return [float(v) if math.isfinite(v) else None for v in np.asarray(a, dtype=float).reshape(-1)]
 
@@ -145,7 +146,7 @@ def damped_example(quick: bool) -> dict[str, Any]:
     omega_d = float(spring.damped_frequency)
     steps = STEPS[:-1] if quick else STEPS
     errors: dict[str, list[float]] = {}
-    curves: dict[str, list[float]] = {}
+    curves: dict[str, list[float | None]] = {}
     for name in INTEGRATORS:
         errors[name] = []
         for h in steps:
@@ -185,7 +186,7 @@ def energy_drift(t_long: float) -> dict[str, Any]:
     h = 0.01
     window = 100  # steps per plotted point: the largest |ΔE/E₀| in each second
     out: dict[str, Any] = {"h": h, "t_long": t_long, "at_10s": {}, "at_end": {}, "max_abs": {}}
-    series: dict[str, list[float]] = {}
+    series: dict[str, list[float | None]] = {}
     for name in INTEGRATORS:
         traj = simulate(spring, UNDAMPED["x0"], UNDAMPED["v0"], h=h, t_end=t_long, method=name)
         energy = traj.energy()

@@ -11,11 +11,11 @@
 ``spec`` imports the other two and neither imports it, so the package has no import circle.
 """
 
+from hilsim._types import FloatArray
 from hilsim.targets.csv_file import CsvAnimation, CsvCurve, CsvFormatError
 from hilsim.targets.spec import SPEC_KEYS, SpecError, track_from_spec
 from hilsim.targets.tracks import (
     EASINGS,
-    FloatArray,
     Hold,
     Keyframes,
     Layered,

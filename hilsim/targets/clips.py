@@ -19,7 +19,7 @@ import itertools
 import math
 from bisect import bisect_right
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 from hilsim.targets.tracks import Track
 
@@ -48,6 +48,7 @@ class ClipSequence(Track):
 
     base: Track
     entries: tuple[tuple[float, Track | None, bool], ...]
+    _times: list[float] = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
         entries = tuple(self.entries)
@@ -58,7 +59,7 @@ class ClipSequence(Track):
         object.__setattr__(self, "_times", times)
 
     def sample(self, t: float) -> tuple[float, float]:
-        i = bisect_right(self._times, t) - 1  # type: ignore[attr-defined]
+        i = bisect_right(self._times, t) - 1
         if i < 0:
             return self.base.sample(t)
         at, track, loop = self.entries[i]

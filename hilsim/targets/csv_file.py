@@ -17,9 +17,11 @@ from pathlib import Path
 from types import MappingProxyType
 
 import numpy as np
+import numpy.typing as npt
 
+from hilsim._types import FloatArray
 from hilsim.targets.formats.common import SampledTrack
-from hilsim.targets.tracks import MAX_TRACK_DEG, MAX_TRACK_TURNS, FloatArray, frozen_array
+from hilsim.targets.tracks import MAX_TRACK_DEG, MAX_TRACK_TURNS, frozen_array
 
 #: header names accepted for the CSV time column (case-insensitive)
 TIME_COLUMNS = ("time_s", "time", "t")
@@ -33,7 +35,7 @@ class CsvFormatError(ValueError):
         self.path, self.line = str(path), line
 
 
-@dataclass(frozen=True, eq=False)
+@dataclass(frozen=True, eq=False, init=False)
 class CsvCurve(SampledTrack):
     """One joint's column of a CSV animation: linear between rows, held before and after
     (a :class:`~hilsim.targets.formats.common.SampledTrack`, ``interpolation="linear"``).
@@ -48,7 +50,14 @@ class CsvCurve(SampledTrack):
     thousands of rows per joint.
     """
 
-    interpolation: str = "linear"
+    def __init__(
+        self,
+        times_s: npt.ArrayLike,
+        values_rad: npt.ArrayLike,
+        interpolation: str = "linear",
+        source: str = "",
+    ) -> None:
+        super().__init__(times_s, values_rad, interpolation, source)
 
 
 @dataclass(frozen=True, eq=False)

@@ -22,9 +22,9 @@ Files are relative to the rig file and read once per build (``cache``).
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Hashable, Mapping
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 from hilsim.dynamics.springs import Spring
 from hilsim.targets.formats.common import UnitMap
@@ -58,6 +58,14 @@ SOURCE_KEYS: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = {
 #: the highest frame rate a file's frames may be read at (a slip, beyond it)
 MAX_FPS = 1000
 
+#: a target table as the rig file gives it (TOML values)
+Spec = Mapping[str, Any]
+#: the files one build has read, by (reader, path, options): what each reader made of one
+FileCache = dict[Hashable, Any]
+#: what a file says its user should read, gathered over a build (None: not gathered)
+Notes = list[str] | None
+_T = TypeVar("_T")
+
 
 class SourceError(ValueError):
     """A source spec key that cannot be used: ``key`` and the message, as SpecError has."""
@@ -88,27 +96,27 @@ def _number(spec: Mapping[str, Any], key: str) -> float:
     return float(value)
 
 
-def _unit(spec: Mapping[str, Any], source_key: str | None, source, unit: str) -> UnitMap:
-    """The rig's map from ``source`` (a pair, or the spec's ``source_key`` pair) to its
+def _unit(spec: Spec, source: str | tuple[float, float], unit: str) -> UnitMap:
+    """The rig's map from ``source`` (a pair, or the key of the spec's pair) to its
     ``degrees``."""
     degrees = _pair(spec, "degrees")
-    if source_key is not None:
-        source = _pair(spec, source_key)
+    key, pair = (source, _pair(spec, source)) if isinstance(source, str) else ("degrees", source)
     try:
-        return UnitMap(source, degrees, unit)
+        return UnitMap(pair, degrees, unit)
     except ValueError as exc:
-        raise SourceError(source_key or "degrees", str(exc)) from None
+        raise SourceError(key, str(exc)) from None
 
 
-def _cached(cache: dict | None, key: tuple, load: Callable[[], Any]) -> Any:
+def _cached(cache: FileCache | None, key: tuple[Hashable, ...], load: Callable[[], _T]) -> _T:
     if cache is None:
         return load()
     if key not in cache:
         cache[key] = load()
-    return cache[key]
+    made: _T = cache[key]  # the key names the reader: what it made
+    return made
 
 
-def _note(notes: list[str] | None, *lines: str) -> None:
+def _note(notes: Notes, *lines: str) -> None:
     """What the rig's user should read about a file, said once per build."""
     if notes is not None:
         notes.extend(line for line in lines if line not in notes)
@@ -140,8 +148,8 @@ def track_from_source(
     *,
     base_dir: Path,
     spring: Spring | None = None,
-    cache: dict | None = None,
-    notes: list[str] | None = None,
+    cache: FileCache | None = None,
+    notes: Notes = None,
 ) -> Track:
     """The track of a source spec (keys already checked against :data:`SOURCE_KEYS`).
     ``notes`` gathers what the files say that the user should read (a Bottango animation's
@@ -151,7 +159,9 @@ def track_from_source(
     return _BUILDERS[kind](spec, path, spring, cache, notes)
 
 
-def _bottango(spec, path, _spring, cache, notes) -> Track:
+def _bottango(
+    spec: Spec, path: Path, _spring: Spring | None, cache: FileCache | None, notes: Notes
+) -> Track:
     from hilsim.targets.formats.bottango import read_export
 
     export = _cached(cache, ("bottango", path), lambda: read_export(path))
@@ -166,10 +176,10 @@ def _bottango(spec, path, _spring, cache, notes) -> Track:
     if "signal" in spec and "movement" in spec:
         raise SourceError("movement", "give signal or movement, not both")
     if "movement" in spec:
-        return export.track(animation, str(effector), movement=_unit(spec, "movement", 0, ""))
+        return export.track(animation, str(effector), movement=_unit(spec, "movement", ""))
     eff = export.effectors.get(str(effector))
     if "signal" in spec:
-        return export.track(animation, str(effector), signal=_unit(spec, "signal", 0, "signal"))
+        return export.track(animation, str(effector), signal=_unit(spec, "signal", "signal"))
     if eff is None or eff.signal_min is None or eff.signal_max is None:
         raise SourceError(
             "signal",
@@ -177,11 +187,13 @@ def _bottango(spec, path, _spring, cache, notes) -> Track:
             "movement = [0, 1] (Bottango's movement) with degrees",
         )
     # degrees at the ends of the effector's registered range (e.g. 1000-2000 µs)
-    umap = _unit(spec, None, (eff.signal_min, eff.signal_max), eff.unit)
+    umap = _unit(spec, (eff.signal_min, eff.signal_max), eff.unit)
     return export.track(animation, str(effector), signal=umap)
 
 
-def _blender(spec, path, _spring, cache, notes) -> Track:
+def _blender(
+    spec: Spec, path: Path, _spring: Spring | None, cache: FileCache | None, notes: Notes
+) -> Track:
     from hilsim.targets.formats.blender_servo import read_blender_servo
 
     fps = spec.get("fps")
@@ -193,19 +205,21 @@ def _blender(spec, path, _spring, cache, notes) -> Track:
     servo = spec["servo"]
     if isinstance(servo, bool) or not isinstance(servo, int):
         raise SourceError("servo", f"must be the servo ID in the export, got {servo!r}")
-    umap = _unit(spec, "position", 0, "position")
+    umap = _unit(spec, "position", "position")
     track = anim.track(servo, umap, interpolation=spec.get("interpolation", "hold"))
     _note(notes, *anim.notes(servo))
     return track
 
 
-def _fseq(spec, path, _spring, cache, _notes) -> Track:
+def _fseq(
+    spec: Spec, path: Path, _spring: Spring | None, cache: FileCache | None, _notes: Notes
+) -> Track:
     from hilsim.targets.formats.fseq import FseqChannel, dmx_unit_map, read_fseq
 
     seq = _cached(cache, ("fseq", path), lambda: read_fseq(path))
     fine = spec.get("fine")
     if "values" in spec:
-        umap = _unit(spec, "values", 0, "DMX")
+        umap = _unit(spec, "values", "DMX")
     else:
         umap = dmx_unit_map(_pair(spec, "degrees"), 8 if fine is None else 16)
     try:
@@ -221,7 +235,9 @@ def _fseq(spec, path, _spring, cache, _notes) -> Track:
     return seq.tracks({"joint": channel})["joint"]
 
 
-def _audio(spec, path, spring, _cache, _notes) -> Track:
+def _audio(
+    spec: Spec, path: Path, spring: Spring | None, _cache: FileCache | None, _notes: Notes
+) -> Track:
     from hilsim.targets.formats.audio_jaw import EnvelopeSettings, jaw_track, spring_lag_s
 
     settings: dict[str, Any] = {}
@@ -244,7 +260,7 @@ def _audio(spec, path, spring, _cache, _notes) -> Track:
     else:
         lead_s = lead / 1000.0
     channel = spec.get("audio_channel", "mix")
-    jaw = _unit(spec, None, (0.0, 1.0), "opening")
+    jaw = _unit(spec, (0.0, 1.0), "opening")
     try:
         return jaw_track(path, jaw, env, channel=channel, lead_s=lead_s)
     except ValueError as exc:
@@ -255,7 +271,9 @@ def _audio(spec, path, spring, _cache, _notes) -> Track:
         raise
 
 
-def _lipsync(spec, path, _spring, cache, _notes) -> Track:
+def _lipsync(
+    spec: Spec, path: Path, _spring: Spring | None, cache: FileCache | None, _notes: Notes
+) -> Track:
     from hilsim.targets.formats.lipsync import ShapeTable, cue_track, read_cues
 
     fps = spec.get("fps")
@@ -288,10 +306,10 @@ def _lipsync(spec, path, _spring, cache, _notes) -> Track:
         )
     except ValueError as exc:
         raise SourceError("shapes", str(exc)) from None
-    return cue_track(cues, table, _unit(spec, None, (0.0, 1.0), "opening"))
+    return cue_track(cues, table, _unit(spec, (0.0, 1.0), "opening"))
 
 
-_BUILDERS: dict[str, Callable[..., Track]] = {
+_BUILDERS: dict[str, Callable[[Spec, Path, Spring | None, FileCache | None, Notes], Track]] = {
     "bottango": _bottango,
     "blender_servo": _blender,
     "fseq": _fseq,

@@ -13,7 +13,13 @@ from typing import Any
 
 from hilsim.dynamics.springs import Spring
 from hilsim.targets.csv_file import CsvAnimation, CsvCurve
-from hilsim.targets.sources import SOURCE_KEYS, SourceError, rig_file, track_from_source
+from hilsim.targets.sources import (
+    SOURCE_KEYS,
+    FileCache,
+    SourceError,
+    rig_file,
+    track_from_source,
+)
 from hilsim.targets.tracks import (
     MAX_TRACK_DEG,
     MAX_TRACK_TURNS,
@@ -68,7 +74,7 @@ def track_from_spec(
     *,
     base_dir: str | Path = ".",
     joint_name: str,
-    csv_cache: dict | None = None,
+    csv_cache: FileCache | None = None,
     spring: Spring | None = None,
     notes: list[str] | None = None,
     _depth: int = 0,
@@ -145,7 +151,15 @@ def track_from_spec(
     return _csv_from_spec(spec, Path(base_dir), joint_name, csv_cache)
 
 
-def _layers_from_spec(spec, base_dir, joint_name, csv_cache, spring, notes, depth: int) -> Layered:
+def _layers_from_spec(
+    spec: Mapping[str, Any],
+    base_dir: str | Path,
+    joint_name: str,
+    csv_cache: FileCache | None,
+    spring: Spring | None,
+    notes: list[str] | None,
+    depth: int,
+) -> Layered:
     layers = spec["layers"]
     if not isinstance(layers, list | tuple) or not layers:
         raise SpecError("layers", f"must be a non-empty list of target tables, got {layers!r}")
@@ -201,7 +215,7 @@ def _csv_from_spec(
     spec: Mapping[str, Any],
     base_dir: Path,
     joint_name: str,
-    cache: dict | None,
+    cache: FileCache | None,
 ) -> CsvCurve:
     file, column = spec["file"], spec.get("column", joint_name)
     if not isinstance(file, str) or not file:
@@ -209,7 +223,7 @@ def _csv_from_spec(
     if not isinstance(column, str) or not column:
         raise SpecError("column", f"must be a column name, got {column!r}")
     path = rig_file(base_dir, file)
-    anim = cache.get(path) if cache is not None else None
+    anim: CsvAnimation | None = cache.get(path) if cache is not None else None
     if anim is None:
         if not path.is_file():
             raise SpecError("file", f"no such file: {path}")

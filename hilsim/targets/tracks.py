@@ -277,7 +277,7 @@ def _pieces(t: FloatArray, v: FloatArray, easing: tuple[str, ...]) -> list[_Piec
     return pieces
 
 
-@dataclass(frozen=True, eq=False)
+@dataclass(frozen=True, eq=False, init=False)
 class Keyframes(Track):
     """Keys (t, value) joined by named easings (see the module docstring for the table).
 
@@ -292,15 +292,21 @@ class Keyframes(Track):
             or an unknown easing (lists the choices).
     """
 
-    times_s: npt.ArrayLike
-    values_rad: npt.ArrayLike
-    easing: str | Sequence[str] = "linear"
+    times_s: FloatArray
+    values_rad: FloatArray
+    easing: tuple[str, ...]
     _starts: list[float] = field(init=False, repr=False)
     _pieces: list[_Piece] = field(init=False, repr=False)
 
-    def __post_init__(self) -> None:
-        t, v = times_values(self.times_s, self.values_rad)
-        easing = easing_names(self.easing, len(t) - 1)
+    def __init__(
+        self,
+        times_s: npt.ArrayLike,
+        values_rad: npt.ArrayLike,
+        easing: str | Sequence[str] = "linear",
+    ) -> None:
+        # written out (not generated) so the fields are typed as what they hold after it
+        t, v = times_values(times_s, values_rad)
+        easing = easing_names(easing, len(t) - 1)
         pieces = _pieces(t, v, easing)
         object.__setattr__(self, "times_s", t)
         object.__setattr__(self, "values_rad", v)

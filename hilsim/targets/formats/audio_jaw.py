@@ -51,6 +51,7 @@ from pathlib import Path
 
 import numpy as np
 
+from hilsim._types import FloatArray, IntArray
 from hilsim.dynamics.springs import Spring
 from hilsim.targets.formats.common import FormatError, SampledTrack, UnitMap, read_bytes
 
@@ -394,14 +395,14 @@ def jaw_envelope(
     return JawEnvelope(times, rms, envelope, opening, audio)
 
 
-def _window_sums(x: np.ndarray, ends: np.ndarray, width: int) -> np.ndarray:
+def _window_sums(x: np.ndarray, ends: IntArray, width: int) -> FloatArray:
     """Σ x² over samples (end - width, end] for each of the ascending ``ends`` (outside the
     file: silence), from running sums taken a chunk at a time (no second file-long array)."""
     n = x.size
     want = np.clip(np.concatenate([ends, ends - width]), -1, n - 1)  # prefix sums needed
     order = np.argsort(want, kind="stable")
     pos = want[order]
-    prefix = np.zeros(want.size)  # want = -1: the empty prefix, 0
+    prefix: FloatArray = np.zeros(want.size)  # want = -1: the empty prefix, 0
     carry, chunk = 0.0, 1 << 20
     for start in range(0, n, chunk):
         run = np.cumsum(np.square(x[start : start + chunk]))
@@ -418,7 +419,8 @@ def _alpha(tau_ms: float, step: float) -> float:
 
 def _follow(rms: list[float], step: float, s: EnvelopeSettings) -> list[float]:
     up, down = _alpha(s.attack_ms, step), _alpha(s.release_ms, step)
-    out, e = [], 0.0
+    out: list[float] = []
+    e = 0.0
     append = out.append
     for r in rms:
         e += (up if r > e else down) * (r - e)

@@ -11,21 +11,29 @@ from __future__ import annotations
 import json
 import math
 import re
+from collections.abc import Callable
+from pathlib import Path
+from typing import NoReturn, TypeGuard
 
 import numpy as np
 
+from hilsim._types import IntArray
 from hilsim.targets.formats.common import FormatError, decode_text
 
 REC_START, REC_END, FRAME_END, REC_LEN = 0x3C, 0x3E, 0x0A, 5
+#: (frames, frame_of, servo, position): what every form is read into
+Records = tuple[int, IntArray, IntArray, IntArray]
+#: names a place in the file by its byte offset (``"line 3 (array byte 7)"``)
+Where = Callable[[int], str]
 MAX_POSITION = 0xFFFF  # a position is a big-endian u16 in .bin and .h
 MAX_SERVO_ID = 0xFF
 NL, NUL = b"\n", b"\0"
 
 
-def parse_json(data: bytes, path) -> tuple[int, tuple, str]:
+def parse_json(data: bytes, path: str | Path) -> tuple[int, Records, str]:
     text = _text(data, path)
 
-    def no_constant(name: str):
+    def no_constant(name: str) -> NoReturn:
         raise ValueError(f"{name} is not a JSON number")
 
     try:
@@ -66,7 +74,10 @@ def parse_json(data: bytes, path) -> tuple[int, tuple, str]:
             frame_of.append(k)
             servo.append(ids[key])
             position.append(value)
-    recs = (len(positions), *(np.array(x, dtype=np.int64) for x in (frame_of, servo, position)))
+    frame_arr, servo_arr, position_arr = (
+        np.array(x, dtype=np.int64) for x in (frame_of, servo, position)
+    )
+    recs = (len(positions), frame_arr, servo_arr, position_arr)
     scene = doc.get("scene")
     return fps, recs, scene if isinstance(scene, str) else ""
 
@@ -74,12 +85,13 @@ def parse_json(data: bytes, path) -> tuple[int, tuple, str]:
 _FRAME = re.compile(rb"(?:\x3c[\x00-\xff]{3}\x3e)*\x0a")
 
 
-def records(data: bytes, path, where=None) -> tuple[int, np.ndarray, np.ndarray, np.ndarray]:
+def records(data: bytes, path: str | Path, where: Where | None = None) -> Records:
     """``3C id hi lo 3E`` records and ``0A`` frame ends -> (frames, frame_of, servo,
     position): a frame at a time by regex, the records by numpy, and where the regex stops,
     :func:`bad_byte` names the byte. ``where(i)`` names byte ``i`` (default ``byte i``)."""
     where = where or (lambda i: f"byte {i}")
-    ends, pos, n = [], 0, len(data)
+    ends: list[int] = []
+    pos, n = 0, len(data)
     while pos < n:
         m = _FRAME.match(data, pos)
         if m is None:
@@ -95,7 +107,7 @@ def records(data: bytes, path, where=None) -> tuple[int, np.ndarray, np.ndarray,
     return len(ends), frame_of, rec[:, 1], rec[:, 2] * 256 + rec[:, 3]
 
 
-def bad_byte(data: bytes, i: int, frame: int, path, where) -> FormatError:
+def bad_byte(data: bytes, i: int, frame: int, path: str | Path, where: Where) -> FormatError:
     """The error at the first byte from ``i`` (the start of frame ``frame``) that breaks the
     record layout."""
     n, records_in_frame = len(data), False
@@ -132,7 +144,7 @@ _NUMBER = re.compile(rb"0[xX][0-9a-fA-F]+|[0-9]+")
 _WHITESPACE = np.frombuffer(b" \t\r\n\v\f", np.uint8)
 
 
-def parse_h(data: bytes, path) -> tuple[int, tuple, str]:
+def parse_h(data: bytes, path: str | Path) -> tuple[int, Records, str]:
     _text(data, path)
     # comments blanked (newlines kept), so offsets and line numbers stay the file's own
     src = _C_COMMENT.sub(lambda m: re.sub(rb"[^\n]", b" ", m.group()), data)
@@ -166,14 +178,15 @@ def parse_h(data: bytes, path) -> tuple[int, tuple, str]:
         offsets = [base + m.start() for m in _NUMBER.finditer(body)]
         return f"{line(offsets[i])} (array byte {i})" if i < len(offsets) else "array end"
 
-    frames, *recs = records(values, path, at)
+    recs = records(values, path, at)
+    frames = recs[0]
     if consts["FRAMES"] != frames:
         raise FormatError(path, "", f"FRAMES is {consts['FRAMES']} but the array holds "
                           f"{frames} frames")  # fmt: skip
     if consts["FPS"] < 1:
         raise FormatError(path, "", "FPS is 0")
     ns = re.search(rb"\bnamespace\s+([A-Za-z_][A-Za-z0-9_]*)\s*\{", src)
-    return consts["FPS"], (frames, *recs), ns.group(1).decode() if ns else ""
+    return consts["FPS"], recs, ns.group(1).decode() if ns else ""
 
 
 _HEX = np.full(256, -1, np.int64)
@@ -198,7 +211,7 @@ def _hex_bytes(body: bytes) -> bytes | None:
     return (hi * 16 + lo).astype(np.uint8).tobytes() if ok.all() else None
 
 
-def tokens(body: bytes, base: int, path, line) -> bytes:
+def tokens(body: bytes, base: int, path: str | Path, line: Where) -> bytes:
     """The array's bytes, token by token (hex or decimal), naming the line of a bad one."""
     values: list[int] = []
     parts = body.split(b",")
@@ -222,22 +235,25 @@ def tokens(body: bytes, base: int, path, line) -> bytes:
 # --------------------------------------------------------------------------------- helpers
 
 
-def _text(data: bytes, path) -> str:
+def _text(data: bytes, path: str | Path) -> str:
     return decode_text(data, path, "a NUL byte: binary, not text")
 
 
-def is_int(x) -> bool:
+def is_int(x: object) -> TypeGuard[int]:
     return isinstance(x, int) and not isinstance(x, bool)
 
 
-def is_number(x) -> bool:
+def is_number(x: object) -> TypeGuard[float]:
     return isinstance(x, int | float) and not isinstance(x, bool) and math.isfinite(x)
 
 
-def _kind(x) -> str:
-    return {dict: "an object", list: "a list", str: "a string"}.get(type(x), _short(x))
+_KINDS: dict[type, str] = {dict: "an object", list: "a list", str: "a string"}
 
 
-def _short(x) -> str:
+def _kind(x: object) -> str:
+    return _KINDS.get(type(x), _short(x))
+
+
+def _short(x: object) -> str:
     text = repr(x)
     return text if len(text) <= 40 else text[:37] + "..."

@@ -47,6 +47,7 @@ import re
 from dataclasses import dataclass, field
 from itertools import pairwise
 from pathlib import Path
+from typing import Any
 
 from hilsim.targets.formats.bottango_curve import Y_MAX, BezierSegment, BezierTrack
 from hilsim.targets.formats.bottango_forms import Line, RawExport, read_code, read_json, read_sd
@@ -179,6 +180,7 @@ class BottangoExport:
                 "give signal= (the effector's signal, e.g. µs, to degrees) or movement= "
                 "(Bottango's movement 0..1 to degrees), exactly one"
             )
+        umap: UnitMap | None
         if signal is not None:
             eff = self.effectors.get(eid)
             if eff is None or eff.signal_min is None or eff.signal_max is None:
@@ -216,7 +218,7 @@ def read_export(path: str | Path, form: str | None = None) -> BottangoExport:
 @dataclass
 class _State:
     effectors: dict[str, Effector]
-    skipped: dict[str, list]
+    skipped: dict[str, list[Any]]  # name -> [how many, the first one's Line]
     folds: list[str]
     segments: dict[str, list[BezierSegment]] = field(default_factory=dict)
     lines: dict[int, Line] = field(default_factory=dict)  # id(segment) -> its command
@@ -259,6 +261,8 @@ _SC_FIELDS = _SHAPES["sC"].partition(" ")[2]
 
 
 def _register(st: _State, line: Line, name: str, f: list[str], pre: str) -> None:
+    speed: float  # whole numbers in a registration, but a curved event's are not
+    start: float
     if name == "rSVPin":
         pin, lo, hi, speed, start = _ints(line, f, _SHAPES[name])
         eff = Effector(

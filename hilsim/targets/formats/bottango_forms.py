@@ -25,6 +25,7 @@ from __future__ import annotations
 import json
 import re
 from bisect import bisect_right
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -84,10 +85,13 @@ def _int(text: str, path: str, where: str, what: str) -> int:
     return value
 
 
-def split_lines(text: str, path: str, where_of, label: str = "") -> list[Line]:
+def split_lines(
+    text: str, path: str, where_of: Callable[[int], str], label: str = ""
+) -> list[Line]:
     """Commands separated by newlines (``\\r`` dropped, blank lines skipped); ``where_of(i)``
     places the command starting at offset i."""
-    out, pos = [], 0
+    out: list[Line] = []
+    pos = 0
     for chunk in text.split("\n"):
         cmd = chunk.strip("\r").strip()
         if cmd:
@@ -150,7 +154,9 @@ def read_code(path: Path) -> RawExport:
     """A ``GeneratedCodeAnimations.cpp``-style file."""
     text, spath = read_text(path), str(path)
     toks = _tokens(text, spath)
-    streams: dict[tuple, dict[int, tuple[str, list[tuple[int, int]], str]]] = {}
+    # ("setup",), or (animation, "DATA" | "LOOP"): part -> (text, [(offset, line)], name)
+    streams: dict[tuple[str] | tuple[int, str], dict[int, tuple[str, list[tuple[int, int]], str]]]
+    streams = {}
     export = RawExport(spath, "code")
     names: dict[int, str] = {}
     i = 0
@@ -214,12 +220,12 @@ def read_code(path: Path) -> RawExport:
                 lines.append(ln)
             text_all += s
 
-        def where_of(pos: int, offsets=offsets, lines=lines) -> str:
+        def where_of(pos: int, offsets: list[int] = offsets, lines: list[int] = lines) -> str:
             return f"line {lines[max(bisect_right(offsets, pos) - 1, 0)]}"
 
-        label = "SETUP_DATA" if key == ("setup",) else f"ANIM_{key[0]}_{key[1]}"
+        label = "SETUP_DATA" if len(key) == 1 else f"ANIM_{key[0]}_{key[1]}"  # 1: ("setup",)
         cmds = split_lines(text_all, spath, where_of, label)
-        if key == ("setup",):
+        if len(key) == 1:
             export.setup = cmds
         else:
             anim = export.animations.setdefault(key[0], RawAnimation())
@@ -227,8 +233,8 @@ def read_code(path: Path) -> RawExport:
                 anim.data = cmds
             else:
                 anim.loop = cmds
-    for idx, anim in export.animations.items():
-        anim.name = names.get(idx, "")
+    for index, anim in export.animations.items():
+        anim.name = names.get(index, "")
     if not export.setup and not export.animations:
         raise FormatError(
             spath,
@@ -314,7 +320,7 @@ def read_json(path: Path) -> RawExport:
             return [ln for k, x in enumerate(node) for ln in commands(x, f"{at}[{k}]")]
         raise FormatError(path, f"item {at or '(top)'}", "expected command strings here")
 
-    def keyed(obj: dict, *names: str) -> tuple[str, object] | None:
+    def keyed(obj: dict[object, object], *names: str) -> tuple[str, object] | None:
         for k, v in obj.items():
             if isinstance(k, str) and k.lower() in names:
                 return k, v

@@ -23,6 +23,7 @@ from pathlib import Path
 import numpy as np
 import numpy.typing as npt
 
+from hilsim._types import FloatArray
 from hilsim.targets.tracks import Track, times_values
 
 #: how a :class:`SampledTrack` goes from one sample to the next
@@ -97,18 +98,18 @@ class UnitMap:
         (s0, s1), (d0, d1) = self.source, self.degrees
         return (d1 - d0) / (s1 - s0)
 
-    def to_deg(self, x: npt.ArrayLike) -> np.ndarray:
+    def to_deg(self, x: npt.ArrayLike) -> FloatArray:
         """Source values (scalar or array) -> joint degrees."""
         return self.degrees[0] + (np.asarray(x, dtype=np.float64) - self.source[0]) * (
             self.deg_per_unit
         )
 
-    def to_rad(self, x: npt.ArrayLike) -> np.ndarray:
+    def to_rad(self, x: npt.ArrayLike) -> FloatArray:
         """Source values -> joint radians (what tracks hold)."""
         return np.radians(self.to_deg(x))
 
 
-@dataclass(frozen=True, eq=False)
+@dataclass(frozen=True, eq=False, init=False)
 class SampledTrack(Track):
     """Samples ``(times_s[i], values_rad[i])`` as a track.
 
@@ -119,26 +120,34 @@ class SampledTrack(Track):
     last sample's time. ``source`` names where it came from, for messages.
     """
 
-    times_s: npt.ArrayLike
-    values_rad: npt.ArrayLike
-    interpolation: str = "hold"
-    source: str = ""
+    times_s: FloatArray
+    values_rad: FloatArray
+    interpolation: str
+    source: str
     _t: list[float] = field(init=False, repr=False)
     _v: list[float] = field(init=False, repr=False)
     _slope: list[float] = field(init=False, repr=False)
 
-    def __post_init__(self) -> None:
-        if self.interpolation not in INTERPOLATIONS:
+    def __init__(
+        self,
+        times_s: npt.ArrayLike,
+        values_rad: npt.ArrayLike,
+        interpolation: str = "hold",
+        source: str = "",
+    ) -> None:
+        # written out (not generated) so the fields are typed as what they hold after it
+        if interpolation not in INTERPOLATIONS:
             raise ValueError(
-                f"interpolation must be one of {', '.join(INTERPOLATIONS)}, "
-                f"got {self.interpolation!r}"
+                f"interpolation must be one of {', '.join(INTERPOLATIONS)}, got {interpolation!r}"
             )
-        t, v = times_values(self.times_s, self.values_rad)
+        t, v = times_values(times_s, values_rad)
         object.__setattr__(self, "times_s", t)
         object.__setattr__(self, "values_rad", v)
+        object.__setattr__(self, "interpolation", interpolation)
+        object.__setattr__(self, "source", source)
         object.__setattr__(self, "_t", t.tolist())
         object.__setattr__(self, "_v", v.tolist())
-        slope = np.diff(v) / np.diff(t) if self.interpolation == "linear" else np.zeros(t.size - 1)
+        slope = np.diff(v) / np.diff(t) if interpolation == "linear" else np.zeros(t.size - 1)
         object.__setattr__(self, "_slope", slope.tolist())
 
     def sample(self, t: float) -> tuple[float, float]:
@@ -151,7 +160,7 @@ class SampledTrack(Track):
         slope = self._slope[i - 1]
         return self._v[i - 1] + slope * (t - ts[i - 1]), slope
 
-    def sample_array(self, t: npt.ArrayLike) -> tuple[np.ndarray, np.ndarray]:
+    def sample_array(self, t: npt.ArrayLike) -> tuple[FloatArray, FloatArray]:
         times = np.asarray(t, dtype=np.float64)
         ts, vs = self.times_s, self.values_rad
         i = np.searchsorted(ts, times, side="right")

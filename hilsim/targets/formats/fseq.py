@@ -69,7 +69,7 @@ from __future__ import annotations
 import mmap
 import os
 import zlib
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -87,6 +87,10 @@ CHUNK = 1 << 20
 #: the most frames read (27.8 h at 10 ms): each is a sample of every track made from the file
 MAX_FRAMES = 10_000_000
 EXTRA_HINT = "pip install 'hilsim[fseq]'"
+#: a file's bytes: read into memory, or a read-only map of the file
+Data = bytes | mmap.mmap
+#: a FormatError at a place in the file (``"byte 4"``) with its message
+_Bad = Callable[[str, str], FormatError]
 
 
 def dmx_unit_map(degrees: tuple[float, float], bits: int = 16) -> UnitMap:
@@ -181,7 +185,7 @@ class FseqHeader:
         return ", ".join(f"{s + 1}-{s + n}" if n > 1 else f"{s + 1}" for s, n in self.sparse_ranges)
 
 
-def parse_header(data, path: str | Path = "<bytes>") -> FseqHeader:
+def parse_header(data: Data, path: str | Path = "<bytes>") -> FseqHeader:
     """The checked header of ``data`` (bytes, or any buffer such as an mmap)."""
     size = len(data)
 
@@ -201,6 +205,8 @@ def parse_header(data, path: str | Path = "<bytes>") -> FseqHeader:
     if major not in (1, 2):
         raise bad("byte 7", f"FSEQ version {major}.{data[6]}: versions 1 and 2 are read "
                   "(xLights saves v2: open the sequence there and save it again)")  # fmt: skip
+    u16: Callable[[int], int]  # the little-endian number at a byte offset
+    u32: Callable[[int], int]
     u16, u32 = (lambda o, n=n: int.from_bytes(data[o : o + n], "little") for n in (2, 4))
     minor, offset, channels, frames, step = data[6], u16(4), u32(10), u32(14), data[18]
     ctype = n_ranges = n_blocks = 0  # v1: uncompressed, every channel
@@ -260,7 +266,7 @@ def parse_header(data, path: str | Path = "<bytes>") -> FseqHeader:
     return FseqHeader(*head, tuple(ranges), tuple(variables), unique_id)
 
 
-def _ranges(data, pos: int, n: int, bad) -> list[tuple[int, int]]:
+def _ranges(data: Data, pos: int, n: int, bad: _Bad) -> list[tuple[int, int]]:
     """The sparse ranges (first channel 0-based, count): none empty, none overlapping."""
     ranges: list[tuple[int, int]] = []
     for r in range(n):
@@ -276,8 +282,9 @@ def _ranges(data, pos: int, n: int, bad) -> list[tuple[int, int]]:
     return ranges
 
 
-def _variables(data, start: int, end: int, bad) -> list[tuple[str, bytes]]:
-    out, pos = [], start
+def _variables(data: Data, start: int, end: int, bad: _Bad) -> list[tuple[str, bytes]]:
+    out: list[tuple[str, bytes]] = []
+    pos = start
     while pos + 4 <= end:
         length = int.from_bytes(data[pos : pos + 2], "little")
         if length == 0:  # padding to a 4-byte boundary (FPP skips 4 bytes)
@@ -298,7 +305,7 @@ class FseqFile:
 
     path: str
     header: FseqHeader
-    data: object
+    data: Data
 
     def channel_values(self, channels: Sequence[int]) -> np.ndarray:
         """The raw bytes of 1-based ``channels`` in every frame: uint8 ``(frames, len)``."""
@@ -314,12 +321,12 @@ class FseqFile:
                                   f"{h.describe_channels()} (1-based, as xLights numbers "
                                   "them)")  # fmt: skip
             cols.append(idx)
-        idx = np.array(cols, dtype=np.int64)
+        wanted = np.array(cols, dtype=np.int64)
         if h.compression == "none":
             n = h.frame_count * h.channel_count
             raw = np.frombuffer(self.data, np.uint8, count=n, offset=h.channel_data_offset)
-            return raw.reshape(h.frame_count, h.channel_count)[:, idx]
-        return self._decompressed(idx)
+            return raw.reshape(h.frame_count, h.channel_count)[:, wanted]
+        return self._decompressed(wanted)
 
     def _decompressed(self, idx: np.ndarray) -> np.ndarray:
         """Block by block, a chunk at a time: only the wanted columns are kept (copied out of
@@ -389,7 +396,7 @@ def read_fseq(path: str | Path) -> FseqFile:
     return parse_fseq(data, p)
 
 
-def parse_fseq(data: bytes, path: str | Path = "<bytes>") -> FseqFile:
+def parse_fseq(data: Data, path: str | Path = "<bytes>") -> FseqFile:
     """:func:`read_fseq` on bytes already read."""
     return FseqFile(str(path), parse_header(data, path), data)
 
@@ -397,7 +404,7 @@ def parse_fseq(data: bytes, path: str | Path = "<bytes>") -> FseqFile:
 # --------------------------------------------------------------------------------- helpers
 
 
-def _chunks(compression: str, block: bytes, path, b: int):
+def _chunks(compression: str, block: bytes, path: str, b: int) -> Iterator[bytes]:
     """Decompressed pieces of one block, at most CHUNK bytes each."""
     if compression == "zlib":
         d = zlib.decompressobj()

@@ -43,7 +43,7 @@ Phase 2 (the rig), per joint::
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -94,12 +94,12 @@ class ShapeTable:
     _blair: dict[str, float | str] = field(init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
-        for name, value in self.rhubarb.items():
+        for name, number in self.rhubarb.items():
             if name not in RHUBARB_SHAPES:
                 raise ValueError(
                     f"rhubarb: {name!r} is not a Rhubarb shape ({', '.join(RHUBARB_SHAPES)})"
                 )
-            _number(f"rhubarb.{name}", value)
+            _number(f"rhubarb.{name}", number)
         blair: dict[str, float | str] = {k.lower(): v for k, v in PRESTON_BLAIR_TO_RHUBARB.items()}
         for name, value in self.preston_blair.items():
             if not isinstance(name, str) or not name or name.split() != [name]:
@@ -297,7 +297,7 @@ def read_papagayo(path: str | Path, voice: str | int | None = None) -> Cues:
     return Cues(str(path), tuple(cues), "preston_blair", end_s)
 
 
-def _word(path: str | Path, take) -> _Word:
+def _word(path: str | Path, take: Callable[[str], tuple[str, str]]) -> _Word:
     line, where = take("a word")
     parts = line.split()
     if len(parts) != 4:
@@ -327,7 +327,9 @@ def _word(path: str | Path, take) -> _Word:
     return start, end, phonemes
 
 
-def _choose_voice(path, voices: list, voice: str | int | None) -> list:
+def _choose_voice(
+    path: str | Path, voices: list[tuple[str, list[_Word]]], voice: str | int | None
+) -> list[_Word]:
     names = [name for name, _ in voices]
     if voice is None:
         if len(voices) == 1:

@@ -11,6 +11,7 @@ import json
 import math
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 from xml.parsers import expat
 
 from hilsim.targets.formats.common import FormatError, decode_text, read_bytes
@@ -119,7 +120,9 @@ def read_rhubarb_tsv(path: str | Path) -> Cues:
     return Cues(str(path), tuple(cues), "rhubarb")
 
 
-def _rhubarb_cue(path, where: str, start, end, shape, before: float | None) -> tuple[Cue, float]:
+def _rhubarb_cue(
+    path: str | Path, where: str, start: str, end: str, shape: object, before: float | None
+) -> tuple[Cue, float]:
     t0 = seconds(path, where, start, "start")
     t1 = seconds(path, where, end, "end")
     if t1 < t0:
@@ -171,15 +174,15 @@ def read_rhubarb_xml(path: str | Path) -> Cues:
     text, _ = text_lines(path)
     parser = expat.ParserCreate()
     cues: list[Cue] = []
-    state: dict = {"open": None, "end": None, "root": None}
+    state: dict[str, Any] = {"open": None, "end": None, "root": None}
 
     def line() -> str:
         return f"line {parser.CurrentLineNumber}"
 
-    def doctype(*_args) -> None:
+    def doctype(*_args: object) -> None:
         raise FormatError(path, line(), "a DTD (<!DOCTYPE ...>): Rhubarb XML has none")
 
-    def start(name: str, attrs: dict) -> None:
+    def start(name: str, attrs: dict[str, str]) -> None:
         if state["root"] is None:
             state["root"] = name
             if name != "rhubarbResult":
