@@ -14,34 +14,9 @@ control table: Read spans, Write validation, the Alert bit) and a
 and the Present values computed from them). This module holds the instructions, the
 side effects of writes, the Bus Watchdog and the faults the bus injects.
 
-Choices where the e-Manual is silent or ambiguous (all deliberate, all tested):
-
-- Read and Write: see :mod:`drivers.dxlsim.registers` (gaps, spans, the order of the
-  Write checks).
-- Torque on holds the present position and copies it into Goal Position, so torque-on
-  never jumps and Goal Position reads what the servo holds. In Position Control Mode it
-  also folds Present Position into one turn (e-Manual Present Position note), as do a
-  change to Position Control Mode and Reboot.
-- Torque off stops the horn where it is (no coasting); the trajectory follows it. A hand
-  (:meth:`VirtualServo.hand`, :mod:`drivers.dxlsim.hand`) then moves it; with torque on
-  nothing back-drives the horn.
-- Bus Watchdog trip stops at once (the e-Manual: profile applied as 0): the trajectory
-  holds where the horn is.
-- Action with nothing registered -> Instruction Error (protocol2.md error table). Action
-  re-validates the registered write against the state at Action time.
-- Control Table Backup (0x20, protocol2.md): on firmware below the model's
-  ``backup_min_firmware`` an undefined instruction (Instruction Error); torque on ->
-  Result Fail; P1 0x01 stores, 0x02 restores the EEPROM part and reboots (Result Fail
-  when nothing was stored); P2-P5 other than ``43 54 52 4C`` or another P1 -> Data Range
-  Error, other lengths -> Data Length Error. Every boot (Reboot, Restore, brownout) then
-  applies Startup Configuration (60): RAM Restore, Startup Torque On.
-- Factory Reset while torque is on -> Access Error (it writes EEPROM).
-- Clear (multi-turn) while moving -> Result Fail; other Clear parameters -> Data Range
-  Error, wrong length -> Data Length Error. After it Goal Position = Present Position.
-- Reboot/brownout: RAM to defaults, Goal Position = Present Position (folded), Realtime
-  Tick restarts at 0. Reboot's returned error still carries the pre-reboot Alert bit
-  (the real servo replies before it reboots).
-- Not modelled: ``docs/dxlsim.md`` has the one list.
+Where the e-Manual is silent (torque on and off, Action, Backup, Factory Reset, Clear,
+Reboot) the choices are deliberate and tested: ``docs/dxlsim.md`` lists them, and what is not
+modelled.
 """
 
 from __future__ import annotations
