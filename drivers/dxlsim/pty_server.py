@@ -1,17 +1,17 @@
 """Serve an emulated bus on a pseudo-terminal, for programs that only know device paths.
 
 The bus runs on the host's monotonic clock. Bytes the client writes go on the emulated wire
-as they arrive. Reply bytes reach the pty as a USB adapter delivers them: in pieces of
-back-to-back bytes, at most :data:`~drivers.protocol2.wire_time.USB_CHUNK` (62, an FTDI
-packet), each written when its last byte is readable. So a status packet, or a whole Fast
-Sync Read reply, arrives in one write at the time its last byte would have.
+as they arrive. Replies reach the pty as a USB adapter delivers them: in pieces of
+back-to-back bytes, each written when its last byte is readable. A piece is at most
+:data:`~drivers.protocol2.wire_time.USB_CHUNK` bytes (62, an FTDI packet). So a whole Fast
+Sync Read reply arrives in one write, when its last byte would have.
 
 Timing is only as good as the OS's wake-up (``select``): typically 0.1-1 ms late, tens of
 ms on a busy host. Use ``dxlsim://`` in-process for timing work, this for compatibility.
 
-The line rate is the client's: before each burst of client bytes the bus takes the pty's
-speed (``tcgetattr``, or Linux's ``TCGETS2`` for custom rates) as the host's rate. Servos at
-another baud hear noise and never answer, as on a real bus. The slave starts at the bus's
+The line rate is the client's. Before each burst of client bytes, the bus takes the pty's
+speed as the host's rate (``tcgetattr``, or Linux's ``TCGETS2`` for custom rates). Servos at
+another baud hear noise and never answer, as on a real bus. The pty starts at the bus's
 rate, so a client that never sets one is heard.
 
 More (modem lines, the FTDI latency timer, the jitter): ``docs/dxlsim.md`` (the

@@ -1,19 +1,19 @@
 """The control table of one virtual servo: values by address, Read, Write validation, Alert.
 
-A :class:`RegisterFile` holds the stored values (``values``, address -> int) and answers
-Read spans, including the registers computed on read (``dynamic``: address -> getter,
-filled in by the servo). :meth:`RegisterFile.validate` checks a Write against the field
-table and the present values and returns what to store; applying it (and its side
-effects on motion and the watchdog) is the servo's job. It also keeps the Control Table
-Backup (:meth:`store_backup`, :meth:`restore_eeprom`, :meth:`boot_ram`).
+A :class:`RegisterFile` holds the stored values (``values``, address -> int). It answers
+Read spans, including registers computed on read (``dynamic``: address -> getter, filled in
+by the servo). :meth:`RegisterFile.validate` checks a Write against the field table and the
+present values, and returns what to store. Applying it, with its side effects on motion and
+the watchdog, is the servo's job. It also keeps the Control Table Backup
+(:meth:`store_backup`, :meth:`restore_eeprom`, :meth:`boot_ram`).
 
 A Write is atomic, its fields checked in address order: Access Error (7), Data Length Error
 (5), Data Range Error (4), then Data Limit Error (6). An erroneous Read returns
 ``(err, b"")``.
 
-Where the e-Manual is silent (gaps in a Read span, Indirect Data, Drive Mode bits on old
-firmware, the backup's contents, the order of the Write checks) the choices are deliberate
-and tested: ``docs/dxlsim.md`` (choices where the e-Manual is silent).
+Where the e-Manual is silent, the choices are deliberate and tested: gaps in a Read span,
+Indirect Data, Drive Mode bits on old firmware, the backup's contents. ``docs/dxlsim.md``
+lists them (choices where the e-Manual is silent).
 
 Addresses are named here once: from :mod:`drivers.protocol2.control_table` where the
 host's driver uses the item too, else from the emulator's X-series table.

@@ -1,10 +1,10 @@
 """Live inputs: timestamped messages in, the latest values and events out, on the loop's clock.
 
-Every input is driven by messages stamped with show time (s, the loop's clock; tests inject them,
-a receiver thread stamps them on arrival), and the loop calls a non-blocking ``poll(t)`` once per
-tick: bounded work, never a wait. The optional packages (mido for MIDI ports, pygame for a
-gamepad, sounddevice for sound) are imported lazily; a missing one is one clear line naming the
-extra (``pip install 'hilsim[live]'``). OSC needs none: its decoder is our own.
+Every input is driven by messages stamped with show time (s, the loop's clock). A receiver
+thread stamps them on arrival; tests inject them. The loop calls a non-blocking ``poll(t)``
+once per tick: bounded work, never a wait. The optional packages (mido for MIDI, pygame for a
+gamepad, sounddevice for sound) are imported lazily. A missing one is one clear line naming
+the extra (``pip install 'hilsim[live]'``). OSC needs none: its decoder is our own.
 
 The show: :mod:`~hilsim.live.director` (the loop's per-tick hook), :mod:`~hilsim.live.showfile`,
 :mod:`~hilsim.live.show_spec`, :mod:`~hilsim.live.show`, :mod:`~hilsim.live.triggers`. The

@@ -9,7 +9,7 @@ in one line naming what to install.
   one or two channels. During the show nothing is read or decoded.
 * :meth:`AudioOut.play` is told the show time the clip started and the show time now. It
   places the first sample by the stream's DAC time, so the sound is in sync from the first
-  sample heard: a late play starts later in the file, an early one waits in silence.
+  sample heard. A late play starts later in the file; an early one waits in silence.
 * One sound at a time: a new ``play`` replaces the one playing; :meth:`AudioOut.stop` silences it.
 * The audio callback only copies frames from memory: no locks, no waits, no allocation.
 

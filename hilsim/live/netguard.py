@@ -5,8 +5,8 @@ byte of it, cheapest check first:
 
 1. **size**: more than ``max_packet_bytes`` is dropped unread (``oversized``);
 2. **sender**: a sender outside the allow-list is dropped (``sender``);
-3. **rate**: a token bucket per sender on the packets' show-time stamps (never the wall
-   clock, so a test floods in virtual time); a packet with no token is dropped (``flood``).
+3. **rate**: a token bucket per sender, on the packets' show-time stamps (so a test floods
+   in virtual time); a packet with no token is dropped (``flood``).
 
 The input counts its own drops here too. :class:`DropCounts` counts by kind; :class:`DropLog`
 says at most one line per kind per second of show time. Nothing here raises on a packet.

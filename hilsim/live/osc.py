@@ -12,8 +12,8 @@ Addresses (OSC 1.0 messages, alone or in bundles):
 Each datagram passes :class:`~hilsim.live.netguard.NetGuard` first. Values that are NaN, ±inf or
 outside 0..1 are dropped and counted, never clamped.
 
-Threads and time: :meth:`OscInput.feed` is the receiver's side, ``(t, bytes, sender)`` in show
-time; it hands over the latest value per joint and a bounded event queue under one lock.
+Threads and time: :meth:`OscInput.feed` is the receiver's side: ``(t, bytes, sender)``, in show
+time. It hands over the latest value per joint and a bounded event queue, under one lock.
 :meth:`OscInput.poll` is the loop's side: bounded work, no clock reads, no sleeps. A joint
 silent for ``lost_after_s`` holds its value (``input_lost``, then ``input_returned``).
 :func:`listen` opens the real UDP socket and its thread.

@@ -9,9 +9,9 @@ first layer whose clip drives that joint wins; a joint no clip drives follows it
     idle       ``[idle]`` clips in sequence or at random; from the first tick, underneath
 
 It is pure: no threads, no clock reads, no sleeps. The director calls :meth:`ShowRuntime.trigger`
-for each arriving trigger and :meth:`ShowRuntime.tick` once per tick with the show time; the
-loop then samples :attr:`ShowRuntime.tracks`. Everything changes only in ``tick``, so a trigger
-takes effect at the next tick.
+for each trigger, and :meth:`ShowRuntime.tick` once per tick with the show time. The loop then
+samples :attr:`ShowRuntime.tracks`. Everything changes only in ``tick``, so a trigger takes
+effect at the next tick.
 
 A cut is a step in the *target*, never at a servo: the spring and the safety filter smooth it.
 Events are :class:`~hilsim.live.inbox.LiveEvent` (source ``"show"``): ``cue_start``,

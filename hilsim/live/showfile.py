@@ -1,15 +1,15 @@
 """The show file: what ``hilsim run RIG --show SHOW.toml`` runs besides the rig's own targets.
 
-A show file names the clips a figure plays and what starts them, and the live inputs that may
-drive it; the rig (its servos, limits and springs) stays in the rig file. Every section is
+A show file names the clips a figure plays, what starts them, and the live inputs that may
+drive it. The rig (its servos, limits and springs) stays in the rig file. Every section is
 optional; paths are relative to the show file. Sections: ``[show]``, ``[clips.*]``,
 ``[sounds]``, ``[idle]``, ``[cues.*]``, ``[[timeline]]``, ``[inputs.osc]``, ``[inputs.midi]``,
 ``[inputs.mtc]``, ``[inputs.gamepad]``, ``[inputs.keyboard]``, ``[inputs.bottango]``,
 ``[record]`` and ``[teach]``. ``--live`` has a built-in one.
 
-Clips, sounds, idle, cues and the timeline are read by :mod:`hilsim.live.show_spec`; the
-Bottango live driver's, the gamepad's, the keyboard's and teach-by-hand's sections by their own
-modules. Errors are one line naming the file and the key (:class:`~hilsim.rig.RigError`).
+Clips, sounds, idle, cues and the timeline are read by :mod:`hilsim.live.show_spec`. The
+Bottango, gamepad, keyboard and teach sections are read by their own modules. Errors are one
+line naming the file and the key (:class:`~hilsim.rig.RigError`).
 
 Every section with an example: ``docs/live.md`` (the show file, live inputs).
 """

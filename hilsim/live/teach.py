@@ -9,14 +9,14 @@ director, :mod:`hilsim.live.director`):
    or a reset still stop the show.
 2. The director passes every tick's present positions to :meth:`Teach.record`, which keeps the
    teach joints' samples as a :class:`~hilsim.live.takes.Take`.
-3. **A limp joint's target follows its present position** (:meth:`Teach.targets_deg`), so the
+3. **A limp joint's target follows its present position** (:meth:`Teach.targets_deg`). So the
    spring, the safety filter and the goal sent sit where the hand holds the horn, and nothing
-   jumps when torque returns. (A servo with Drive Mode bit 3, Torque On by Goal Update, would
-   turn itself on: :func:`hilsim.show.session.check_teach` refuses it at start.)
+   jumps when torque returns. A servo with Drive Mode bit 3 (Torque On by Goal Update) would
+   turn itself on: :func:`hilsim.show.session.check_teach` refuses it at start.
 4. At the end :meth:`Teach.finish` writes ``raw.csv``, ``keys.csv`` and ``take.toml``, each
    whole or not at all.
 
-The tolerance is against the hand, not the readings: a reading is within half an encoder
+The tolerance is against the hand, not the readings. A reading is within half an encoder
 count (:data:`HALF_COUNT_DEG`) of the horn, so readings are reduced within ``reduce_deg``.
 More: ``docs/live.md`` (Teach by hand).
 """

@@ -5,10 +5,10 @@ A run directory holds ``telemetry.csv`` (or ``telemetry.csv.gz``, or Parquet par
 ``telemetry_error.txt``. :class:`hilsim.telemetry.TelemetryWriter` writes it;
 :func:`hilsim.telemetry.reader.read_run` reads it.
 
-The rows: a head (``tick``, times, lateness), one block of columns per quantity in
-:data:`JOINT_FIELDS` with one column per joint, then the tail (:data:`TAIL_COLUMNS`: stage
-times, overrun, comm errors, host stall, skipped ticks). :func:`csv_columns` and
-:func:`parquet_columns` name them; :data:`ROWS_SCHEMA_VERSION` is the layout's version.
+A row has a head (``tick``, times, lateness), then one block per quantity in
+:data:`JOINT_FIELDS` (a column per joint), then :data:`TAIL_COLUMNS` (stage times, overrun,
+comm errors, host stall, skipped ticks). :func:`csv_columns` and :func:`parquet_columns` name
+the columns; :data:`ROWS_SCHEMA_VERSION` is the layout's version.
 
 Floats are written with ``%.17g`` (exact round-trip), µs with ``%.3f``, a missing value as
 ``nan``. Parquet holds the same columns as integers in ns, µrad and µrad/s.

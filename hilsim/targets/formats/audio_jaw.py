@@ -1,21 +1,23 @@
 """Audio -> jaw: a sound file through an envelope follower, as a jaw track.
 
-The louder the line, the wider the jaw. Offline, from the file: an optional band-pass, a
-trailing RMS over ``window_ms`` every ``step_ms``, an attack/release follower, then an opening
-0..1 between ``threshold`` and ``full``, mapped to degrees by the rig's
-:class:`~hilsim.targets.formats.common.UnitMap`. After the file ends the jaw closes.
+The louder the line, the wider the jaw. Computed once, from the file:
 
-``lead_s`` shifts the track earlier. :func:`spring_lag_s` gives the joint's spring lag,
-``(c - b)/k``: as the lead, it puts the *commanded* jaw in time with the sound. ::
+1. an optional band-pass;
+2. a trailing RMS over ``window_ms``, every ``step_ms``;
+3. an attack/release follower (it runs on past the file's end, so the jaw closes);
+4. an opening 0..1 between ``threshold`` and ``full``, mapped to degrees by the rig's
+   :class:`~hilsim.targets.formats.common.UnitMap`.
+
+``lead_s`` shifts the track earlier; :func:`spring_lag_s` (the spring's lag, ``(c - b)/k``)
+as the lead puts the *commanded* jaw in time with the sound::
 
     track = jaw_track(path, UnitMap((0, 1), (closed_deg, open_deg), "opening"),
                       EnvelopeSettings(window_ms=..., ...), channel="right",
                       lead_s=spring_lag_s(joint.spring))
 
-:func:`jaw_envelope` gives the envelope itself (times, RMS, follower, opening) for plots.
-WAV (PCM and float) is read here; other formats need ``soundfile``
-(``pip install 'hilsim[audio]'``). The pipeline, the lead's derivation and the files read:
-``docs/targets.md`` (Audio -> jaw).
+:func:`jaw_envelope` gives the envelope itself, for plots. WAV is read here; other formats
+need ``soundfile`` (``pip install 'hilsim[audio]'``). The pipeline, the lead's derivation and
+the files read: ``docs/targets.md`` (Audio -> jaw).
 """
 
 from __future__ import annotations

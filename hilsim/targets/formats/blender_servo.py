@@ -5,10 +5,10 @@ library holds each frame until the next. The three forms carry the same frames a
 identical tracks. Frame ``k`` is at show time ``k / fps``; a ``.bin`` file has no fps, so the
 caller gives it.
 
-A servo missing from a frame holds its previous value (the add-on drops unchanged positions
-and out-of-range ones alike). :meth:`BlenderServoAnimation.notes` says how many frames were
-held. The positions' unit (µs, PCA9685 ticks or degrees) is not in the file: the caller gives a
-:class:`~hilsim.targets.formats.common.UnitMap` or the bone's :class:`BoneSettings`::
+A servo missing from a frame holds its previous value: the add-on drops unchanged positions
+and out-of-range ones alike. :meth:`BlenderServoAnimation.notes` says how many frames were
+held. The file does not say the positions' unit (µs, PCA9685 ticks or degrees). The caller
+gives a :class:`~hilsim.targets.formats.common.UnitMap`, or the bone's :class:`BoneSettings`::
 
     anim = read_blender_servo(path, fps=None)          # fps only for .bin
     track = anim.track(0, UnitMap((1000, 2000), (0, 40), "us"), interpolation="hold")

@@ -1,10 +1,10 @@
 """FSEQ sequences, v2 and v1 (xLights, Falcon Player), as tracks in joint radians.
 
-A sequence is frames of one byte per channel, one frame every ``step`` ms, each held until the
-next (as FPP plays them). v2 may be zstd- or zlib-compressed and may hold sparse channel
-ranges; v1 is plain. Channels are 1-based, as xLights shows them. A 16-bit value is a coarse
-and a fine channel (``fine=``). ``zero="hold"`` (xLights' servo option) makes a 0 hold the
-last position.
+A sequence is frames of one byte per channel, one frame every ``step`` ms. Each frame is held
+until the next, as FPP plays them. Version 2 may be compressed (zstd, zlib) and may hold sparse
+channel ranges; version 1 is plain. Channels are 1-based, as xLights shows them. A 16-bit
+value is a coarse and a fine channel (``fine=``). ``zero="hold"`` (xLights' servo option)
+makes a 0 hold the last position.
 
 The rig's use is one call::
 
@@ -13,7 +13,7 @@ The rig's use is one call::
 
 ``zstandard`` (``pip install 'hilsim[fseq]'``) is imported only for a zstd-compressed file.
 Every bad input is one :class:`~hilsim.targets.formats.common.FormatError` naming the file and
-the position (``byte``, ``block``, ``channel``); no header count is trusted before it is
+the position (``byte``, ``block``, ``channel``). No header count is trusted before it is
 checked against the file's size. The byte layout and the rules: ``docs/targets.md`` (FSEQ).
 """
 
