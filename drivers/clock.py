@@ -18,13 +18,9 @@ from typing import Protocol, runtime_checkable
 
 #: the default spin window of :class:`MonotonicClock` (s): sleep until this close to a
 #: deadline, then spin. The rig key ``loop.spin_us`` overrides it. With precise timers
-#: (:func:`precise_timers`, which a show's loop thread runs with) Linux wakes a sleeper
-#: 30-75 µs after its time (p50) on this project's 2-core VM, so 100 µs still reaches the
-#: deadline spinning (lateness p50 0.1 µs) at about 90 µs of CPU per wait, against ~140 µs
-#: for the former 200 µs under the OS's 50 µs timer slack (a wake-up alone costs ~60 µs of
-#: CPU there); 50 µs costs ~55 µs a wait but wakes 6-24 µs late at the median (``python -m
-#: hilsim.bench.cpu`` prints all three). A rig that can spare the microseconds asks for less
-#: with ``loop.spin_us``; one whose host wakes later, for more.
+#: (:func:`precise_timers`) Linux wakes a sleeper well within 100 µs, so the loop still
+#: reaches its deadline spinning, at less CPU than a wider window. ``python -m
+#: hilsim.bench.cpu`` compares windows; the figures are in docs/performance.md.
 DEFAULT_SPIN_S = 100e-6
 
 

@@ -10,8 +10,8 @@ Present Position(132):
   servo would report, rounded as the servo rounds its own horn;
 * **multi-turn**: the hand may turn the horn past a full turn; the servo counts the turns
   while torque is off (Present Position 4100 is one turn and 4 pulses), and torque on in
-  Position Control Mode folds it back into one turn, as it does for any motion (the servo's
-  module docstring); the value is kept in the register's signed 32-bit range;
+  Position Control Mode folds it back into one turn, as it does for any motion
+  (``docs/dxlsim.md``, torque); the value is kept in the register's signed 32-bit range;
 * ``None``: the hand is off the horn at that time; the horn stays where it was left (no
   coasting, Present Velocity 0) until the hand holds it again.
 

@@ -8,40 +8,14 @@ means a jump)::
                      speed-limited to the no-load speed scaled by voltage and PWM Limit
                   -> Present Position/Velocity (132/128)
 
-The profile is planned analytically when a goal arrives (piecewise constant
-acceleration, see :mod:`drivers.dxlsim.profile`) so move durations match the e-Manual
-formulas; only the lag is stepped. Velocity, PWM and Current modes drive a velocity
-trajectory instead and the horn velocity lags it. Positions are kept in the actual frame
-(Present Position = actual + Homing Offset). The :class:`Motion` reads the servo's
-registers (``regs``, shared with its :class:`~drivers.dxlsim.registers.RegisterFile`)
-and never writes them; the servo owns it and decides when to plan, hold or stop.
+The profile is planned analytically when a goal arrives (:mod:`drivers.dxlsim.profile`);
+only the lag is stepped. Positions are kept in the actual frame (Present Position = actual +
+Homing Offset). The :class:`Motion` reads the servo's registers (``regs``, shared with its
+:class:`~drivers.dxlsim.registers.RegisterFile`) and never writes them; the servo owns it and
+decides when to plan, hold or stop.
 
-e-Manual rules modelled here (``_includes/en/dxl/...``):
-
-- Time-based profile, Drive Mode(10) bit 2 (``control_table_drivemode.md``, firmware ≥ 42;
-  ``control_table_profile_velocity.md``): Profile Velocity(112) is the move's time span
-  [ms], Profile Acceleration(108) the accelerating time [ms], used as at most 50 % of
-  Profile Velocity (a larger value plans a triangle of PV/2 + PV/2; the register keeps
-  what was written). Profile Velocity 0 is "an infinite velocity": a step. Velocity
-  Limit does not cap it; the motor does (the horn falls behind). In Velocity Control Mode
-  the ramp takes Profile Acceleration ms (t1 = Profile Acceleration(108)).
-- Following Error, Moving Status(123) bit 3 (``control_table_moving_status.md``: "fails to
-  reach desired position trajectory"; Position, Extended Position and Current-based
-  Position modes, as the page says; the XL430 has no mode 5): set while the horn is more
-  than :data:`FOLLOWING_ERROR_PULSES` from Position Trajectory(140) during a profiled
-  move. The manual gives no number; see the constant.
-- Homing Offset(20) (``control_table_homingoffset.md``): in Position Control Mode (3) a
-  value outside -1024..1024 is ignored (Present Position = actual position); the register
-  keeps it and it applies again in the other modes.
-- Load: :attr:`Motion.load_nm` (set by the servo's ``set_load``) is a steady external
-  torque on the horn (gravity-like; positive pushes towards lower positions). The motor's
-  linear speed-torque line gives the top speed ``v_nl·s·(1 - |load|/(s·stall))`` (s: the
-  voltage and PWM Limit scale); holding it costs ``load/kt`` amps, clamped to the stall
-  current. A load at or above the stall torque stalls the horn where it is (a simplification:
-  no back-driving).
-
-Not modelled (the gains, reverse mode, a crude Current mode, no back-driving ...): the one
-list is ``docs/dxlsim.md``.
+The e-Manual rules modelled here (time-based profile, Following Error, Homing Offset, a steady
+load): ``docs/dxlsim.md`` (the horn's motion). What is not modelled: the same page.
 """
 
 from __future__ import annotations

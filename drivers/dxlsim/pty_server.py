@@ -1,31 +1,21 @@
 """Serve an emulated bus on a pseudo-terminal, for programs that only know device paths.
 
-The bus runs on the host's monotonic clock: bytes the client writes go on the emulated
-wire when they arrive; reply bytes are written to the pty as a USB adapter delivers them,
-in pieces: a piece is a run of bytes that follow each other on the wire (no gap longer than
-half a byte time between their stop bits), at most one USB packet's worth
-(:data:`~drivers.protocol2.wire_time.USB_CHUNK`, 62 bytes, as an FTDI chip's 64-byte packet
-minus its 2 status bytes), written when its last byte is readable. A status packet, or a
-whole Fast Sync Read reply, reaches the client in one write, at the time its last byte
-would have: the reply's latency is the same as byte by byte, and the client wakes once for
-it instead of once per piece this process happened to write (the bus's own latency-timer
-model, ``--latency-ms``, still decides when each byte is readable; an FTDI adapter with its
-latency timer at 1 ms sends a USB packet when 62 bytes are in, or when the timer expires:
-https://ftdichip.com/wp-content/uploads/2020/08/AN232B-04_DataLatencyFlow.pdf). A server
-that has fallen behind writes everything readable at once. Accuracy is bounded by the OS's
-wake-up latency (``select``), typically 0.1-1 ms late (tens of ms when the host is busy and
-this process waits for a CPU): use ``dxlsim://`` in-process for timing work, this for
-compatibility.
+The bus runs on the host's monotonic clock. Bytes the client writes go on the emulated wire
+as they arrive. Replies reach the pty as a USB adapter delivers them: in pieces of
+back-to-back bytes, each written when its last byte is readable. A piece is at most
+:data:`~drivers.protocol2.wire_time.USB_CHUNK` bytes (62, an FTDI packet). So a whole Fast
+Sync Read reply arrives in one write, when its last byte would have.
 
-The line rate is the client's: a pty carries whatever speed the client set with
-``tcsetattr`` (pyserial, the SDK) and reports it back through ``tcgetattr`` on either end,
-so before each burst of client bytes the bus takes that speed as the host's rate, and
-servos at another baud hear noise and never answer, as on a real bus. The slave starts
-at the bus's rate, so a client that never sets one is heard. A speed the termios table
-cannot name (pyserial's custom ``BOTHER`` rates, e.g. 4.5 Mbps) is read with Linux's
-``TCGETS2`` (``struct termios2``, the speed in bit/s); where that is unavailable the rate is
-left as it was. So a servo whose Baud Rate(8) changed (a write, a Factory Reset) answers
-only a client at its new rate (e-Manual x/xm430-w350.md, Baud Rate(8)).
+Timing is only as good as the OS's wake-up (``select``): typically 0.1-1 ms late, tens of
+ms on a busy host. Use ``dxlsim://`` in-process for timing work, this for compatibility.
+
+The line rate is the client's. Before each burst of client bytes, the bus takes the pty's
+speed as the host's rate (``tcgetattr``, or Linux's ``TCGETS2`` for custom rates). Servos at
+another baud hear noise and never answer, as on a real bus. The pty starts at the bus's
+rate, so a client that never sets one is heard.
+
+More (modem lines, the FTDI latency timer, the jitter): ``docs/dxlsim.md`` (the
+pseudo-terminal).
 """
 
 from __future__ import annotations

@@ -1,41 +1,19 @@
 """The control table of one virtual servo: values by address, Read, Write validation, Alert.
 
-A :class:`RegisterFile` holds the stored values (``values``, address -> int) and answers
-Read spans, including the registers computed on read (``dynamic``: address -> getter,
-filled in by the servo). :meth:`RegisterFile.validate` checks a Write against the field
-table and the present values and returns what to store; applying it (and its side
-effects on motion and the watchdog) is the servo's job.
+A :class:`RegisterFile` holds the stored values (``values``, address -> int). It answers
+Read spans, including registers computed on read (``dynamic``: address -> getter, filled in
+by the servo). :meth:`RegisterFile.validate` checks a Write against the field table and the
+present values, and returns what to store. Applying it, with its side effects on motion and
+the watchdog, is the servo's job. It also keeps the Control Table Backup
+(:meth:`store_backup`, :meth:`restore_eeprom`, :meth:`boot_ram`).
 
-Choices where the e-Manual is silent or ambiguous (all deliberate, all tested):
+A Write is atomic, its fields checked in address order: Access Error (7), Data Length Error
+(5), Data Range Error (4), then Data Limit Error (6). An erroneous Read returns
+``(err, b"")``.
 
-- Read of a span with gaps returns 0 for the undefined bytes (as a real X-series
-  returns reserved data: DynamixelSDK#148, a 4-byte read at 611 on an XM430-W350 gave
-  the default Indirect Address 45-47 bytes); a read reaching past the last field
-  (Indirect Data 56, addr 661) is an Access Error; a read may start or end inside a
-  field (its bytes are sliced). Length 0 is a Data Length Error. An erroneous read
-  returns ``(err, b"")``.
-- Indirect Data n (e-Manual ``control_table_indirect_data.md``) reads and writes the byte
-  at the address Indirect Address n holds, inheriting that item's access and range; a
-  multi-byte item must be written whole in one packet (all of its bytes mapped), else
-  Data Length Error. An Indirect Address pointing at an Indirect Data byte (the default:
-  n points at itself) reaches that byte's own stored value (one level, no chains); one
-  pointing into a gap reads 0 and refuses writes (Access Error).
-- Drive Mode (10): bit 2 (Time-based Profile) needs firmware 42, bit 3 (Torque On by
-  Goal Update) the model's ``backup_min_firmware`` (45 on X430/X540, 46 on X330;
-  ``control_table_drivemode.md``); on older firmware those bits are a Data Range Error.
-- Control Table Backup (protocol2.md "Control Table Backup"): :meth:`store_backup`
-  keeps all EEPROM data, the velocity/position gains, the feed-forward gains, Profile
-  Acceleration/Velocity and the Indirect Addresses; the backup outlives Reboot (the
-  servo keeps it in flash) and Backup Ready (147) reads 1 while it exists.
-  :meth:`restore_eeprom` puts the EEPROM part back; :meth:`boot_ram` puts the RAM part
-  back at boot when Startup Configuration (60) bit 1 (RAM Restore) is set.
-- Write: atomic; checks per field in address order: undefined/read-only/EEPROM with
-  torque on -> Access Error 7, partial multi-byte field -> Data Length Error 5, own
-  range -> Data Range Error 4 (also every goal register while the Bus Watchdog is
-  tripped, and a non-zero Bus Watchdog value while tripped), cross-field limits ->
-  Data Limit Error 6. Profile Velocity above Velocity Limit is accepted and capped at
-  use. Torque Enable 1 while ``Hardware Error Status & Shutdown`` is non-zero is
-  refused with Result Fail 1 (the errors that cut torque keep it off until Reboot).
+Where the e-Manual is silent, the choices are deliberate and tested: gaps in a Read span,
+Indirect Data, Drive Mode bits on old firmware, the backup's contents. ``docs/dxlsim.md``
+lists them (choices where the e-Manual is silent).
 
 Addresses are named here once: from :mod:`drivers.protocol2.control_table` where the
 host's driver uses the item too, else from the emulator's X-series table.

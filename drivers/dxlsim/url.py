@@ -1,58 +1,20 @@
 """``dxlsim://`` URLs: :class:`DxlsimUrl` owns the grammar, its defaults and the bus it builds.
 
-``dxlsim://[NAME][?key=value&...]``. With a NAME registered through :func:`register_bus`,
-the port opens that bus (keys are then not allowed). Otherwise a new bus is built; the
-defaults are :class:`DxlsimUrl`'s field defaults (and nowhere else):
+``dxlsim://[NAME][?key=value&...]``. A NAME registered with :func:`register_bus` opens that
+bus (no keys allowed). Otherwise the keys build a new bus: ``ids``, ``model``, ``baud``,
+``rdt_us``, ``turnaround_us``, ``latency_ms``, ``clock``, ``spin_us``, ``faults``, ``seed``,
+``firmware``, ``trace``. Their defaults are :class:`DxlsimUrl`'s field defaults, and nowhere
+else. ``str(DxlsimUrl.parse(url))`` is the normal form, which parses back to an equal URL.
 
-=============== ==================================================== ===============
-key             meaning                                              default
-=============== ==================================================== ===============
-ids             servo IDs, e.g. ``1-4`` or ``1,3,5``                 ``1``
-model           servo model: one for all (``XM430-W350``), or per ID   ``XM430-W350``
-                (``XM430-W350,5-6:XL330-M288``: a model, then
-                ``IDS:MODEL`` items for the IDs that differ;
-                a 2XL430-W250's two axes are consecutive IDs)
-baud            the servos' baud rate (bit/s); the host's rate is     the port's rate
-                whatever the port is opened at
-rdt_us          Return Delay Time in µs (multiple of 2, 0..508)       ``500`` (factory)
-turnaround_us   servo processing time after the Return Delay Time     ``20``
-latency_ms      USB adapter latency timer: 0, 1, 16, ...              ``0``
-clock           ``real`` (the host's time: a program's ``time.sleep``   ``real``
-                lets the servos move) or ``virtual`` (jumps, never
-                sleeps; for a loop that keeps its own time)
-spin_us         the real clock's spin window (µs), ``clock=real``     the clock's
-                only: sleep until this close to a deadline, then spin
-faults          fault plan, e.g. ``drop:id=2,rate=0.1;unplug:at=3``   none
-seed            seed of the fault plan's generator                    ``0``
-firmware        firmware version reported by every servo              model's default
-trace           ``1`` to keep a timestamped trace of every byte       ``0``
-=============== ==================================================== ===============
+One URL, one bus, while it is in use:
 
-``str(DxlsimUrl.parse(url))`` is the normal form: in the order of the table above, the keys
-the URL named and any other key that is not at its default. It parses back to an equal
-:class:`DxlsimUrl`.
+* every open of a URL with the same normal form gets the bus already open (:func:`acquire_bus`);
+* a port re-opened (pyserial's ``close()``/``open()``, the SDK's ``setBaudRate``) keeps its bus;
+* once every port on it is closed (:func:`release_bus`), the next open powers up a fresh bus;
+* the host's baud rate belongs to the port, the servos' rates to the bus.
 
-**One URL, one bus, while it is in use.** A port opens its bus with :func:`acquire_bus` and
-lets go with :func:`release_bus`; buses in use are kept by the URL's normal form. The rule:
-
-* while some port has a ``dxlsim://?...`` bus open, every other open of the same URL (any
-  spelling with the same normal form) gets that bus: same servos, same state, same clock;
-* a port object re-opened (pyserial's ``close()``/``open()``; the SDK's ``setBaudRate`` and
-  ``closePort``/``openPort`` through :class:`drivers.dynamixel.port.PortHandler`, which
-  re-opens its own serial object) keeps its bus: unplugging and re-plugging the adapter
-  leaves the servos powered and as they were;
-* once every port on it is closed (and none re-opens it), the next open of the URL powers up
-  a fresh bus: nothing in the process can still reach the old one except the closed port
-  objects, and a registry that kept state for a URL string forever would hand one test's or
-  one program part's servos to an unrelated other;
-* the registry holds buses by weak reference (the ports hold them), so a port left open and
-  dropped does not keep its bus, nor the registry entry, alive;
-* the host's rate belongs to the port, the servos' rates to the bus: opening or re-opening at
-  another baud changes only the host side. A URL without ``baud`` builds its servos at the
-  rate of the open that powers the bus up (the SDK's ``openPort``: 1 Mbit/s); after that a
-  host at another rate hears no valid reply, as on a wire.
-
-Named buses (:func:`register_bus`) are kept by their name until :func:`unregister_bus`.
+Named buses are kept until :func:`unregister_bus`. Each key, and why the rules are so:
+``docs/dxlsim.md`` (the ``dxlsim://`` URL).
 """
 
 from __future__ import annotations

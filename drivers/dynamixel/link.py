@@ -42,10 +42,9 @@ from drivers.protocol2.wire_time import PTY_LATENCY_MS
 #: The least device allowance in the packet timeout (``2·latency`` is raised to this, ms)
 #: for a device that is not a known USB adapter: a pty served by a process that may be
 #: descheduled under CPU load, a CDC-ACM board, any other device. It is the SDK's stock
-#: allowance (2 x 16 ms). Over a ``hilsim emulate`` pty on a 2-core host with two CPU hogs
-#: beside it, 1000 pings lost 6-116 with 2 x 1 ms and 26-64 with 2 x 1 ms plus the
-#: drain-before-timeout port, 0 with this (in both runs; worst round trip 20-52 ms,
-#: answered). It costs time only when a servo is really silent.
+#: allowance (2 x 16 ms): a busy host delays a pty's replies by tens of ms, and a smaller
+#: allowance lost pings under load (docs/performance.md). It costs time only when a servo is
+#: really silent.
 UNCHARACTERISED_DEVICE_ALLOWANCE_MS = 2.0 * SDK_LATENCY_TIMER_MS
 
 T = TypeVar("T")

@@ -4,57 +4,21 @@ The SDK's own ``PortHandler`` hard-codes ``serial.Serial(port=...)`` and measure
 timeouts with ``time.time()``. This subclass changes exactly that and nothing of the
 packet code:
 
-* the port is opened with :func:`serial.serial_for_url`, so ``/dev/ttyUSB0``, a pty
-  path and ``dxlsim://...`` (the emulated bus) all work;
-* "now" comes from a :class:`~drivers.clock.Clock`. A ``dxlsim://`` port brings its bus's
-  clock; hardware uses the monotonic clock. Re-opening a ``dxlsim://`` port (``setBaudRate``,
-  which every SDK example calls after ``openPort``; ``closePort`` then ``openPort``) re-uses
-  its serial object, so the bus, its servos and its clock stay (a port opened on the same
-  URL while another has it open shares that bus and clock too);
-* **waiting costs nothing.** The SDK's ``rxPacket`` busy-polls ``readPort()`` (the port is
-  opened with ``timeout=0``), which burns a core for the whole wire time. Here one
-  :meth:`readPort` waits in the OS until the bytes it is asked for are readable or the
-  packet deadline has passed, whichever is first: on a real port (a device path, a pty,
-  any pyserial URL but ``dxlsim://``) the device is read as pyserial reads it, through its
-  descriptor without pyserial's per-call objects: what is there first, then ``select`` on
-  the device and pyserial's ``cancel_read`` pipe with the time left (it returns the moment
-  the bytes are there, so a reply is taken as early as by polling; a packet is written
-  with one ``write`` and no ``select`` after it); on a virtual clock the bus's read, whose
-  wait is a jump (nothing sleeps, the SDK's timeouts still fire). The SDK asks for exactly
-  the bytes it still expects (the 11 of a minimal status packet, then the rest its LENGTH
-  names), so a read that blocks until they are all there never takes a byte of what
-  follows and hands the SDK the same bytes polling would, in fewer calls; a read that
-  reaches the deadline returns what it has. An in-process ``dxlsim://`` bus on the real
-  clock is waited on on its clock: a read sleeps until the bytes are due (spinning the
-  clock's last spin window, as the loop does for a tick), and that wait is the telemetry
-  writer's free time (``MonotonicClock.idle``);
-* **a timeout is declared only by a poll that began after the deadline.** The SDK's
-  ``rxPacket`` calls ``readPort()`` then ``isPacketTimeout()``; if the process is
-  descheduled between the two, a wall-clock check on wake-up would call the servo silent
-  while its whole reply sits in the buffer. :meth:`isPacketTimeout` answers True only when
-  the last :meth:`readPort` started after ``packet_start_time + packet_timeout``; otherwise
-  the SDK polls once more and takes whatever arrived (a blocking read that timed out began
-  before the deadline, so it is always followed by one that does not wait). This holds for
-  every transaction (tick reads, unicast, broadcast ping): they all poll through here;
-* host stalls are measured: :attr:`host_stall_s` / :attr:`host_stalls` add up, within a
-  transaction (from its transmit), the time the process was provably not running: a gap
-  between two of this port's calls, or a call that took longer than it may wait, by more
-  than :data:`HOST_STALL_THRESHOLD_S`. A write or a polling read may not wait at all; a
-  blocking read may wait until its deadline (waiting on the device), so only its return
-  later than that counts, from the deadline on. The figure is a lower bound: a stall
-  while blocked on a reply that was there when the process ran again, before the
-  deadline, cost the tick its time (the loop's overrun books show it) but no servo a
-  reply, and is not seen here; one that made a read return past its deadline always is.
-  Always 0 on a virtual clock;
-* the packet timeout's device allowance is two per-port facts instead of the module
-  global ``port_handler.LATENCY_TIMER``: :attr:`latency_timer_ms` (the adapter's latency,
-  what a bus-capacity calculation uses) and :attr:`device_allowance_ms` (the least time
-  the timeout allows for the device as a whole; see :attr:`timeout_margin_ms`);
-* after a failed read, :meth:`hold_until_quiet` makes the next transmit wait until the
-  rest of a reply chain would be over and discard it (:meth:`clearPort`);
-* a ``SerialException`` (adapter unplugged: pyserial's read raises it when the device
-  reports readiness but gives no data) releases the port before it propagates, so the
-  SDK's ``is_using`` flag is not left stuck at True.
+* the port is opened with :func:`serial.serial_for_url` (a device, a pty, ``dxlsim://``);
+  re-opening a ``dxlsim://`` port keeps its bus and clock;
+* "now" comes from a :class:`~drivers.clock.Clock`: the bus's for ``dxlsim://``, else monotonic;
+* :meth:`readPort` waits in the OS (or on the virtual clock) for the bytes the SDK asked for,
+  up to the packet deadline, instead of the SDK's busy-poll;
+* :meth:`isPacketTimeout` is True only for a poll that began after the deadline, so a
+  descheduled process never calls a servo silent whose reply is in the buffer;
+* :attr:`host_stall_s` / :attr:`host_stalls` measure, as a lower bound, the time the process
+  was not running within transactions;
+* the packet timeout's device allowance is per port (:attr:`latency_timer_ms`,
+  :attr:`device_allowance_ms`), not the SDK's module global;
+* :meth:`hold_until_quiet` discards the rest of a failed reply chain; a ``SerialException``
+  releases the port before it propagates.
+
+Each of these, and why: ``docs/port.md``.
 """
 
 from __future__ import annotations
@@ -176,7 +140,7 @@ class PortHandler(dynamixel_sdk.PortHandler):  # type: ignore[misc]  # the SDK h
         transaction's transmit to its last poll: the gaps between this port's calls, and
         the time a call took beyond what it may wait (a write, a polling read: nothing; a
         blocking read: until its deadline), each where longer than
-        :data:`HOST_STALL_THRESHOLD_S`. A lower bound (see the module's docstring). A
+        :data:`HOST_STALL_THRESHOLD_S`. A lower bound (``docs/port.md``). A
         counter: difference it around a transaction. 0 on a virtual clock.
     host_stalls:
         How many such gaps :attr:`host_stall_s` adds up.

@@ -1,28 +1,20 @@
 """Host CPU per bus cycle over a pseudo-terminal: the SDK's busy-poll beside hilsim's port.
 
-A real port (a device path, a pty) is waited on by the process: the SDK's stock
-``PortHandler`` opens it with ``timeout=0`` and ``rxPacket`` polls ``readPort()`` until
-the reply is there, so it burns a core for the whole wire time; hilsim's
-:class:`~drivers.dynamixel.port.PortHandler` blocks in the OS (``select``) until the bytes
-the SDK asked for are readable or the packet deadline passes. This module measures the
-difference where it shows, over ``hilsim emulate`` (the emulated bus served on a pty by
-another process, as a USB adapter is):
+The SDK's stock ``PortHandler`` polls ``readPort()`` until a reply is there, burning a core for
+the whole wire time; hilsim's :class:`~drivers.dynamixel.port.PortHandler` blocks in the OS
+(``docs/port.md``). This module measures the difference over ``hilsim emulate`` (the emulated
+bus on a pty, served by another process, as a USB adapter is):
 
-* :func:`measure_cycles` - back-to-back cycles of one Sync Write of Goal Position and one
-  Fast Sync Read of Present Position through the SDK's group objects, once on the bare
-  SDK's port and once on hilsim's (opened by :meth:`~drivers.dynamixel.link.Link.open`, as
-  a show opens it), alternating, best of ``repeats``: CPU (``time.process_time``) and wall;
-* :func:`measure_demo` - ``hilsim run configs/demo.toml --port PTY`` in a child process:
-  its CPU (``/proc/PID/task/*/schedstat``: every thread) per tick over a window of the show
-  after the soft start, the loop's thread apart, its wake-ups (voluntary context switches)
-  per tick and the show's lateness;
-* :func:`compare_waits` - the real clock alone: CPU per wait and lateness at 250 Hz with
-  the former spin window and timer slack (200 µs, 50 µs), the present ones, 50 µs and 0.
+* :func:`measure_cycles`: back-to-back Sync Write + Fast Sync Read cycles on the bare SDK's
+  port and on hilsim's, alternating, best of ``repeats``: CPU and wall time;
+* :func:`measure_demo`: ``hilsim run configs/demo.toml --port PTY`` in a child process: its CPU
+  per tick (every thread, from ``/proc``), its wake-ups per tick and the show's lateness;
+* :func:`compare_waits`: the real clock alone at 250 Hz, with the former spin window and timer
+  slack (200 µs, 50 µs), the present ones, 50 µs and 0.
 
-``hilsim bench`` on the built-in emulator and the real clock (no rig, no ``--port``: the
-figures are this host's and hilsim's, not the bus's) runs it after its other measurements
-(:func:`for_bench`), prints :meth:`CpuResult.text` and puts :meth:`CpuResult.as_dict` in its
-JSON under ``cpu`` (with the load average). ``python -m hilsim.bench.cpu`` runs it alone.
+``hilsim bench`` on the built-in emulator and the real clock runs it last (:func:`for_bench`),
+prints :meth:`CpuResult.text` and puts :meth:`CpuResult.as_dict` in its JSON under ``cpu``.
+``python -m hilsim.bench.cpu`` runs it alone.
 """
 
 from __future__ import annotations

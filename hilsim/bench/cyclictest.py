@@ -1,31 +1,23 @@
 """cyclictest (rt-tests) beside our scheduler: run it, parse what version 2.x prints.
 
-The bench runs ``cyclictest -m -i INTERVAL -l LOOPS -q -h HIST_MAX [-p PRIO]`` right after
-our own scheduler measurement (not concurrently: on two cores two spinning/waking loops
-would delay each other), in the same scheduling class: ``-p PRIO`` makes its measuring
-thread SCHED_FIFO; without ``-p`` it stays SCHED_OTHER. ``-m`` locks memory, as our run
-does. cyclictest measures wake-up latency of a thread sleeping in ``clock_nanosleep`` to an
-absolute deadline; ours is the lateness of a thread that sleeps, then spins.
+The bench runs ``cyclictest -m -i INTERVAL -l LOOPS -q -h HIST_MAX [-p PRIO]`` right after our
+own scheduler measurement, not beside it (on two cores the two loops would delay each other).
+``-p`` makes its thread SCHED_FIFO, as ours; ``-m`` locks memory, as our run does. It measures
+the wake-up latency of a thread sleeping in ``clock_nanosleep`` to an absolute deadline; ours
+is the lateness of a thread that sleeps, then spins.
 
-With ``-q -h N`` version 2.x prints (and nothing per thread on a ``T:`` line)::
+With ``-q -h N`` version 2.x prints a histogram and totals::
 
-    # /dev/cpu_dma_latency set to 0us
     # Histogram
-    000000 000000
     000001 000012           <- bucket (µs, floor of the latency), count
     ...
     # Total: 000002000
-    # Min Latencies: 00005
-    # Avg Latencies: 00016
     # Max Latencies: 00149
     # Histogram Overflows: 00000
 
-Without ``-h`` it prints one summary line per thread instead::
-
-    T: 0 ( 7809) P: 0 I:1000 C:   2000 Min:     31 Act:   78 Avg:   76 Max:    3802
-
-Percentiles come from the histogram by the same rule as ours (inverted CDF); samples past
-the histogram's end count as the reported maximum.
+Without ``-h`` it prints one ``T: 0 ( 7809) P: 0 I:1000 C: 2000 Min: 31 ... Max: 3802`` line per
+thread instead. Percentiles come from the histogram by our own rule (inverted CDF); samples
+past its end count as the reported maximum.
 """
 
 from __future__ import annotations

@@ -1,45 +1,21 @@
 """Sound files played in sync with their clips: what is *heard* lines up with the motion.
 
-In a show file::
+A show file's ``[sounds]`` names a file per clip (``offset_ms`` delays it). Needs
+``pip install 'hilsim[live]'`` (sounddevice, and the PortAudio library); FLAC, Ogg and the rest
+need soundfile (``pip install 'hilsim[audio]'``). Without them the show file is refused at load,
+in one line naming what to install.
 
-    [sounds]
-    scare = "audio/scream.wav"                          # played when the clip "scare" starts
-    laugh = { file = "audio/laugh.flac", offset_ms = 120 }   # heard 120 ms later
+* :meth:`AudioOut.preload` decodes every file at show load into float32 frames at one rate and
+  one or two channels. During the show nothing is read or decoded.
+* :meth:`AudioOut.play` is told the show time the clip started and the show time now. It
+  places the first sample by the stream's DAC time, so the sound is in sync from the first
+  sample heard. A late play starts later in the file; an early one waits in silence.
+* One sound at a time: a new ``play`` replaces the one playing; :meth:`AudioOut.stop` silences it.
+* The audio callback only copies frames from memory: no locks, no waits, no allocation.
 
-Needs ``pip install 'hilsim[live]'`` (sounddevice, which needs the PortAudio library: on
-Debian/Ubuntu ``apt install libportaudio2``). PCM/float WAV is read here; FLAC, Ogg and the rest
-need soundfile (``pip install 'hilsim[audio]'``). Without them the show file is refused at load
-with one line naming what to install: a show never starts half-configured.
-
-**When is a sample heard?** :meth:`AudioOut.play` is told the show time the clip started
-(``at_show_t``) and the show time now (``now_show_t``). File position ``file_offset_s + x`` must
-be heard at show time ``at_show_t + x + offset_ms/1000`` (a positive ``offset_ms`` delays the
-sound, for a servo that lags its target). The output stream's clock (PortAudio's stream time) is
-read at the same moment, so that instant becomes a time on the stream's clock. Nothing written
-now can be heard before ``now + latency`` (the stream's reported output latency): if the
-instant is earlier (a play call arriving late, or the latency itself), playback starts that
-much later *in the file*, so the sound is in sync from the first sample heard. If the instant
-is later, the stream plays silence until then. The callback places the first sample by the
-buffer's DAC time (``outputBufferDacTime``; the callback time + latency when a host API gives
-none), then plays on sample by sample. The sound card's clock and the loop's may differ by
-~50 ppm: about 3 ms a minute within one long sound; every ``play`` re-anchors.
-
-**Load, not show.** :meth:`AudioOut.preload` decodes every file at show load into float32
-frames at one rate (the first file's; others are resampled, linearly: give all sounds one rate
-for the best quality) and one channel count (mono is copied to both channels; at most 2). A
-missing or unreadable file is one ValueError line then. During the show nothing is read or
-decoded: ``play`` swaps one reference the audio callback reads, and the callback copies frames
-from memory into the buffer (no locks, no waits, no allocation beyond numpy views).
-
-**One sound at a time.** A new ``play`` (a cut to another clip) replaces the sound playing;
-:meth:`AudioOut.stop` silences it.
-
-**Faults.** Audio is not a safety matter: a device that fails mid-show (unplugged, a PortAudio
-error) is one ``audio_error`` event and the show goes on in silence; the stream is not reopened
-during the show (opening a device can take longer than a tick). Underflows (the callback late)
-are counted and reported by :meth:`AudioOut.poll`. A stall of the loop does not stall the sound
-(the callback runs on PortAudio's thread); the next ``play`` after a stall starts later in the
-file by the lateness. Ctrl-C ends the run; :meth:`AudioOut.close` stops and closes the stream.
+Audio is not a safety matter: a device that fails mid-show is one ``audio_error`` event, and
+the show goes on in silence. :meth:`AudioOut.poll` reports underflows; :meth:`AudioOut.close`
+stops the stream. The timing rule and the clock drift: ``docs/live.md`` (Sounds).
 """
 
 from __future__ import annotations

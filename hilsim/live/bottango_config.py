@@ -1,5 +1,5 @@
 """``[inputs.bottango]``: the Bottango live driver's settings (:func:`from_table`). What the
-driver does, and how to point Bottango at it: :mod:`hilsim.live.bottango_live`.
+driver does: :mod:`hilsim.live.bottango_live`; how to point Bottango at it: ``docs/live.md``.
 
 Keys (all optional but ``effectors``)::
 

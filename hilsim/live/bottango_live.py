@@ -1,53 +1,22 @@
 """A Bottango live driver: hilsim answers Bottango's driver protocol, so a figure animated in
 Bottango moves on Dynamixels through hilsim's springs and safety filter.
 
-How to use it (``[inputs.bottango]`` in the show file, parsed by :func:`from_table`)::
+The show file's ``[inputs.bottango]`` (:func:`from_table`) picks the transport and maps
+Bottango's effectors to joints:
 
-    [inputs.bottango]
-    transport = "pty"              # or "tcp"
-    link = "/tmp/bottango"         # pty: a symlink to the pty (optional)
-    [inputs.bottango.effectors."0"]            # Bottango's effector identifier (the pin)
-    joint = "jaw"
-    signal = [1000, 2000]          # optional: the signal (µs) that maps to degrees[0], [1];
-    degrees = [0, 40]              #   without it, the registration's min..max map to degrees
+* ``transport = "pty"``: hilsim plays Bottango's Arduino (USB serial) driver on a
+  pseudo-terminal; every line must carry its ``,h<sum>`` hash.
+* ``transport = "tcp"``: hilsim plays Bottango's networked driver, connecting out to the app
+  (127.0.0.1:59225 by default).
 
-* ``transport = "pty"``: hilsim opens a pseudo-terminal and says its path (``/dev/pts/N``) at
-  start; it plays Bottango's **Arduino (USB serial) driver**: version ``0.8.0c1``, every line
-  must carry its ``,h<sum>`` hash. In Bottango, select the hardware driver (Hardware → Drivers),
-  choose the USB serial connection and pick the port [inferred: Bottango's port list may
-  show only real serial devices; a pty behind a name such as ``/dev/ttyUSB*`` needs root, or a
-  bridge such as ``socat``; not tried against the app].
-* ``transport = "tcp"``: hilsim plays Bottango's **networked driver**: Bottango (the app)
-  listens on TCP 127.0.0.1:59225 and the driver *connects to it* (the Python network driver's
-  ``CallbacksAndConfiguration.py``: ``address``, ``port = 59225``); so hilsim connects out,
-  retrying until the app is there, and listens on nothing. It answers as that driver does
-  (version ``CUSTOM9``, the handshake ends ``,1`` = live input accepted; a hash is checked
-  when present, as that driver never checks one). ``host`` other than the loopback must be
-  named in ``allow`` (the netguard rule for network inputs); ``port`` defaults to 59225. In
-  Bottango, set the driver's connection to the network (socket) driver [inferred from the
-  driver sources; the docs' page for it was not seen].
+One ASCII command a line, answered ``OK`` (or ``HASH_FAIL`` for a bad hash, which does
+nothing). Handshake, registration, time sync, curves, clears and ``STOP`` (the exit policy)
+are implemented from Bottango's driver sources. Curves are evaluated by
+:mod:`hilsim.targets.formats.bottango_curve`, as the export reader does. Nothing here raises
+on a line; drops are counted by kind and said at most once a second
+(:class:`~hilsim.live.netguard.DropLog`).
 
-The protocol (from Bottango's driver sources, ``EvanBottango/Bottango`` @ 61d2980,
-``BottangoCore.cpp`` ``updateReadBuffer``/``checkHash``/``executeCommand``,
-``BasicCommands.{h,cpp}``, ``Errors.cpp``, ``ModulesResponder.cpp``, ``Time.cpp``,
-``LoopDrivenEffector.cpp``): one ASCII command a line, ``\\n`` ends it; the app waits for
-``OK\\n`` before it sends the next. A line ends ``,h<sum>``, sum = the character codes of
-everything before ``,h``; a mismatch is answered ``HASH_FAIL\\n`` and does nothing.
-``hRQ,<code>`` -> ``btngoHSK,<version>,<code>\\n`` then ``OK\\n`` and every effector is
-deregistered (the serial driver ignores, without a word, an ``hRQ`` after its first one).
-``tSYN,<ms>``: the driver's clock reads ms now; a curve's start is the last sync's ms + its
-start. Unknown commands are answered ``OK\\n``. Errors are a blank line, ``errXxx: <id>`` and
-then ``OK\\n``. ``STOP``: the serial driver reboots (``\\nBOOT\\n``, no OK), the network driver
-answers OK; here it also asks the director to stop (the exit policy).
-
-The effector between curves holds the end of the last finished curve (or where it was: its
-start signal, or where a clear left it); two curves at once: the latest sent wins. The curve
-is evaluated by :mod:`hilsim.targets.formats.bottango_curve` (the export reader's), the signal
-is min + y/8192·(max − min) as the firmware's ``lerpSignal`` (not rounded to an integer), then
-the effector's map to degrees. Not done: Bottango's own speed limit (``maxSignalPerSec``: the
-rig's safety filter limits speed), ``sSY``/``sR`` (announced as unsupported by ``hMOD``),
-events, colours, steppers' sync. Nothing here raises on a line; drops are counted by kind and
-said at most once a second (:class:`~hilsim.live.netguard.DropLog`).
+How to set it up, the protocol, and what is not done: ``docs/live.md`` (Bottango live).
 """
 
 from __future__ import annotations
@@ -115,7 +84,7 @@ class BottangoLive:
     :meth:`poll` (the loop) says where each mapped joint is now. Thread-safe, never blocks
     longer than one line's work, never raises on a line.
 
-    ``network=True`` answers as Bottango's network driver does (see the module docstring);
+    ``network=True`` answers as Bottango's network driver does (``docs/live.md``);
     ``driver_version`` replaces the version the handshake reports."""
 
     def __init__(

@@ -1,40 +1,21 @@
 """A gamepad's sticks -> joint degrees, its buttons -> trigger keys, polled once per tick.
 
-In a show file::
+The show file's ``[inputs.gamepad]`` maps axes to joints (``degrees`` at -1 and +1) and buttons
+to trigger strings. Needs pygame (``pip install 'hilsim[gamepad]'``); without it the show file
+is refused at load with that line. No window opens: SDL runs with the ``dummy`` video driver
+unless ``SDL_VIDEODRIVER`` is set.
 
-    [inputs.gamepad]
-    index = 0                 # the first joystick SDL finds (default 0)
-    deadzone = 0.05           # stick travel (of ±1) read as centre (default 0.05)
-    lost_after_s = 0.5        # no reading this long: input lost, joints hold (default 0.5)
+* A thread reads the mapped axes and buttons ~100 times a second into a bounded
+  :class:`~hilsim.live.inbox.Inbox`, stamped with show time.
+* :meth:`GamepadInput.poll` (the loop) takes, without waiting, the latest degrees per joint and
+  each button's rising edge as a trigger: a press shorter than a tick is still seen.
+* An axis maps linearly, its deadzone cut out without a step. It takes its joint only once it
+  has moved: a pad on the desk does not override the show's clips.
+* Unplugged, or silent for ``lost_after_s``: one ``input_lost`` event and the joints hold; its
+  return is ``input_resumed``.
 
-    [[inputs.gamepad.axis]]
-    axis = 0                  # pygame's axis number (0: the left stick's x on most pads)
-    joint = "head_pan"
-    degrees = [-30, 30]       # the joint at the axis' -1 and +1 (reversed: [30, -30])
-
-    [[inputs.gamepad.button]]
-    button = 0
-    trigger = "key:s"         # a cue with this trigger fires (key:, osc: or midi: strings)
-
-Needs pygame (``pip install 'hilsim[gamepad]'``; pygame 2's SDL reads the pad). Without it the
-show file is refused at load with that line. No window opens: SDL runs with the ``dummy`` video
-driver (unless ``SDL_VIDEODRIVER`` is set), which pygame's event pump needs; joystick events are
-allowed in the background.
-
-**How.** A thread opens the joystick, reads every mapped axis and button ~100 times a second
-and hands each reading, stamped with show time, to a bounded
-:class:`~hilsim.live.inbox.Inbox`; the loop's :meth:`GamepadInput.poll` takes what is due,
-without waiting: the latest degrees per joint, each button press (its rising edge, so a press
-shorter than a tick is still seen) as a trigger, and events. An axis maps linearly from -1..+1 to
-``degrees``, its deadzone around 0 cut out (the rest rescaled, no step). **An axis takes its
-joint only once it has moved** (by more than the deadzone from its first reading): a pad lying
-on the desk does not override the show's clips, and a trigger axis resting at -1 does not count.
-
-**Unplugged** (SDL reports it removed, or a read fails): one ``input_lost`` event, and the
-joints hold their last values; the thread looks for the pad again each period, and its return
-is ``input_resumed``. The same happens when no reading arrives for ``lost_after_s`` (a stalled
-reader). A stall of the loop loses no button press (up to 256 readings are held). Ctrl-C ends
-the run; :meth:`GamepadInput.close` stops the thread and shuts SDL's joystick down.
+:meth:`GamepadInput.close` stops the thread and shuts SDL's joystick down. Every key with an
+example: ``docs/live.md`` (Gamepad).
 """
 
 from __future__ import annotations
@@ -89,7 +70,7 @@ class ButtonMap:
 
 @dataclass(frozen=True)
 class GamepadConfig:
-    """``[inputs.gamepad]`` (see the module docstring)."""
+    """``[inputs.gamepad]`` (its keys: ``docs/live.md``, Gamepad)."""
 
     axes: tuple[AxisMap, ...] = ()
     buttons: tuple[ButtonMap, ...] = ()

@@ -1,38 +1,23 @@
 """Who may talk to a network input, and how much: nobody else drives the figure.
 
-A network input (OSC today, the Bottango TCP port later) passes every datagram through one
-:class:`NetGuard` before it decodes a byte of it, cheapest check first:
+A network input passes every datagram through one :class:`NetGuard` before it decodes a
+byte of it, cheapest check first:
 
-1. **size** — more than ``max_packet_bytes`` is dropped unread (``oversized``);
-2. **sender** — a sender outside the allow-list is dropped (``sender``);
-3. **rate** — each sender has a token bucket on the packets' *timestamps* (show time, never
-   the wall clock, so a test injects a flood in virtual time): ``rate_per_s`` packets a second
-   with bursts of ``burst``; a packet with no token is dropped (``flood``).
+1. **size**: more than ``max_packet_bytes`` is dropped unread (``oversized``);
+2. **sender**: a sender outside the allow-list is dropped (``sender``);
+3. **rate**: a token bucket per sender, on the packets' show-time stamps (so a test floods
+   in virtual time); a packet with no token is dropped (``flood``).
 
-Only then does the input decode the packet; what it cannot use it counts here too
-(``malformed``, ``unknown``, ``value``, ``queue_full``, ``internal``). Every drop is counted by
-kind (:class:`DropCounts`); :class:`DropLog` turns the counts into at most one line per kind per
-second of show time, each saying how many since the last line. Nothing here raises on a packet.
+The input counts its own drops here too. :class:`DropCounts` counts by kind; :class:`DropLog`
+says at most one line per kind per second of show time. Nothing here raises on a packet.
 
-Listening: on ``127.0.0.1`` unless an interface is named. Naming an interface other than the
-loopback *requires* an allow-list (an open port on a show network with no allow-list is refused
-at configuration time, one line). Without an allow-list only loopback senders are accepted.
-Allow-list entries are addresses or networks (``192.168.1.20``, ``10.0.0.0/24``).
+Listening is on ``127.0.0.1`` unless an interface is named; another interface *requires* an
+allow-list. :class:`UdpReceiver` is the receiver thread, held back so a flood cannot starve
+the loop: at most ``max_rx_per_s`` reads a second, SCHED_OTHER, nice 19. It counts the
+kernel's drops (``socket_overflow``) where Linux reports them.
 
-**The receiver itself is held back** (:class:`UdpReceiver`): a Python thread that never idles
-takes the GIL, and without SCHED_FIFO a CPU, from the loop however little each datagram costs.
-So it reads at most ``max_rx_per_s`` datagrams a second (a token bucket on the monotonic clock,
-the one place here that reads it) and past that waits; the kernel drops what its buffer cannot
-hold and, on Linux, says how many (``SO_RXQ_OVFL``), counted as ``socket_overflow`` (elsewhere
-uncounted: ``UdpReceiver.overflow_counted`` is False). Its thread runs SCHED_OTHER even when
-started from a SCHED_FIFO thread, and at nice 19 (its own thread only, Linux).
-Measured with ``tools/bench_live_osc.py`` (2 shared cores, load 0.9-2.5; a thread waking every
-4 ms and polling; ~200,000 junk datagrams/s sent to 127.0.0.1 by another process): at nice 0
-and uncapped the poller was late by 0.3-3.9 ms at p99 (max 6.9 ms) even at SCHED_FIFO, and
-capped but at nice 0 by 3.9 ms at p99 at SCHED_OTHER; capped at nice 19, p99 2-461 µs and a max
-(0.8-2.4 ms) within what the same machine showed with no flood at all.
-
-This module knows nothing of OSC; it imports only the standard library.
+The rules for users: ``docs/live.md`` (OSC). Why the receiver is capped, measured:
+``docs/performance.md``. This module knows nothing of OSC; it imports only the standard library.
 """
 
 from __future__ import annotations

@@ -2,45 +2,23 @@
 
 Addresses (OSC 1.0 messages, alone or in bundles):
 
-- ``/hilsim/joint/<name>`` with one number (``f d i h``) in 0..1: the joint's live target,
-  ``lo + v·(hi − lo)`` degrees;
-- ``/hilsim/cue/<name>`` with no argument, or a first argument that is not the number 0: a
-  ``cue`` event (a push button's release sends 0: ignored, not a drop); so is any address in
-  ``triggers`` (a show file's ``"osc:/trigger/pir"``: QLab and show desks send their own);
-- ``/hilsim/stop`` with any arguments: a ``stop`` event (the loop turns it into its stop code).
+- ``/hilsim/joint/<name>`` with one number in 0..1: the joint's live target, ``lo + v·(hi − lo)``
+  degrees;
+- ``/hilsim/cue/<name>`` (or any address in ``triggers``): a ``cue`` event, unless the first
+  argument is the number 0 (a button's release);
+- ``/hilsim/stop``: a ``stop`` event.
 
-**The decoder is our own** (:func:`decode_packet`, strict OSC 1.0: types ``i f d h s b T F N I``,
-bundles nested up to 8 deep, at most 64 messages a packet, the timetag ignored: applied on
-arrival). python-osc 1.10.2 was tried and not used: under mutation fuzzing it raised
-``UnicodeDecodeError`` besides its ``ParseError``, and it logs a root-logger warning for every bad
-packet, so a flood would become a flood of log lines. Ours raises only :class:`OscDecodeError`
-(a Hypothesis test holds it to that), and OSC needs no optional extra.
+:func:`decode_packet` is our own strict OSC 1.0 decoder; it raises only :class:`OscDecodeError`.
+Each datagram passes :class:`~hilsim.live.netguard.NetGuard` first. Values that are NaN, ±inf or
+outside 0..1 are dropped and counted, never clamped.
 
-**Values**: NaN, ±inf and anything outside 0..1 are *dropped and counted* (``value``), never
-clamped: a sender out of range is misconfigured, and a clamp would drive the joint to its end
-stop while the log said nothing. Unknown joints, cues not in the caller's list, wrong argument
-counts or types are ``unknown`` drops. What the sender sends first passes
-:class:`~hilsim.live.netguard.NetGuard` (size, allow-list, rate); every drop is counted by kind
-and reported as at most one ``input_dropped`` event per kind per second of show time. A
-malformed packet is dropped whole (a bundle with one bad element applies nothing); of a
-well-formed one each message is applied or counted. Units: ``oversized``, ``sender``, ``flood``,
-``malformed``, ``internal`` count datagrams, ``unknown`` and ``value`` messages, ``queue_full``
-events (``OscInput.guard.drops.snapshot()`` for the run's summary).
+Threads and time: :meth:`OscInput.feed` is the receiver's side: ``(t, bytes, sender)``, in show
+time. It hands over the latest value per joint and a bounded event queue, under one lock.
+:meth:`OscInput.poll` is the loop's side: bounded work, no clock reads, no sleeps. A joint
+silent for ``lost_after_s`` holds its value (``input_lost``, then ``input_returned``).
+:func:`listen` opens the real UDP socket and its thread.
 
-**Threads and time**: :meth:`OscInput.feed` is the receiver's side (a thread, or a test injecting
-``(t, bytes, sender)`` in show time); it guards, decodes and hands over under one lock: the
-latest value per joint (only the latest matters) and a bounded event queue (``queue_size``; a full
-queue drops its oldest event, counted ``queue_full``; a stop is a flag and is never dropped).
-:meth:`OscInput.poll` is the loop's side: it swaps the hand-over out, applies it to
-:class:`LiveTargets` and returns the events. Its work is bounded by the joints plus
-``queue_size``, however much arrives. Nothing here sleeps or reads the clock; ``t`` is always
-given. :func:`listen` opens the real UDP socket and its thread
-(:class:`~hilsim.live.netguard.UdpReceiver`).
-
-**Lost input**: a joint whose last value is older than ``lost_after_s`` at a poll holds that
-value (its target does not move) and one ``input_lost`` event is emitted; the next value
-emits ``input_returned``. Events are :class:`~hilsim.live.inbox.LiveEvent` (source ``"osc"``,
-a readable ``message`` in ``detail``). A joint that never received a value has no live target.
+The drop kinds, the decoder's limits and why it is our own: ``docs/live.md`` (OSC).
 """
 
 from __future__ import annotations

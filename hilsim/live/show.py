@@ -4,35 +4,19 @@ A show (:mod:`hilsim.live.show_spec` reads its file) has three layers of clips. 
 first layer whose clip drives that joint wins; a joint no clip drives follows its base track
 (the rig's own ``target``)::
 
-    cue        a clip started by a trigger (OSC, MIDI, a key, a timer), with lockout, window
-               and what follows it (``then``: idle, hold its last pose, or another cue)
+    cue        a clip started by a trigger, with lockout, window and ``then``
     timeline   ``[[timeline]]`` clips at fixed show times (looped if asked)
-    idle       ``[idle]`` clips, one after another ("sequence") or picked at random with a
-               seed (never the same twice in a row); runs from the first tick, underneath
+    idle       ``[idle]`` clips in sequence or at random; from the first tick, underneath
 
 It is pure: no threads, no clock reads, no sleeps. The director calls :meth:`ShowRuntime.trigger`
-for each arriving trigger and :meth:`ShowRuntime.tick` once per tick with the show time; the
-loop then samples :attr:`ShowRuntime.tracks` (one per joint, at the tick and at the integrator's
-substeps). Everything changes only in ``tick``, so a trigger takes effect at the next tick and a
-clip that ends between ticks is noticed at the next one (the follower starts at the exact end).
+for each trigger, and :meth:`ShowRuntime.tick` once per tick with the show time. The loop then
+samples :attr:`ShowRuntime.tracks`. Everything changes only in ``tick``, so a trigger takes
+effect at the next tick.
 
-A cut (a cue starting over idle or over another cue, idle resuming) is a step in the *target*.
-It never reaches a servo as one: the joint's spring follows the new target from where it is and
-the safety filter keeps the command within the joint's speed and acceleration limits.
-
-Events (:class:`~hilsim.live.inbox.LiveEvent`, source ``"show"``), in time order::
-
-    cue_start    cue, clip, trigger[, sound, sound_offset_s]    a cue's clip starts
-    cue_end      cue, clip, reason ("end" | "cut"), then        its clip ended or was cut
-    cue_ignored  cue, trigger, reason ("lockout" | "window" | "duplicate")
-    idle_resume  clip                                           idle is in front again
-    clip_start   layer ("idle" | "timeline"), clip, local_s[, sound, sound_offset_s, resumed]
-    clip_end     layer "timeline", clip                         a timeline clip ended
-    trigger_unmatched  trigger   (once per key)    triggers_dropped  count  (a flood)
-
-``sound`` is the clip's sound file when its layer is the one in front; ``sound_offset_s`` is
-where in the file to start (how far into the clip it is; the sound's ``offset_ms``, a delay,
-is the player's: :mod:`hilsim.live.audio_out`).
+A cut is a step in the *target*, never at a servo: the spring and the safety filter smooth it.
+Events are :class:`~hilsim.live.inbox.LiveEvent` (source ``"show"``): ``cue_start``,
+``cue_end``, ``cue_ignored``, ``idle_resume``, ``clip_start``, ``clip_end``,
+``trigger_unmatched``, ``triggers_dropped``. Their fields: ``docs/live.md`` (Triggers).
 """
 
 from __future__ import annotations

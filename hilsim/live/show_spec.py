@@ -1,40 +1,20 @@
 """The show file's clips, sounds, idle layer, cues and timeline, read into a :class:`RuntimeSpec`.
 
-An example (paths relative to the show file; a joint a clip does not name keeps what is under
-it: the idle clip, else the rig's own target)::
+The sections read here (paths relative to the show file):
 
-    [clips.breathe]
-    jaw = { type = "keyframes", keys = [[0, 10], [2, 12], [4, 10]], easing = "smooth" }
-    [clips.look_around]
-    head_pan = { type = "keyframes", keys = [[0, 0], [1.5, 25], [3, -25], [4, 0]] }
-    [clips.scare]
-    jaw = { type = "keyframes", keys = [[0, 30], [0.5, 5], [4, 10]] }
-
-    [sounds]
-    scare = "audio/scream.wav"                      # or { file = "...", offset_ms = 120 }:
-                                                    #   heard 120 ms after its clip starts
-
-    [idle]                                          # or, shorter: idle = ["breathe"]
-    clips = ["breathe", "look_around"]
-    order = "random"                                # or "sequence" (the default)
-    seed = 1                                        # default: [show] seed
-
-    [cues.scare]
-    trigger = ["osc:/hilsim/cue/scare", "key:s", "midi:note:60"]
-    clip = "scare"
-    then = "idle"                                   # or "hold", or another cue's name
-    lockout_s = 10                                  # ignore it again for 10 s (default 0)
-    window = "18:00-23:00"                          # only then, local time (optional)
-
-    [[timeline]]                                    # clips at fixed show times
-    at_s = 0
-    clip = "breathe"
-    loop = true
+- ``[clips.<name>]``: a rig target table per joint; a joint a clip does not name keeps what is
+  under it (the idle clip, else the rig's own target);
+- ``[sounds]``: a file per clip, or ``{ file, offset_ms }``;
+- ``[idle]`` (or ``idle = [...]``): clips, ``order`` (``"sequence"`` or ``"random"``), ``seed``;
+- ``[cues.<name>]``: ``trigger``, ``clip``, ``then``, ``lockout_s``, ``window``;
+- ``[[timeline]]``: ``at_s``, ``clip``, ``loop``.
 
 Trigger strings and windows: :mod:`hilsim.live.triggers`. Every cue also answers the OSC address
 ``/hilsim/cue/<its name>``. A cue named ``idle`` or ``hold`` is refused (``then`` would be
 ambiguous). Every error is one ``ValueError`` line naming the file and the key, e.g.
 ``show.toml: cues.scare.lockout_s: must be a finite number >= 0, got -1``.
+
+An example of every key: ``docs/live.md`` (the show file).
 """
 
 from __future__ import annotations

@@ -1,45 +1,17 @@
 """The show file: what ``hilsim run RIG --show SHOW.toml`` runs besides the rig's own targets.
 
-A show file names the clips a figure plays and what starts them, and the live inputs that may
-drive it; the rig (its servos, limits and springs) stays in the rig file. Every section is
-optional; paths are relative to the show file::
+A show file names the clips a figure plays, what starts them, and the live inputs that may
+drive it. The rig (its servos, limits and springs) stays in the rig file. Every section is
+optional; paths are relative to the show file. Sections: ``[show]``, ``[clips.*]``,
+``[sounds]``, ``[idle]``, ``[cues.*]``, ``[[timeline]]``, ``[inputs.osc]``, ``[inputs.midi]``,
+``[inputs.mtc]``, ``[inputs.gamepad]``, ``[inputs.keyboard]``, ``[inputs.bottango]``,
+``[record]`` and ``[teach]``. ``--live`` has a built-in one.
 
-    [show]
-    name = "skull"                 # default: the file's stem
-    seed = 1                       # the idle layer's random picks (default 0)
+Clips, sounds, idle, cues and the timeline are read by :mod:`hilsim.live.show_spec`. The
+Bottango, gamepad, keyboard and teach sections are read by their own modules. Errors are one
+line naming the file and the key (:class:`~hilsim.rig.RigError`).
 
-    [clips.breathe]                # clips: a target table per joint, any rig target type
-    jaw = { type = "keyframes", keys = [[0, 10], [2, 12], [4, 10]], easing = "smooth" }
-    [clips.scare]
-    jaw = { type = "bottango", file = "animations/scare.txt", effector = "0", degrees = [0, 40] }
-    [sounds]
-    scare = "audio/scream.wav"     # played in sync with its clip (optional extra: live)
-
-    [idle]
-    clips = ["breathe"]            # played when nothing else plays
-    [cues.scare]
-    trigger = ["osc:/hilsim/cue/scare", "key:s", "midi:note:60"]
-    clip = "scare"
-    then = "idle"
-    lockout_s = 10
-
-    [inputs.osc]                   # /hilsim/joint/<name> 0..1, /hilsim/cue/<name>, /hilsim/stop
-    port = 9000                    # on 127.0.0.1 unless `interface` (then `allow` is required)
-    [inputs.midi]
-    port = "X-Touch Mini"          # a mido input port name (default: the first one)
-    [[inputs.midi.cc]]
-    joint = "head_pan"
-    channel = 1
-    control = 7
-    degrees = [-30, 30]
-    [inputs.mtc]                   # MIDI Time Code on the same port drives the show time
-    freewheel_s = 0.5
-    [record]                       # live input recorded as a take: raw CSV + reduced keys
-    tolerance_deg = 0.5
-
-Clips, sounds, idle, cues and the timeline are read by :mod:`hilsim.live.show_spec`; the
-Bottango live driver's, the gamepad's, the keyboard's and teach-by-hand's sections by their own
-modules. Errors are one line naming the file and the key (:class:`~hilsim.rig.RigError`).
+Every section with an example: ``docs/live.md`` (the show file, live inputs).
 """
 
 from __future__ import annotations

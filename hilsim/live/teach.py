@@ -1,38 +1,24 @@
 """Teach-by-hand: chosen joints go limp while the show runs, a person moves them, and their
 present positions become a take, reduced to keyframes ready to replay.
 
-The show file names the joints::
+The show file's ``[teach]`` names the joints and a ``tolerance_deg``. Per tick (the loop and the
+director, :mod:`hilsim.live.director`):
 
-    [teach]
-    joints = ["jaw"]          # these servos' torque is off for the whole show
-    tolerance_deg = 0.2       # the reduced keys replay within this of what the hand did
+1. At the start the loop turns torque off on the teach joints only, and tells the servo watch
+   that torque off is expected there (``watch.set_limp``). An Alert, silence, a hardware error
+   or a reset still stop the show.
+2. The director passes every tick's present positions to :meth:`Teach.record`, which keeps the
+   teach joints' samples as a :class:`~hilsim.live.takes.Take`.
+3. **A limp joint's target follows its present position** (:meth:`Teach.targets_deg`). So the
+   spring, the safety filter and the goal sent sit where the hand holds the horn, and nothing
+   jumps when torque returns. A servo with Drive Mode bit 3 (Torque On by Goal Update) would
+   turn itself on: :func:`hilsim.show.session.check_teach` refuses it at start.
+4. At the end :meth:`Teach.finish` writes ``raw.csv``, ``keys.csv`` and ``take.toml``, each
+   whole or not at all.
 
-Who does what, per tick (the loop and the director, :mod:`hilsim.live.director`):
-
-1. At the start the loop turns torque off on the teach joints only
-   (``bus.set_torque(False, ids=...)`` after the usual torque on) and tells the servo watch
-   (``watch.set_limp(teach.limp_indices)``): there, torque off is expected and the following
-   error is not checked; an Alert, silence, a hardware error or a reset still stop the show.
-2. Every tick the loop reads every servo's present position as always; the director calls
-   :meth:`Teach.record` with them (joint frame, degrees), which keeps the teach joints'
-   samples as a :class:`~hilsim.live.takes.Take`.
-3. **A limp joint's spring target follows its present position**: the director sets the live
-   value of each teach joint to :meth:`Teach.targets_deg` every tick, so the springs, the
-   safety filter and the goal the loop sends all sit where the hand holds the horn, and when
-   torque returns nothing jumps. (Goals written to a torque-off X-series servo are stored in
-   RAM and move nothing, unless Drive Mode bit 3, Torque On by Goal Update, is set: a teach
-   joint's servo with it is refused at start, :func:`hilsim.show.session.check_teach`.)
-4. At the end :meth:`Teach.finish` writes ``raw.csv`` (every sample), ``keys.csv`` (the keys
-   within the tolerance) and ``take.toml``, a ``[clips.take]`` table to paste into a show
-   file. Each file is written to a temporary name and renamed: whole or absent.
-
-The tolerance is against what the hand did, not against the readings: a reading is within
-half an encoder count (:data:`HALF_COUNT_DEG`, 0.044°) of the horn, so the readings are
-reduced within ``tolerance_deg`` less that (``reduce_deg``; half the tolerance when it is
-under a count).
-
-Times in the files start at the first sample (``origin_s``): the clip starts where the hand
-started. A tick without a valid reading of a joint (NaN) is no sample; its live value holds.
+The tolerance is against the hand, not the readings. A reading is within half an encoder
+count (:data:`HALF_COUNT_DEG`) of the horn, so readings are reduced within ``reduce_deg``.
+More: ``docs/live.md`` (Teach by hand).
 """
 
 from __future__ import annotations

@@ -47,12 +47,9 @@ class TelemetryFailurePolicy(StrEnum):
 # ----------------------------------------------------------------------------------------- bounds
 #: The servo models the driver knows (Model Number table), in table order.
 KNOWN_MODELS: tuple[str, ...] = tuple(MODEL_NAMES.values())
-#: loop.substeps <= MAX_STEPS_PER_S / rate_hz. One integrator step (target sample + step) costs
-#: 13 µs for the 4-joint demo and 30 µs for 16 joints on a desktop (rk4, measured), several times
-#: more on a Raspberry Pi, so 50,000 steps a second already take 0.65-1.5 s of CPU per second of
-#: show: more could never keep real time. At the cap one tick's integration is 200 steps at
-#: 250 Hz (2.6-6 ms on a desktop, a few tens of ms on a Pi), so the loop still reaches its stop
-#: check that often and a Ctrl-C is heard at once; 10**7 substeps took minutes per tick.
+#: loop.substeps <= MAX_STEPS_PER_S / rate_hz. An integrator step costs tens of µs, so more
+#: steps a second could never keep real time; at the cap a tick's integration still ends in
+#: milliseconds, and a Ctrl-C is heard at once. The step costs: docs/performance.md.
 MAX_STEPS_PER_S = 50_000
 #: safety bounds: a dead bus must not hold the exit for long, nor a soft start the show
 MAX_EXIT_RETRIES = 10

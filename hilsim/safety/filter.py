@@ -1,73 +1,21 @@
 """Safety: the one place between the simulation and the wire.
 
-Every tick the loop passes the simulated joint positions through :meth:`SafetyFilter.filter`, and
-only its output is converted to servo ticks. In order, per tick:
+Every tick the loop passes the simulated joint positions through :meth:`SafetyFilter.filter`;
+only its output becomes servo ticks. Per tick, in order:
 
-1. **Finite.** If any desired value is NaN or ±inf, every joint *holds*: its desired position
-   becomes its last output, and steps 3–5 turn that into a controlled stop (braking at the
-   acceleration limit; a standstill at once if it was already still). The tick returns a fatal
-   :class:`SafetyEvent` naming the joints: a NaN from the integrator poisons its state, so the
-   loop should stop. NaN is caught before any comparison (``numpy.clip``, ``min`` and ``max`` all
-   pass NaN on).
-2. **Position.** Clamp the desired position to ``[lower, upper]``. During soft start the clamped
-   desired pose is blended with the start pose p0 (the present pose as it was, even outside the
-   limits): ``p0 + s·(desired − p0)``, ``s = smoothstep(k/K)``,
-   k the tick since :meth:`~SafetyFilter.start` and K = ⌈soft_start_s/dt_s⌉; from tick K on, s = 1.
-3. **Speed.** The step from the last output is limited to ``max_speed·dt``.
-4. **Acceleration.** The step may differ from the last step by at most ``max_accel·dt²`` (the
-   implied velocity by ``max_accel·dt``).
-5. **Brake.** Moving towards a position limit, the step is limited to the largest step from which
-   the joint can still stop at the limit while slowing by ``max_accel·dt`` per tick (the discrete
-   form of v ≤ √(2·a·distance)).
-6. The result is clamped to ``[lower, upper]`` once more: the position clamp has the last word
-   (except for a joint still walking back in, below).
+1. **Finite**: a NaN or ±inf anywhere makes every joint hold (a fatal :class:`SafetyEvent`).
+2. **Position**: clamp to ``[lower, upper]``; during soft start, blend from the start pose.
+3. **Speed**: a step of at most ``max_speed·dt``.
+4. **Acceleration**: a step changes by at most ``max_accel·dt²``.
+5. **Brake**: towards a limit, a step from which the joint can still stop on it.
+6. Clamp to ``[lower, upper]`` again.
 
-How the limits interact. Steps 3–4 make the output *lag* a desired motion that is too fast: it
-follows at the speed limit and catches up when the desired motion turns back. Step 2 alone would
-let a joint hit its position limit at full speed and stop in one tick (an unbounded deceleration);
-steps 2–4 alone would let it overshoot the limit while braking, and the final clamp would then stop
-it in one tick. Step 5 prevents both: when the desired motion runs into a limit, the output starts
-slowing early enough to stop exactly on the limit within the acceleration limit. The windows of
-steps 3–5 always intersect, because every output leaves a state from which the next tick can still
-brake, so the output honours all of them at once. Rounding can break that by an ulp; the brake,
-applied after the acceleration limit and recomputed every tick from the distance actually left,
-absorbs it (applied before, the rounding would pile up over a long braking run, to ~1e-10 rad), and
-step 6 trims whatever is left. So the position and finiteness guarantees are exact, and the speed
-and acceleration guarantees hold to within rounding (a few ulp of the position).
+A joint found outside its limits is walked back in, never clamped in one jump. Within every
+limit (after the soft start) the output is the input, bit for bit. The per-tick path uses
+Python lists, not numpy: cheaper for a few joints.
 
-A start outside the limits. The servos may be found outside a joint's limits (moved by hand, or
-limits narrower than the servo's own). Clamping that start pose would make the first goal jump by
-the whole excess, so the filter starts from the present pose as it is and *walks it back in*: the
-soft start blends from that pose to the desired position, which is inside the limits (step 2),
-so the steps point inwards, within the speed and acceleration limits from rest; with a soft start
-long enough for the excess the output follows the blend and arrives at rest. Without one (or if
-it is too short) the output walks in at the speed limit, arrives moving and, like any
-speed-limited step, may pass its target inwards before settling back. A step that would point
-outwards (the output overtaking the blend, or rounding) meets the brake with a negative distance
-left, whose bound is 0; the final clamp leaves such a joint where it is, short of the limit it
-has not reached yet. So the joint never moves further out, and once inside it stays inside (the
-final clamp has the last word again); the brake towards the far limit works from the distance
-actually left, so it never leaves through the other side. :meth:`SafetyFilter.start` reports
-such joints (a non-fatal event), and the ``outside`` counter counts the ticks each one spent
-outside.
-
-Guarantees, for any float64 input, from any finite start pose: the output is finite; its step per
-tick is at most ``max_speed·dt`` and its change of step at most ``max_accel·dt²`` (from rest, to
-rounding). It is within ``[lower, upper]`` whenever the start pose was (from the first tick on) or
-once the joint is back inside (from then on); before that, it never moves away from the range and
-it reaches the range in finite time (at most about ``excess/max_speed + max_speed/max_accel``
-after the soft start). When the desired motion is within every limit
-(and soft start is over), the output *is* the input, bit for bit. To stop smoothly (an exit
-policy of "hold"), feed the last output back as the desired position: the filter brakes to a
-standstill (a joint still outside its limits keeps walking in, and comes to rest just inside).
-
-The per-tick path runs in pure Python on lists and allocates no arrays: for the 1–16 joints of one
-bus that beats numpy, whose ~0.6 µs per call adds up over the dozen-plus calls a vectorised filter
-needs (measured: ~2.5 µs per tick for 4 joints and ~4 µs for 8 when nothing is limited, ~3 and
-~5 µs with every limit working, against ~9 µs for 13 bare numpy calls on 8 joints).
-
-The parameters, events and counters are data types in :mod:`hilsim.safety.limits`, re-exported
-here; this module is the filter.
+The steps, how they interact and the guarantees: ``docs/safety.md``. The parameters, events and
+counters are in :mod:`hilsim.safety.limits`, re-exported here.
 """
 
 from __future__ import annotations
@@ -188,7 +136,7 @@ class SafetyFilter:
             None, or a non-fatal :class:`SafetyEvent` naming the joints outside their limits and
             their present positions: the filter starts from that pose as it is and walks those
             joints back in, through the soft start and within the speed and acceleration limits
-            (module docstring).
+            (``docs/safety.md``).
 
         Raises:
             ValueError: wrong shape, or a non-finite position (names the joints): the filter cannot

@@ -6,36 +6,17 @@ track per joint in joint order and fills preallocated ``(n_joints,)`` arrays eve
 
 Tracks::
 
-    Keyframes(times_s, values_rad, easing)   keys with a named easing per segment (table below)
+    Keyframes(times_s, values_rad, easing)   keys with a named easing per segment
     CsvCurve(times_s, values_rad)            one CSV column, linear (in hilsim.targets.csv_file)
     Hold(value_rad)   Step(at_s, before_rad, after_rad)   Sine(amplitude_rad, frequency_hz, ...)
 
-Keyframes and CSV curves hold their first value before the first key and their last value after the
-last (velocity 0 there); their :attr:`~Track.duration` is the time of the last key. Generators have
-no end: their duration is None.
-
-Easings. A segment from (t0, v0) to (t1, v1) follows v0 + (v1 − v0)·e(τ), τ = (t − t0)/(t1 − t0).
-"peak" is the largest e'(τ): the segment's top speed is peak·|v1 − v0|/(t1 − t0), worth checking
-against a joint's speed limit::
-
-    name          e(τ)                                  e'(0)  e'(1)  peak
-    linear        τ                                     1      1      1
-    step          0, jumping to v1 at t1 (velocity 0)   0      0      -
-    ease_in       τ³                                    0      3      3
-    ease_out      1 − (1 − τ)³                          3      0      3
-    ease_in_out   4τ³, then 1 − (2 − 2τ)³/2             0      0      3
-    sine_in_out   (1 − cos πτ)/2                        0      0      π/2
-    smooth        cubic Hermite through the keys        tangents from the keys, see below
-
-``smooth`` uses Catmull-Rom tangents (v[i+1] − v[i−1])/(t[i+1] − t[i−1]), zero at the first and
-last key (so it leaves and joins the holds at rest) and at every local extremum, and clamped to
-three times the smaller neighbouring secant (Fritsch–Carlson): the curve never overshoots its
-keys, so keys inside a joint's limits give a curve inside them. A run of consecutive smooth
-segments is C¹; where a smooth segment meets another easing the velocity is continuous only if the
-two agree.
+Keyframes and CSV curves hold their first value before the first key and their last value after
+the last (velocity 0 there); their :attr:`~Track.duration` is the time of the last key.
+Generators have no end: their duration is None. The easings and their top speeds:
+:class:`Keyframes`.
 
 Rig files describe tracks in degrees; :func:`hilsim.targets.spec.track_from_spec` turns one spec
-dict into a track.
+dict into a track. Tracks read from other tools' files: :mod:`hilsim.targets.formats`.
 """
 
 from __future__ import annotations
@@ -229,7 +210,7 @@ def easing_names(easing: str | Sequence[str], n_segments: int) -> tuple[str, ...
 
 
 def _tangents(t: FloatArray, v: FloatArray) -> list[float]:
-    """Clamped Catmull-Rom tangents (rad/s) at every key; see the module docstring."""
+    """Clamped Catmull-Rom tangents (rad/s) at every key (see :class:`Keyframes`)."""
     k = len(t)
     m = [0.0] * k
     for i in range(1, k - 1):
@@ -279,7 +260,25 @@ def _pieces(t: FloatArray, v: FloatArray, easing: tuple[str, ...]) -> list[_Piec
 
 @dataclass(frozen=True, eq=False, init=False)
 class Keyframes(Track):
-    """Keys (t, value) joined by named easings (see the module docstring for the table).
+    """Keys (t, value) joined by named easings.
+
+    A segment from (t0, v0) to (t1, v1) follows v0 + (v1 − v0)·e(τ), τ = (t − t0)/(t1 − t0).
+    Its top speed is peak·|v1 − v0|/(t1 − t0): check it against the joint's speed limit. ::
+
+        name          e(τ)                                  e'(0)  e'(1)  peak
+        linear        τ                                     1      1      1
+        step          0, jumping to v1 at t1 (velocity 0)   0      0      -
+        ease_in       τ³                                    0      3      3
+        ease_out      1 − (1 − τ)³                          3      0      3
+        ease_in_out   4τ³, then 1 − (2 − 2τ)³/2             0      0      3
+        sine_in_out   (1 − cos πτ)/2                        0      0      π/2
+        smooth        cubic Hermite through the keys        tangents from the keys, below
+
+    ``smooth`` uses Catmull-Rom tangents (v[i+1] − v[i−1])/(t[i+1] − t[i−1]). They are zero at
+    the first and last key and at every local extremum, and clamped to three times the smaller
+    neighbouring secant (Fritsch–Carlson). So the curve never overshoots its keys: keys inside
+    a joint's limits give a curve inside them. A run of smooth segments is C¹; where a smooth
+    segment meets another easing, the velocity is continuous only if the two agree.
 
     Args:
         times_s: key times, shape ``(k,)``, k ≥ 1, finite and strictly increasing (s).

@@ -1,72 +1,21 @@
 """The run directory's format, shared by the writer and the reader: file names, CSV columns.
 
-A run directory (written by :class:`hilsim.telemetry.TelemetryWriter`, read back by
-:func:`hilsim.telemetry.reader.read_run`) holds::
+A run directory holds ``telemetry.csv`` (or ``telemetry.csv.gz``, or Parquet parts under
+``telemetry.parquet/``), ``events.jsonl``, ``summary.json``, ``rig.toml`` and, on failure,
+``telemetry_error.txt``. :class:`hilsim.telemetry.TelemetryWriter` writes it;
+:func:`hilsim.telemetry.reader.read_run` reads it.
 
-    telemetry.csv    one row per tick (columns below), header on the first line; or, per
-                     the rig's ``telemetry.format`` (:class:`TelemetryFormat`), the same text
-                     gzip-compressed (``telemetry.csv.gz``), or Parquet part files
-                     (``telemetry.parquet/part-NNNNN.parquet``, columns :func:`parquet_columns`)
-    events.jsonl     one JSON object per line: start/stop, faults, warnings, signals, dropped rows
-    summary.json     written once, last, by :meth:`TelemetryWriter.close` (or
-                     :meth:`~TelemetryWriter.write_summary`): absent if the process died
-    rig.toml         a verbatim copy of the rig config text the loop passed (``config_text``)
-    telemetry_error.txt  the writer's traceback, when it failed (a full disk, an I/O error)
-    summary.reserve  space set aside during the run for the end of the record
-                     (:mod:`hilsim.telemetry.end_record`); gone after the end, zeros if the
-                     process was killed
+A row has a head (``tick``, times, lateness), then one block per quantity in
+:data:`JOINT_FIELDS` (a column per joint), then :data:`TAIL_COLUMNS` (stage times, overrun,
+comm errors, host stall, skipped ticks). :func:`csv_columns` and :func:`parquet_columns` name
+the columns; :data:`ROWS_SCHEMA_VERSION` is the layout's version.
 
-**CSV columns** (:func:`csv_columns`), grouped by quantity, joints in the order given::
+Floats are written with ``%.17g`` (exact round-trip), µs with ``%.3f``, a missing value as
+``nan``. Parquet holds the same columns as integers in ns, µrad and µrad/s.
 
-    tick                       tick number (int, from 0)
-    t_sched                    scheduled tick time, s since run start
-    t_actual                   time the tick started, s since run start
-    lateness_us                (t_actual - t_sched) * 1e6, µs
-    target_<j>  ...            animation target, rad              (one column per joint j, then the
-    sim_x_<j>   ...            spring position, rad                next quantity for every joint)
-    sim_v_<j>   ...            spring velocity, rad/s
-    cmd_<j>     ...            commanded position after safety, rad
-    present_<j> ...            present position read back, rad; ``nan`` when there was no valid read
-    status_<j>  ...            read status (:class:`drivers.servo_bus.ReadStatus`: 0 OK, 1 STALE,
-                               2 ERROR, 3 ALERT)
-    t_sim_us  t_safety_us  t_bus_us  t_telemetry_us    per-stage wall time of this tick, µs:
-                               sim: the reading mapped to joints, live inputs and cues, the
-                               targets sampled, the read and following checks, the springs
-                               stepped to the next tick; safety: the filter (its event, if
-                               any), the commands mapped to servo ticks; bus: the Sync Write
-                               and Sync Read, and the servo checks after a bus silence (health
-                               reads, recoveries, their events); telemetry: the host-stall
-                               accounting, the row recorded. In no stage: a health read in the
-                               spare time, the catch-up after an overrun, the wait
-    overrun                    1 if the tick missed its deadline, else 0
-    comm_errors                cumulative communication errors on the bus
-    host_stall_us              time the host itself stalled in or before this tick (the process
-                               was not running: a GC pause, a busy neighbour, SIGSTOP), µs;
-                               0 on a healthy tick. A tick with a stall is "host-late": its read
-                               failures are not blamed on a servo.
-    skipped_ticks              ticks the loop simulated without bus traffic (and without a row)
-                               to catch up after overruns, cumulative, up to this tick: a gap
-                               in the ticks that it does not account for is rows lost (dropped
-                               while recording, or unreadable)
-
-The columns' layout has a version (:data:`ROWS_SCHEMA_VERSION`), told by the columns themselves
-(a crash leaves no summary to say it): version 1 had no ``skipped_ticks``; the reader reads
-both.
-
-Times, targets, spring state, commands and present positions are written with ``%.17g`` (every
-float64 round-trips exactly); µs columns with ``%.3f`` (ns resolution); integer columns as integers;
-a value never given is ``nan``. ``telemetry.csv.gz`` holds exactly that text.
-
-**Parquet** (big runs; needs pyarrow, ``pip install 'hilsim[parquet]'``): the same columns as
-integers in a unit that says their precision, named with it (:func:`parquet_columns`): times in
-ns (``t_sched_ns``, ``t_actual_ns``, ``lateness_ns``, ``t_<stage>_ns``, ``host_stall_ns``),
-angles in µrad (``target_<j>_urad``, ``sim_x_``, ``cmd_``, ``present_``; 1 µrad is 1/1534 of a
-servo tick), velocities in µrad/s (``sim_v_<j>_urad_s``); ``tick``, ``status_<j>``, ``overrun``,
-``comm_errors``, ``skipped_ticks`` as they are. NaN is null; +-inf (and beyond +-2**62 units)
-is +-(2**63 - 1). A part is written whole (temporary name, fsync, rename) at each fsync point of
-the writer, so a crash or power cut leaves only complete parts: what was fsync-ed is readable.
-
-:class:`TelemetryError` is the base of the errors raised writing or reading a run directory.
+Every file and column, with units: ``docs/telemetry.md``. The summary's keys:
+``docs/summary.md``. :class:`TelemetryError` is the base of the errors raised writing or
+reading a run directory.
 """
 
 from __future__ import annotations
@@ -146,10 +95,10 @@ class TickRecord:
 
     The loop makes one and keeps it: the array fields are *its own buffers* (referenced, not
     copied; ``record`` copies them into the ring), the scalars are overwritten each tick. Each
-    attribute is one CSV column or one block of per-joint columns (names as in the module
-    docstring; ``target`` … ``status`` are the :data:`JOINT_FIELDS`). Stage times not known
-    yet are NaN; :meth:`TelemetryWriter.amend` writes the late ones (``t_sim_us``,
-    ``t_telemetry_us``, ``overrun``) once the tick is over.
+    attribute is one CSV column or one block of per-joint columns (``docs/telemetry.md``;
+    ``target`` … ``status`` are the :data:`JOINT_FIELDS`). Stage times not known yet are NaN;
+    :meth:`TelemetryWriter.amend` writes the late ones (``t_sim_us``, ``t_telemetry_us``,
+    ``overrun``) once the tick is over.
     """
 
     target: npt.NDArray[np.float64] = field(default_factory=_nan_array)
@@ -301,7 +250,7 @@ class ParquetColumn:
 def parquet_columns(
     joint_names: Sequence[str], version: int = ROWS_SCHEMA_VERSION
 ) -> list[ParquetColumn]:
-    """The Parquet columns for these joints, in CSV column order (see the module docstring)."""
+    """The Parquet columns for these joints, in CSV column order (``docs/telemetry.md``)."""
     out = []
     for c in csv_columns(joint_names, version):
         if c in ("tick", "comm_errors", "skipped_ticks"):

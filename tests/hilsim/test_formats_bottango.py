@@ -165,7 +165,7 @@ def test_velocity_is_dy_dt():
 def test_any_handles_give_a_solution_on_the_curve(dur, c1x, c2x, y0, y1, c1y, c2y):
     seg = BezierSegment.from_command(0, dur, y0, c1x, c1y, y1, c2x, c2y)
     monotone_handles = 0 <= c1x <= dur and -dur <= c2x <= 0
-    if monotone_handles:  # proven in bottango_curve's docstring, even when they cross
+    if monotone_handles:  # proven in docs/targets.md (Bottango curves), even when they cross
         assert seg.monotone
     for x in (0.0, dur / 3, dur / 2, dur * 0.9, float(dur)):
         u = seg.solve_u(x)

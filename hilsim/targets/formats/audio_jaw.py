@@ -1,44 +1,23 @@
 """Audio -> jaw: a sound file through an envelope follower, as a jaw track.
 
-The talking skull's curve: the louder the line, the wider the jaw. Offline, from the file::
+The louder the line, the wider the jaw. Computed once, from the file:
 
-    samples (one channel, or the mix; normalised to full scale: 1.0 = the largest code)
-      -> optional band-pass (zero-phase FIR from a Butterworth magnitude, FFT overlap-add)
-      -> trailing RMS over ``window_ms``, evaluated every ``step_ms`` (1 ms): at t_k over the
-         samples in (t_k - window, t_k]; before the file's first sample is silence
-      -> one-pole follower e_k = e_(k-1) + a·(r_k - e_(k-1)), a = 1 - exp(-step/tau), tau the
-         attack time constant while r_k > e_(k-1), else the release one
-      -> opening = clip((e - threshold) / (full - threshold), 0, 1)       (0 shut, 1 wide)
-      -> the rig's :class:`~hilsim.targets.formats.common.UnitMap` from opening 0..1 to degrees
-      -> a linear :class:`~hilsim.targets.formats.common.SampledTrack`, every step_ms, shifted
-         ``lead_s`` earlier.
+1. an optional band-pass;
+2. a trailing RMS over ``window_ms``, every ``step_ms``;
+3. an attack/release follower (it runs on past the file's end, so the jaw closes);
+4. an opening 0..1 between ``threshold`` and ``full``, mapped to degrees by the rig's
+   :class:`~hilsim.targets.formats.common.UnitMap`.
 
-After the file's last sample the follower goes on over silence until the jaw is shut (or
-20 release time constants have passed), so a line that ends loud still closes the jaw.
-
-The lead. A joint's spring follows its target late: for ``m·x'' + c·x' + k·x = k·u + b·u'``
-the transfer function is (k + b·s)/(m·s² + c·s + k), whose delay for slow inputs (its group
-delay at 0 Hz) is ``(c - b)/k`` - in the animators' form 2ζ/ωn - r·ζ/ωn = (2 - r)·ζ/ωn with
-ωn = 2π·f (so r = 2 has no lag, and r > 2 leads: a negative lag). :func:`spring_lag_s` gives
-it; pass it as ``lead_s`` and the *commanded* jaw, not only the target, is in time with the
-sound (exactly for a ramp; for the fast edges of speech to within the spring's own rise).
-A speed limit adds a lag of its own on a fast opening that no constant lead can cancel;
-:mod:`hilsim.targets.check` names a target faster than the joint.
-
-Files. PCM WAV (8-bit unsigned, 16/24/32-bit signed), IEEE-float WAV (32/64-bit) and
-WAVE_FORMAT_EXTENSIBLE of those are read here with numpy, from a RIFF chunk walk that names the
-byte of every fault (the stdlib ``wave`` names none, returns a truncated file's frames without a
-word, and reads no float WAV). Anything else (FLAC, Ogg, AIFF, RF64, compressed WAV) is read by
-the optional ``soundfile`` library (``pip install 'hilsim[audio]'``); without it such a file is
-one FormatError naming the extra. A float sample beyond ±:data:`FLOAT_LIMIT` is refused.
-
-Phase 2 (the rig) is one call::
+``lead_s`` shifts the track earlier; :func:`spring_lag_s` (the spring's lag, ``(c - b)/k``)
+as the lead puts the *commanded* jaw in time with the sound::
 
     track = jaw_track(path, UnitMap((0, 1), (closed_deg, open_deg), "opening"),
                       EnvelopeSettings(window_ms=..., ...), channel="right",
-                      lead_s=spring_lag_s(joint.spring) if lead == "auto" else lead_ms / 1000)
+                      lead_s=spring_lag_s(joint.spring))
 
-:func:`jaw_envelope` gives the envelope itself (times, RMS, follower, opening) for plots.
+:func:`jaw_envelope` gives the envelope itself, for plots. WAV is read here; other formats
+need ``soundfile`` (``pip install 'hilsim[audio]'``). The pipeline, the lead's derivation and
+the files read: ``docs/targets.md`` (Audio -> jaw).
 """
 
 from __future__ import annotations

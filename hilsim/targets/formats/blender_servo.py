@@ -1,53 +1,21 @@
 """blender-servo-animation exports (``.json``, ``.bin``, ``.h``) as tracks in joint radians.
 
-The Blender add-on `blender-servo-animation` (v2.x) bakes one position per servo per frame at
-the scene's integer fps, from the scene's first frame to its last; its Arduino library plays
-them one frame at a time, holding each (zero-order). Three forms carry the same frames:
+The Blender add-on bakes one position per servo per frame at the scene's fps; its Arduino
+library holds each frame until the next. The three forms carry the same frames and give
+identical tracks. Frame ``k`` is at show time ``k / fps``; a ``.bin`` file has no fps, so the
+caller gives it.
 
-* ``.json`` - ``{"fps": 30, "frames": 100, "positions": [{"0": 1472}, {"0": 1477}, ...], ...}``,
-  one dict per frame, servo ID (a string) -> position. ``frames`` must equal the number of
-  dicts; ``seconds`` and ``bones`` are not read (the add-on rounds the one and counts only the
-  first frame for the other).
-* ``.bin`` - the bare command stream: per position the 5-byte record ``3C id hi lo 3E``
-  (``<``, servo ID, big-endian u16 position, ``>``), and ``0A`` after each frame. It is read
-  as fixed records, so a ``0A`` *inside* a record (an ID of 10, a position byte of 10) is data,
-  not a frame end. It says nothing of its fps: the caller gives it (``fps=``), as the Arduino
-  library's ``addScene(stream, fps, frames)`` is given it.
-* ``.h`` - the same bytes as a C array ``const byte PROGMEM ANIMATION_DATA[LENGTH] = {...}``,
-  with ``const byte FPS``, ``const int FRAMES`` and ``const int LENGTH`` (checked against the
-  array), optionally inside a ``namespace``.
-
-All three give identical tracks. Frame ``k`` (counted from 0 at the file's first frame) is at
-show time ``k / fps``; the last frame is held for its frame time, so a track's duration is
-``frames / fps`` (100 frames at 30 fps: 3.333 s, where the file's ``seconds`` says 3).
-
-**A missing servo in a frame holds its previous value.** The add-on leaves a servo out of a
-frame for two reasons - its position did not change ("skip unchanged positions", on by
-default), *or* the position fell outside the bone's position_min..position_max and was dropped
-(not clamped) - and the file cannot tell which. A track holds the last position through such
-frames (frames before a servo's first position take that first position);
-:meth:`BlenderServoAnimation.notes` says how many frames of a servo were held, for the rig to
-print.
-
-**Units.** The positions are whatever the bone's output range was set to: µs for the Arduino
-``Servo`` library (544-2400), PCA9685 ticks (the add-on's default 150-600) or degrees (0-180);
-the file does not say which. The caller gives a :class:`~hilsim.targets.formats.common.UnitMap`,
-or the bone's own add-on settings as :class:`BoneSettings`, which builds the map the add-on used
-(position -> servo angle, or -> the bone's rotation, 0 at its rest pose) and refuses positions
-outside the bone's range (the add-on never writes one, so one means the settings are not the
-export's).
-
-Phase 2 (the rig) is one call::
+A servo missing from a frame holds its previous value: the add-on drops unchanged positions
+and out-of-range ones alike. :meth:`BlenderServoAnimation.notes` says how many frames were
+held. The file does not say the positions' unit (µs, PCA9685 ticks or degrees). The caller
+gives a :class:`~hilsim.targets.formats.common.UnitMap`, or the bone's :class:`BoneSettings`::
 
     anim = read_blender_servo(path, fps=None)          # fps only for .bin
-    track = anim.track_for(BoneSettings(servo_id=0, position_min=544, position_max=2400,
-                                        rotation_range=180, neutral_angle=90),
-                           angle="bone", interpolation="hold")
-    # or anim.track(servo_id, UnitMap((1000, 2000), (0, 40), "us"), interpolation="linear")
-    for line in anim.notes(0): print(line)
+    track = anim.track(0, UnitMap((1000, 2000), (0, 40), "us"), interpolation="hold")
 
 Every bad input is one :class:`~hilsim.targets.formats.common.FormatError` naming the file and
-the position (``line``, ``byte``, ``frame``).
+the position (``line``, ``byte``, ``frame``). Each form's layout and the rules:
+``docs/targets.md`` (blender-servo-animation).
 """
 
 from __future__ import annotations

@@ -1,43 +1,21 @@
 """Bottango exports (generated code, SD-card files, JSON) as tracks in joint radians.
 
-Phase 2 is one call per joint::
+The rig's use is one call per joint::
 
     export = read_export("GeneratedCodeAnimations.cpp")      # or an SD card dir, or .json
     track = export.track(0, "0", signal=UnitMap((1000, 2000), (0, 40), "us"))
-    # or, for an effector without a registration (or by the rig's choice):
-    track = export.track("Wave", "643", movement=UnitMap((0, 1), (-30, 30), "movement"))
 
-* :func:`read_export` (form from the path: a directory is an SD card, ``.json`` JSON, else
-  generated code; or ``form="code"|"sd"|"json"``) -> :class:`BottangoExport`. The three forms
-  of one export give identical segments and tracks (:mod:`.bottango_forms` finds the command
-  lines, this module reads them).
-* :class:`BottangoExport`: ``effectors`` (identifier -> :class:`Effector`: kind, pin / I2C
-  address and pin / motor id as the file gives them, signal range and start signal),
-  ``animations`` (index -> :class:`Animation`: name, :class:`PlaybackConfig`, segments per
-  effector for the data and for the loop), ``info`` (commands skipped, folding curves).
-* :meth:`BottangoExport.track` -> :class:`~.bottango_curve.BezierTrack`. The units: a curve's
-  y is 0..8192, movement = y/8192, signal = min + movement·(max − min) from the setup's
-  registration of that effector (µs for servos, steps for steppers), then the rig's
-  :class:`UnitMap` from the signal to degrees (``signal=``). ``movement=`` maps movement 0..1
-  straight to degrees instead; an effector with no registration needs it (a clear error
-  otherwise). Exactly one of the two; Bottango never says which unit a joint uses. The track
-  holds its first curve's start value before it (the registration's start signal, where the
-  firmware parks the servo at boot, is ``Effector.start``, for the rig to use or not).
+* :func:`read_export` takes the form from the path (or ``form=``) and returns a
+  :class:`BottangoExport`. The three forms give identical tracks; :mod:`.bottango_forms` finds
+  the command lines and this module reads them.
+* :class:`BottangoExport` holds ``effectors`` (their registrations), ``animations`` (segments
+  per effector) and ``info`` (commands skipped, folding curves).
+* :meth:`BottangoExport.track` gives a :class:`~.bottango_curve.BezierTrack`. Exactly one of
+  ``signal=`` (the registered signal, e.g. µs, to degrees) or ``movement=`` (0..1 to degrees).
 
-Commands (Bottango's driver ``BasicCommands``): ``sC`` Bézier curves and ``sCI`` instant
-moves (an ``sCI`` has no time: it acts when the stream reaches it, i.e. at the start of the
-last timed command before it, 0 at the start; the code-stream player's timing); setup
-registrations ``rSVPin`` (pin, min, max, max/s, start), ``rSVI2C`` (address, pin, ...; its
-identifier is address and pin written together, ``64``+``3`` = ``"643"``, as the driver
-does), ``rMTR`` (identifier, min, max, max/s, start), ``rSTPin``/``rSTDir`` (steppers:
-signal = steps between the counter-clockwise and clockwise limits), ``rECC`` (a curved event:
-movement only), ``upE`` (new bounds), ``xE``/``xUE`` (deregister), ``xC``/``xUC`` (clear
-curves: fine where no curve has been set yet); ``tSYN`` (later start times count from it);
-``sSY`` (several commands in one, ``sSY,sC,<args>;<args>;...``) and ``sR,<relay>,<command>``
-(a command for a relay peer: its effectors are named ``"<relay>/<identifier>"``). A trailing
-``,h<sum>`` hash is checked. Colour, on/off, trigger, audio and relay-controller commands are
-known but move no joint: skipped, counted in ``info``. Any other command is a FormatError
-naming its line. Curves on one effector must not overlap in time.
+Commands that move no joint (colour, on/off, audio, ...) are skipped and counted; an unknown
+command is a FormatError naming its line. The commands read and their units:
+``docs/targets.md`` (Bottango exports).
 """
 
 from __future__ import annotations

@@ -2,39 +2,19 @@
 and a :class:`BezierTrack` (a :class:`~hilsim.targets.tracks.Track`) through one effector's
 segments in one animation. Parsing the exports is :mod:`hilsim.targets.formats.bottango`.
 
-The curve. ``sC,<id>,<startMs>,<durMs>,<y0>,<c1x>,<c1y>,<y1>,<c2x>,<c2y>`` is a cubic Bézier in
-(time, value) with control points, time relative to the segment's start (ms), value in
-Bottango's 0..8192::
+A segment is a cubic Bézier in (time, value), value in Bottango's 0..8192. The firmware
+bisects for the curve parameter to 1 ms; here it is solved to rounding (the monotone pieces of
+x(u), then safeguarded Newton). Velocity is exact, dy/dt = y'(u)/x'(u).
 
-    P0 = (0, y0)   P1 = (c1x, y0 + c1y)   P2 = (dur + c2x, y1 + c2y)   P3 = (dur, y1)
+* A curve whose handles stay within the segment in time is a function of time (the solution
+  is unique).
+* Otherwise the track takes the first time the curve reaches t, and the value may jump there;
+  :attr:`BezierSegment.monotone` says which segments do this.
 
-Bottango's firmware finds the curve parameter u for a time t by bisection until
-|x(u) - t| < 1 ms. Here u is solved to rounding: [0, 1] is cut at the roots of x'(u) (a
-quadratic) into pieces on which x is monotone, and in the first piece whose x-range holds t a
-safeguarded Newton iteration (bisection when a Newton step leaves the bracket) runs until the
-bracket is a few ulps wide. So:
+The value is clamped to 0..8192, as the firmware clamps the signal. The track holds its first
+start value before, each end value in a gap, and its last end value after.
 
-* x monotone: always when both handles' time points lie within the segment, 0 <= c1x <= dur
-  and -dur <= c2x <= 0 (even when they cross): x'/3 is the quadratic Bernstein polynomial
-  with coefficients a = c1x >= 0, b - a, d - b >= 0 (b = dur + c2x, d = dur), non-negative on
-  [0, 1] iff b - a >= -sqrt(a (d - b)), and a - b <= sqrt(a (a - b)) <= sqrt(a (d - b)) since
-  b >= 0 and a <= d. Every segment of the Bottango exports read so far is of this kind; the
-  solution is then the unique one;
-* x not monotone (handles that cross in time, or reach outside the segment): the curve is not
-  a function of time. The track follows it forward in time: u(t) is the *smallest* u with
-  x(u) = t, the first time the curve reaches t. Where the curve folds back the value jumps
-  (a step, which the spring and safety filter smooth); :attr:`BezierSegment.monotone` says
-  which segments do this, and the reader reports them.
-
-Velocity is dy/dt = y'(u)/x'(u), exact. At a single instant where x'(u) = 0 and y'(u) != 0 (a
-handle of zero length in time with a height: a vertical tangent) it is unbounded; there the
-track gives the secant slope over the 1 ms around t, and 0 where both vanish.
-
-The value is clamped to 0..8192 (velocity 0 where clamped), as the firmware clamps the signal
-to the effector's range (``AbstractEffector::lerpSignal``); the rig's map from 0..8192 to
-radians is affine (``rad = offset + scale·y``). The track holds the first segment's start value
-before it, each segment's end value in a gap after it, and the last end value after the last
-(velocity 0): :attr:`BezierTrack.duration` is the end of the last segment.
+The curve, the proof of monotonicity and the edge cases: ``docs/targets.md`` (Bottango curves).
 """
 
 from __future__ import annotations

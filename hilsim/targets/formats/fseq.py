@@ -1,67 +1,20 @@
 """FSEQ sequences, v2 and v1 (xLights, Falcon Player), as tracks in joint radians.
 
-An ``.fseq`` file is a series of frames, each one byte per channel, one frame every
-``step`` milliseconds; FPP plays each frame until the next (zero-order hold). Layout (v2,
-little-endian), as FPP's ``FSEQFile.cpp`` writes and reads it:
+A sequence is frames of one byte per channel, one frame every ``step`` ms. Each frame is held
+until the next, as FPP plays them. Version 2 may be compressed (zstd, zlib) and may hold sparse
+channel ranges; version 1 is plain. Channels are 1-based, as xLights shows them. A 16-bit
+value is a coarse and a fine channel (``fine=``). ``zero="hold"`` (xLights' servo option)
+makes a 0 hold the last position.
 
-=======  ====  ==============================================================================
-offset   size  field
-=======  ====  ==============================================================================
-0        4     ``PSEQ`` (the oldest files: ``FSEQ``)
-4        2     channel data offset (where frame 0 starts, or the first compressed block)
-6, 7     1, 1  minor, major version (major 2)
-8        2     header size (not relied on)
-10       4     channels per frame (with sparse ranges: the sum of their counts)
-14       4     frame count
-18       1     frame step (ms)
-20       1     low nibble: compression, 0 none, 1 zstd, 2 zlib; high nibble: bits 8-11 of the
-               block count (v2.1's extended count)
-21       1     block count, bits 0-7
-22       1     sparse range count
-24       8     unique ID
-32       8·B   block index: u32 first frame, u32 compressed size (blocks of size 0 are unused)
-         6·R   sparse ranges: u24 first channel (0-based), u24 channel count
-         ...   variable headers up to the channel data: u16 size (header included), 2-byte
-               code (``mf`` media file, ``sp`` producer), data
-=======  ====  ==============================================================================
-
-Uncompressed, the channel data is ``frames × channels`` bytes. Compressed, each block is one
-zstd frame (or one zlib stream) holding whole frames from its first frame to the next block's.
-With sparse ranges a frame holds only those ranges' channels, one range after the other.
-
-**v1** (older xLights; FPP still plays it) shares bytes 0-18 (major version 1) and has a
-28-byte fixed header: byte 19 flags, 20 and 22 u16 universe count and size, 24 gamma, 25 colour
-encoding, 26-27 reserved (none of them used). Variable headers follow from byte 28 (as FPP reads
-them; bytes 8-9, the fixed header's length, are not relied on); the channel data, from the
-data offset, is uncompressed and holds every channel (no sparse ranges). The ID is 0.
-
-**Channel numbers are 1-based, as xLights shows them**: channel 1 is the first byte of a frame
-(FPP's and the file's index 0). A DMX model whose start channel xLights shows as 1 has its
-pan coarse in channel 1, pan fine in channel 2. Every message names the channel in that
-numbering. A channel beyond the file's channels, or outside every sparse range, is a
-FormatError naming it.
-
-**Values.** An 8-bit channel is 0-255; a 16-bit pair (``fine=``) is ``coarse·256 + fine``,
-0-65535. The file says nothing of what they mean: the caller gives the
-:class:`~hilsim.targets.formats.common.UnitMap` (:func:`dmx_unit_map` builds the usual full
-range -> two angles). ``zero="hold"`` is xLights' and FPP's servo option in which a value of 0
-means "no new position": the joint holds the last non-zero value (frames before the first
-non-zero value take it; a channel that is 0 throughout is an error). Frames are held
-(``interpolation="hold"``, as FPP plays them) or joined (``"linear"``); the track's duration is
-``frames × step`` (the last frame is held for its step).
-
-``zstandard`` is an optional dependency (``pip install 'hilsim[fseq]'``), imported only when a
-zstd-compressed file is read; zlib is in the standard library.
-
-Phase 2 (the rig) is one call::
+The rig's use is one call::
 
     seq = read_fseq(path)
-    tracks = seq.tracks({"pan": FseqChannel(1, dmx_unit_map((-90, 90), bits=16), fine=2),
-                         "jaw": FseqChannel(5, UnitMap((0, 255), (0, 30), "DMX"), zero="hold")})
+    tracks = seq.tracks({"pan": FseqChannel(1, dmx_unit_map((-90, 90), bits=16), fine=2)})
 
+``zstandard`` (``pip install 'hilsim[fseq]'``) is imported only for a zstd-compressed file.
 Every bad input is one :class:`~hilsim.targets.formats.common.FormatError` naming the file and
-the position (``byte``, ``block``, ``channel``); nothing is allocated from a header's counts
-before they are checked against the file's size.
+the position (``byte``, ``block``, ``channel``). No header count is trusted before it is
+checked against the file's size. The byte layout and the rules: ``docs/targets.md`` (FSEQ).
 """
 
 from __future__ import annotations

@@ -1,43 +1,22 @@
 """Lip-sync files -> mouth-shape cues -> step-hold joint tracks.
 
-Readers (each returns :class:`Cues`: (time, shape) in order, with the file position of each):
+Readers return :class:`Cues`, (time, shape) in order with each cue's file position:
+:func:`read_rhubarb_tsv`, :func:`read_rhubarb_json`, :func:`read_rhubarb_xml` (Rhubarb Lip
+Sync), :func:`read_moho_dat` (Moho switch files, at the rig's fps) and :func:`read_papagayo`
+(``.pgo``); :func:`read_cues` picks one by the file's suffix.
 
-=========================  ==============================================================
-:func:`read_rhubarb_tsv`   Rhubarb Lip Sync ``-f tsv``: ``time<TAB>shape`` lines; the last
-                           line is the end of the recording, mouth closed
-:func:`read_rhubarb_json`  ``-f json``: ``{"mouthCues": [{"start", "end", "value"}, ...]}``
-:func:`read_rhubarb_xml`   ``-f xml``: ``<mouthCue start= end=>shape</mouthCue>``
-:func:`read_moho_dat`      ``MohoSwitch1`` then ``<frame> <shape>``; frames 1-based, so a
-                           cue at frame f is at (f - 1)/fps, and the fps is the rig's (the
-                           file does not hold it)
-:func:`read_papagayo`      Papagayo ``.pgo`` (``lipsync version 1``): voices, phrases, words,
-                           phonemes at 0-based frames of the file's fps
-:func:`read_cues`          one of these by the file's suffix (.tsv/.txt .json .xml .dat .pgo)
-=========================  ==============================================================
+Shapes are Rhubarb's letters A-H and X, or Preston Blair phoneme names; "E" means different
+mouths in the two, so every :class:`Cues` says which vocabulary it holds. A :class:`ShapeTable`
+maps shapes to values (by default Blair names through Rhubarb's own correspondence,
+:data:`PRESTON_BLAIR_TO_RHUBARB`). A shape the table lacks is a FormatError naming the line.
 
-Shapes come in two vocabularies: Rhubarb's letters A-H and X, and the Preston Blair phoneme
-names (MBP etc E AI O U FV L WQ rest) of Papagayo and of Rhubarb's ``--datUsePrestonBlair``.
-"E" is in both and means different mouths (Rhubarb's E is Blair's O), so every :class:`Cues`
-says which it holds: a Papagayo file holds Blair names; a Moho file says by its names (all
-letters, or Blair names), and one whose only known shape is "E" must be told (``names=``).
-
-A :class:`ShapeTable` is the rig's: ``rhubarb`` maps letters to a value (a jaw opening, or
-any joint's), ``preston_blair`` maps Blair names (and any other phoneme names a file uses) to a
-value or to a Rhubarb letter. Its default Blair table is Rhubarb's own correspondence
-(:data:`PRESTON_BLAIR_TO_RHUBARB`: MBP->A etc->B E->C AI->D O->E U->F FV->G L->H rest->X);
-WQ has none there, so a file that uses it needs the rig to say. A shape the table lacks is a
-FormatError naming the file's line.
-
-A Papagayo word covers its start to end frame inclusive; a phoneme holds from its frame to the
-next phoneme of the word, and between words (and before the first) the mouth is at ``rest``
-(Papagayo-NG's own Moho export instead holds a word's last phoneme across a pause inside a
-voice; a jaw should close in a pause).
-
-Phase 2 (the rig), per joint::
+The rig's use, per joint::
 
     track = cue_track(read_cues(path, fps=..., names=..., voice=...),
                       ShapeTable(rhubarb={...}, preston_blair={...}),
                       UnitMap((0, 1), (closed_deg, open_deg), "opening"))
+
+Each file's layout, the vocabularies and Papagayo's timing: ``docs/targets.md`` (Lip-sync).
 """
 
 from __future__ import annotations
