@@ -124,7 +124,11 @@ TARGET_TYPES: dict[str, tuple[str, str]] = {
     "blender_servo": (
         "One servo of a blender-servo-animation export (`.json`, `.bin`, `.h`): a position "
         "per frame, held (as the add-on's Arduino library plays it) or joined; a servo "
-        "missing from a frame holds its last position.",
+        "missing from a frame holds its last position. A `.bin`/`.h` record whose ID or "
+        "position byte is 0x0A or 0x3C is read as written; the add-on's Arduino library "
+        "(2.0.0) takes those bytes for a frame end or a record start wherever they stand and "
+        "drops the record (a 0x0A also delays every later frame by one): one note says so, "
+        "naming the first such servo and frame.",
         '{ type = "blender_servo", file = "wave.json", servo = 0, position = [544, 2400], '
         "degrees = [-90, 90] }",
     ),

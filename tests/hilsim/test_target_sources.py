@@ -210,3 +210,18 @@ def test_what_the_files_say_is_reported(capsys):
     assert 'animation 1 "Idle": idle animation' in err
     assert main(["tracks", str(REPO / "configs" / "blender_servo.toml"), "--at", "0"]) == 0
     assert "cannot tell an unchanged position from one Blender dropped" in capsys.readouterr().err
+
+
+def test_a_marker_byte_the_arduino_library_misreads_is_said_once(tmp_path, capsys):
+    """Both joints of configs/blender_servo.toml on r53.bin, whose servo 10 has ID 0x0A: one
+    line on stderr, naming servo and frame; the values are the file's records."""
+    rig = (REPO / "configs" / "blender_servo.toml").read_text()
+    bin_file = (ANIM / "blender_servo" / "r53.bin").as_posix()
+    path = tmp_path / "r.toml"
+    path.write_text(rig.replace('animations/blender_servo/r53.json"', f'{bin_file}", fps = 30'))
+    assert main(["tracks", str(path), "--at", "0.5", "--json"]) == 0
+    out, err = capsys.readouterr()
+    lines = [ln for ln in err.splitlines() if "0x0a" in ln]
+    assert len(lines) == 1 and "r53.bin: servo 10 in frame 0: its ID is 0x0a" in lines[0]
+    assert lines[0].startswith("hilsim tracks: note: ") and "reads the 5-byte records" in lines[0]
+    assert json.loads(out)["arm"] == pytest.approx([151.487 - 90], abs=1e-3)
