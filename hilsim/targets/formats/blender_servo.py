@@ -11,8 +11,14 @@ them one frame at a time, holding each (zero-order). Three forms carry the same 
 * ``.bin`` - the bare command stream: per position the 5-byte record ``3C id hi lo 3E``
   (``<``, servo ID, big-endian u16 position, ``>``), and ``0A`` after each frame. It is read
   as fixed records, so a ``0A`` *inside* a record (an ID of 10, a position byte of 10) is data,
-  not a frame end. It says nothing of its fps: the caller gives it (``fps=``), as the Arduino
-  library's ``addScene(stream, fps, frames)`` is given it.
+  not a frame end. The add-on's own Arduino library (timhendriks93/blender-servo-animation-
+  arduino 2.0.0) reads it byte by byte instead: any ``0A`` ends its frame
+  (``src/ServoManager.cpp``, ``parseData``) and any ``3C`` restarts its record
+  (``src/Command.cpp``, ``write``), so it drops such a record, and after a ``0A`` plays
+  every later frame a frame late. :meth:`BlenderServoAnimation.misread_note` says so in one
+  line per file (the first such record's servo and frame). It says nothing of its fps: the
+  caller gives it (``fps=``), as the Arduino library's ``addScene(stream, fps, frames)`` is
+  given it.
 * ``.h`` - the same bytes as a C array ``const byte PROGMEM ANIMATION_DATA[LENGTH] = {...}``,
   with ``const byte FPS``, ``const int FRAMES`` and ``const int LENGTH`` (checked against the
   array), optionally inside a ``namespace``.
@@ -59,6 +65,7 @@ import numpy as np
 
 from hilsim.targets.formats.blender_servo_forms import (
     MAX_SERVO_ID,
+    arduino_misread,
     is_int,
     is_number,
     parse_h,
@@ -186,14 +193,35 @@ class BlenderServoAnimation:
         """Frames that carry no position for ``servo_id`` (held from the frame before)."""
         return tuple(np.setdiff1d(np.arange(self.n_frames), self._listed(servo_id)[0]).tolist())
 
+    def misread_note(self) -> str | None:
+        """One line when a ``.bin``/``.h`` record's ID or position byte is 0x0A or 0x3C, which
+        the add-on's own Arduino library takes for a frame end or a record start wherever it
+        stands (it drops the record; a 0x0A also puts every later frame a frame late): hilsim
+        reads fixed 5-byte records, so it plays the file as exported. None otherwise (and for
+        ``.json``, which that library does not read)."""
+        found = arduino_misread(self.servo, self.position) if self.form != "json" else None
+        if found is None:
+            return None
+        n, r, what = found
+        others = f"1 of {n} such records here" if n > 1 else "the only such record here"
+        return (
+            f"{self.path}: servo {int(self.servo[r])} in frame {int(self.frame_of[r])}: {what}: "
+            f"it drops the record ({others}; each 0x0a also plays every later frame a frame "
+            "late); hilsim reads the 5-byte records, as exported"
+        )
+
     def notes(self, servo_id: int) -> tuple[str, ...]:
         """What the rig should print about this servo's frames: frames held for lack of a
-        position, which the format cannot tell apart from positions dropped as out of range."""
+        position, which the format cannot tell apart from positions dropped as out of range;
+        and, for the whole file, :meth:`misread_note` (the same line for every servo, so a
+        rig that prints each line once prints it once)."""
+        misread = self.misread_note()
+        notes = [misread] if misread else []
         held = self.held_frames(servo_id)
         if not held:
-            return ()
+            return tuple(notes)
         first = int(self._listed(servo_id)[0][0])
-        notes = [
+        notes += [
             f"{self.path}: servo {servo_id}: {len(held)} of {self.n_frames} frames carry no "
             f"position and hold the one before (first such frame: {held[0]}); the format cannot "
             f"tell an unchanged position from one Blender dropped as outside the bone's range"

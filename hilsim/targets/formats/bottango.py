@@ -15,14 +15,16 @@ Phase 2 is one call per joint::
   address and pin / motor id as the file gives them, signal range and start signal),
   ``animations`` (index -> :class:`Animation`: name, :class:`PlaybackConfig`, segments per
   effector for the data and for the loop), ``info`` (commands skipped, folding curves).
-* :meth:`BottangoExport.track` -> :class:`~.bottango_curve.BezierTrack`. The units: a curve's
+* :meth:`BottangoExport.track` -> a track as the driver plays it. The units: a curve's
   y is 0..8192, movement = y/8192, signal = min + movement·(max − min) from the setup's
   registration of that effector (µs for servos, steps for steppers), then the rig's
   :class:`UnitMap` from the signal to degrees (``signal=``). ``movement=`` maps movement 0..1
   straight to degrees instead; an effector with no registration needs it (a clear error
-  otherwise). Exactly one of the two; Bottango never says which unit a joint uses. The track
-  holds its first curve's start value before it (the registration's start signal, where the
-  firmware parks the servo at boot, is ``Effector.start``, for the rig to use or not).
+  otherwise). Exactly one of the two; Bottango never says which unit a joint uses. With a
+  registration the track is what the driver does (:mod:`.bottango_slew`): the start signal
+  until the first curve, then the curves at most the registered speed limit fast (a
+  :class:`~.bottango_curve.BezierTrack` where the limit never holds the signal back);
+  without one, the bare curves, the first curve's start value held before it.
 
 Commands (Bottango's driver ``BasicCommands``): ``sC`` Bézier curves and ``sCI`` instant
 moves (an ``sCI`` has no time: it acts when the stream reaches it, i.e. at the start of the
@@ -50,7 +52,9 @@ from pathlib import Path
 
 from hilsim.targets.formats.bottango_curve import Y_MAX, BezierSegment, BezierTrack
 from hilsim.targets.formats.bottango_forms import Line, RawExport, read_code, read_json, read_sd
+from hilsim.targets.formats.bottango_slew import driver_terms, driver_track
 from hilsim.targets.formats.common import FormatError, UnitMap
+from hilsim.targets.tracks import Track
 
 __all__ = [
     "Animation", "BezierSegment", "BezierTrack", "BottangoExport", "Effector",
@@ -160,10 +164,10 @@ class BottangoExport:
         signal: UnitMap | None = None,
         movement: UnitMap | None = None,
         loop: bool = False,
-    ) -> BezierTrack:
-        """One effector's curve in one animation (its loop data with ``loop=True``) in
-        joint radians; ``signal`` maps the effector's signal unit to degrees, ``movement``
-        maps 0..1 to degrees (exactly one of the two)."""
+    ) -> Track:
+        """One effector's curve in one animation in joint radians, as the driver plays it
+        (``loop=True``: its loop data, from its first curve's start, not the start signal);
+        ``signal`` maps the signal to degrees, ``movement`` 0..1 to degrees (exactly one)."""
         anim = self.animation(animation)
         table = anim.loop_segments if loop else anim.segments
         eid = str(effector)
@@ -196,7 +200,11 @@ class BottangoExport:
         k = math.radians(umap.deg_per_unit)
         offset = math.radians(umap.degrees[0]) + k * (lo - umap.source[0])
         src = f"{self.path} animation {anim.index} effector {eid}"
-        return BezierTrack(table[eid], offset, k * (hi - lo) / Y_MAX, src)
+        eff = self.effectors.get(eid)
+        start, rate = driver_terms(eff)
+        curve = BezierTrack(table[eid], offset, k * (hi - lo) / Y_MAX, src, None if loop else start)
+        limit = f"{eff.max_per_s:g} {eff.unit}/s" if eff is not None else ""
+        return driver_track(curve, rate, limit)
 
 
 def read_export(path: str | Path, form: str | None = None) -> BottangoExport:

@@ -32,9 +32,11 @@ track gives the secant slope over the 1 ms around t, and 0 where both vanish.
 
 The value is clamped to 0..8192 (velocity 0 where clamped), as the firmware clamps the signal
 to the effector's range (``AbstractEffector::lerpSignal``); the rig's map from 0..8192 to
-radians is affine (``rad = offset + scale·y``). The track holds the first segment's start value
-before it, each segment's end value in a gap after it, and the last end value after the last
-(velocity 0): :attr:`BezierTrack.duration` is the end of the last segment.
+radians is affine (``rad = offset + scale·y``). The track holds its ``start_y`` (the
+registration's start signal; else the first segment's start value) before the first segment,
+each segment's end value in a gap after it, and the last end value after the last (velocity
+0): :attr:`BezierTrack.duration` is the end of the last segment. The driver's speed limit on
+top of that is :mod:`hilsim.targets.formats.bottango_slew`.
 """
 
 from __future__ import annotations
@@ -110,7 +112,7 @@ class BezierSegment:
             return
         # x'(u)/3 = (1-u)^2 a + 2(1-u)u (b - a) + u^2 (d - b)  =  p u^2 + q u + r
         p, q, r = a - 2.0 * (b - a) + (d - b), 2.0 * (b - a) - 2.0 * a, a
-        cuts = sorted(u for u in _quadratic_roots(p, q, r) if 0.0 < u < 1.0)
+        cuts = sorted(u for u in quadratic_roots(p, q, r) if 0.0 < u < 1.0)
         knots = [0.0, *cuts, 1.0]
         pieces = [(lo, hi, self._x(lo), self._x(hi)) for lo, hi in pairwise(knots) if hi > lo]
         object.__setattr__(self, "_pieces", tuple(pieces))
@@ -211,7 +213,7 @@ class BezierSegment:
         return y, (yb - ya) / (h1 - h0) if h1 > h0 else 0.0
 
 
-def _quadratic_roots(p: float, q: float, r: float) -> list[float]:
+def quadratic_roots(p: float, q: float, r: float) -> list[float]:
     """Real roots of p u^2 + q u + r (stable form; the linear case when p = 0)."""
     if p == 0.0:
         return [-r / q] if q != 0.0 else []
@@ -231,10 +233,12 @@ class BezierTrack(Track):
 
     ``segments`` sorted by start, none starting before the previous one ends (the reader
     checks); ``offset_rad`` and ``rad_per_y`` map Bottango's 0..8192 to joint radians
-    (``rad = offset_rad + rad_per_y·y``, from the setup's signal range and the rig's unit map).
+    (``rad = offset_rad + rad_per_y·y``, from the setup's signal range and the rig's unit map);
+    ``start_y`` (0..8192) is held before the first segment, where the driver parks the
+    effector at its registered start signal (None: the first segment's start value).
     """
 
-    __slots__ = ("_ends", "_starts", "offset_rad", "rad_per_y", "segments", "source")
+    __slots__ = ("_ends", "_starts", "offset_rad", "rad_per_y", "segments", "source", "start_y")
 
     def __init__(
         self,
@@ -242,13 +246,18 @@ class BezierTrack(Track):
         offset_rad: float,
         rad_per_y: float,
         source: str = "",
+        start_y: float | None = None,
     ) -> None:
         if not segments:
             raise ValueError(f"{source or 'a Bottango track'}: no curve segments")
         if not (math.isfinite(offset_rad) and math.isfinite(rad_per_y)):
             raise ValueError("offset_rad and rad_per_y must be finite")
+        if start_y is not None and not 0.0 <= start_y <= Y_MAX:
+            raise ValueError(f"start_y must be in 0..{Y_MAX:g}, got {start_y!r}")
         self.segments = tuple(segments)
         self.offset_rad, self.rad_per_y, self.source = float(offset_rad), float(rad_per_y), source
+        #: the value held before the first segment (None: the first segment's start value)
+        self.start_y = None if start_y is None else float(start_y)
         self._starts = [s.start_ms for s in self.segments]
         self._ends = [s.end_ms for s in self.segments]
         for i in range(1, len(self.segments)):
@@ -260,7 +269,8 @@ class BezierTrack(Track):
         ms = t * 1000.0
         i = bisect_right(self._starts, ms) - 1
         if i < 0:
-            y, rate = float(self.segments[0].y0), 0.0
+            y = float(self.segments[0].y0) if self.start_y is None else self.start_y
+            rate = 0.0
         elif ms <= self._ends[i]:
             y, rate = self.segments[i].value_rate(ms)
         else:
