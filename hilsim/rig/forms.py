@@ -117,15 +117,29 @@ TARGET_TYPES: dict[str, tuple[str, str]] = {
     ),
     "bottango": (
         "One effector's curves in one animation of a Bottango export (generated code "
-        "`GeneratedCodeAnimations.cpp`, an SD card's folder holding `anims/`, or JSON); "
-        "the exact Bézier curves, held before the first and after the last.",
+        "`GeneratedCodeAnimations.cpp`, an SD card's folder holding `anims/`, or JSON), "
+        "as Bottango's driver plays them: the exact Bézier curves, the last value held after "
+        "the last. With a registration (`rSVPin`, `rSVI2C`, `rMTR`, `rSTPin`/`rSTDir`, "
+        "`rECC`) the effector sits at its registered start signal until its first curve (the "
+        "driver parks it there), and the target is the driver's signal (Bottango's Arduino "
+        "driver 0.8.0c1, `LoopDrivenEffector`): moved toward the curves at most at the "
+        "registered speed limit (`maxPWMPerSec` and kin, per second), "
+        "so where a curve or a jump (the first curve starting away from the start signal, an "
+        "instant move) is faster it runs behind in a straight line at the limit until it meets "
+        "the curve; one note says where. The rig's spring, speed limits and safety filter "
+        "then act on that target. An effector with no registration (it needs `movement`) "
+        "follows the bare curves, the first one's start held before it.",
         '{ type = "bottango", file = "GeneratedCodeAnimations.cpp", effector = "0", '
         "degrees = [0, 40] }",
     ),
     "blender_servo": (
         "One servo of a blender-servo-animation export (`.json`, `.bin`, `.h`): a position "
         "per frame, held (as the add-on's Arduino library plays it) or joined; a servo "
-        "missing from a frame holds its last position.",
+        "missing from a frame holds its last position. A `.bin`/`.h` record whose ID or "
+        "position byte is 0x0A or 0x3C is read as written; the add-on's Arduino library "
+        "(2.0.0) takes those bytes for a frame end or a record start wherever they stand and "
+        "drops the record (a 0x0A also delays every later frame by one): one note says so, "
+        "naming the first such servo and frame.",
         '{ type = "blender_servo", file = "wave.json", servo = 0, position = [544, 2400], '
         "degrees = [-90, 90] }",
     ),

@@ -176,19 +176,31 @@ def _bottango(
     if "signal" in spec and "movement" in spec:
         raise SourceError("movement", "give signal or movement, not both")
     if "movement" in spec:
-        return export.track(animation, str(effector), movement=_unit(spec, "movement", ""))
-    eff = export.effectors.get(str(effector))
-    if "signal" in spec:
-        return export.track(animation, str(effector), signal=_unit(spec, "signal", "signal"))
-    if eff is None or eff.signal_min is None or eff.signal_max is None:
-        raise SourceError(
-            "signal",
-            f"effector {effector!r} has no registered signal range in {path.name}: give "
-            "movement = [0, 1] (Bottango's movement) with degrees",
-        )
-    # degrees at the ends of the effector's registered range (e.g. 1000-2000 µs)
-    umap = _unit(spec, (eff.signal_min, eff.signal_max), eff.unit)
-    return export.track(animation, str(effector), signal=umap)
+        track = export.track(animation, str(effector), movement=_unit(spec, "movement", ""))
+    elif "signal" in spec:
+        track = export.track(animation, str(effector), signal=_unit(spec, "signal", "signal"))
+    else:
+        eff = export.effectors.get(str(effector))
+        if eff is None or eff.signal_min is None or eff.signal_max is None:
+            raise SourceError(
+                "signal",
+                f"effector {effector!r} has no registered signal range in {path.name}: give "
+                "movement = [0, 1] (Bottango's movement) with degrees",
+            )
+        # degrees at the ends of the effector's registered range (e.g. 1000-2000 µs)
+        umap = _unit(spec, (eff.signal_min, eff.signal_max), eff.unit)
+        track = export.track(animation, str(effector), signal=umap)
+    behind = getattr(track, "behind", ())
+    if behind:  # the driver's speed limit keeps its signal off the curves
+        anim = export.animation(animation)
+        name = f"animation {anim.index}" + (f' "{anim.name}"' if anim.name else "")
+        (a, b), n = behind[0], len(behind)
+        times = "once (" if n == 1 else f"{n} times (first "
+        _note(notes, f"{path.name}: {name} effector {effector}: its registered speed limit "
+              f"({getattr(track, 'limit', '')}) keeps the driver's signal off the curves {times}"
+              f"{a:.3f}-{b:.3f} s); the target is that signal, as the driver moves the "
+              "servo")  # fmt: skip
+    return track
 
 
 def _blender(

@@ -97,6 +97,32 @@ def test_0x0a_inside_a_record_is_data_not_a_frame_end():
     assert data.count(0x0A) == 8  # a reader splitting on 0x0A would see 8 frames, not 3
 
 
+def _arduino_form(form: str, frames: list[dict[int, int]]):
+    return load(form, gen.bin_bytes(frames) if form == "bin" else gen.h_bytes(frames))
+
+
+@pytest.mark.parametrize("form", ["bin", "h"])
+def test_a_marker_byte_inside_a_record_is_one_note_naming_servo_and_frame(form):
+    """The add-on's Arduino library (2.0.0) ends a frame at any 0x0A and restarts a record at
+    any 0x3C: one line per file says where first, hilsim still reads the records right."""
+    frames = [{0: 1000}, {0: 1001, 10: 300}, {0: 1290}, {0: 572}]  # 10, 0x050A, 0x023C
+    anim = _arduino_form(form, frames)
+    assert [dict(f) for f in anim.frames] == frames
+    note = anim.misread_note()
+    assert note.startswith(f"x.{form}: servo 10 in frame 1: its ID is 0x0a, which the add-on's")
+    assert "as a frame end" in note and "(1 of 3 such records here;" in note
+    assert anim.notes(0)[0] == anim.notes(10)[0] == note  # the same line: printed once
+    last = _arduino_form(form, frames[3:]).misread_note()
+    assert "servo 0 in frame 0: its position's low byte is 0x3c" in last
+    assert "as a record start" in last and "the only such record here" in last
+    assert _arduino_form(form, frames[:1]).misread_note() is None
+
+
+def test_a_json_export_is_not_the_arduino_librarys_and_gets_no_marker_note():
+    anim = load("json", gen.json_bytes([{10: 10}], fps=10))
+    assert anim.misread_note() is None and anim.notes(10) == ()
+
+
 def test_a_missing_servo_holds_and_the_notes_say_why_that_may_be_wrong():
     frames = [{0: 1000, 1: 300}, {1: 310}, {}, {0: 1100}]
     anim = load("json", gen.json_bytes(frames, fps=10))

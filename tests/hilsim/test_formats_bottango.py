@@ -241,7 +241,8 @@ def test_sync_relay_hash_and_tsyn(tmp_path):
     hashed = "xUC,4"
     cmds.insert(0, f"{hashed},h{sum(map(ord, hashed))}")
     export = read_export(
-        _forms(tmp_path, ["rSVPin,1,500,2500,100,1500"], [samples.Anim("", cmds)])["json"]
+        # (a limit of 3000 us/s, which this curve never reaches: the limit is tested below)
+        _forms(tmp_path, ["rSVPin,1,500,2500,3000,1500"], [samples.Anim("", cmds)])["json"]
     )
     assert sorted(export.animation(0).segments) == ["0/5", "1", "2"]
     assert [s.start_ms for s in export.animation(0).segments["1"]] == [0, 1000]
@@ -291,7 +292,8 @@ def test_registrations_of_every_kind(tmp_path):
     assert (eff["3"].pin, eff["3"].start, eff["3"].unit) == (3, 10, "steps")
     assert (eff["ev"].kind, eff["ev"].signal_min, eff["ev"].start) == ("curved event", None, 0.25)
     steps = export.track(0, "7", signal=UnitMap((-400, 400), (-180, 180), "steps"))
-    assert deg(steps, 1.0) == pytest.approx(180.0) and deg(steps, 0.0) == pytest.approx(-180.0)
+    assert deg(steps, 1.0) == pytest.approx(180.0)
+    assert deg(steps, 0.0) == pytest.approx(0.0)  # parked at its start, 0 steps
     with pytest.raises(FormatError, match="'ev' has no signal range"):
         export.track(0, "ev", signal=US)
     assert deg(export.track(0, "ev", movement=UnitMap((0, 1), (0, 10))), 1.0) == pytest.approx(10)
@@ -309,6 +311,82 @@ def test_instant_first_and_vertical_tangent(tmp_path):
     assert read_export(tmp_path / "card" / "anims").animation(0).segments == (
         export.animation(0).segments
     )
+
+
+# ------------------------------------------------- the driver: start signal and speed limit
+IDENTITY = UnitMap((0, 1), (0, 1), "us")  # deg() of such a track reads the signal in µs
+
+
+@pytest.mark.parametrize("form", ["code", "sd", "json"])
+def test_before_its_first_curve_an_effector_sits_at_its_start_signal(tmp_path, form):
+    """Registered with start 1200 µs, first curve at 500 ms from 1500 µs: the driver parks
+    the servo at 1200 µs until then (not at the curve's 1500), then moves it to the curve at
+    its speed limit, 3000 µs/s: 1350 µs at 550 ms; on the curve from there (1625 µs at its
+    middle, 1750 µs at its end)."""
+    setup = ["rSVPin,0,1000,2000,3000,1200"]
+    anim = samples.Anim("", ["sC,0,500,1000,4096,200,0,6144,-200,0"])
+    export = read_export(_forms(tmp_path, setup, [anim])[form])
+    us = export.track(0, "0", signal=IDENTITY)
+    for t in (-1.0, 0.0, 0.25, 0.4999):
+        assert deg(us, t) == pytest.approx(1200.0) and us.velocity(t) == 0.0
+    assert deg(us, 0.55) == pytest.approx(1350.0)
+    assert math.degrees(us.velocity(0.55)) == pytest.approx(3000.0)
+    assert deg(us, 1.0) == pytest.approx(1625.0) and deg(us, 1.5) == pytest.approx(1750.0)
+    assert us.duration == 1.5
+    movement = export.track(0, "0", movement=UnitMap((0, 1), (0, 1), "movement"))
+    assert deg(movement, 0.25) == pytest.approx(0.2)  # 1200 µs of 1000-2000
+
+
+@pytest.mark.parametrize("form", ["code", "sd", "json"])
+def test_the_registered_speed_limit_is_applied_as_the_driver_applies_it(tmp_path, form):
+    """Registered at 500 µs/s; a straight curve 1500 -> 2000 µs in 400 ms from 1.0 s (1250
+    µs/s): the signal moves at 500 µs/s and arrives at 2.0 s, not 1.4 s; a later curve
+    slower than the limit (250 µs/s) is followed exactly."""
+    setup = ["rSVPin,0,1000,2000,500,1500"]
+    cmds = ["sC,0,1000,400,4096,0,0,8192,0,0", "sC,0,3000,1000,8192,0,0,6144,0,0"]
+    export = read_export(_forms(tmp_path, setup, [samples.Anim("", cmds)])[form])
+    us = export.track(0, "0", signal=IDENTITY)
+    want = {0.5: 1500, 1.0: 1500, 1.2: 1600, 1.4: 1700, 1.8: 1900, 2.0: 2000, 2.5: 2000,
+            3.5: 1875, 4.0: 1750}  # fmt: skip
+    for t, signal in want.items():
+        assert deg(us, t) == pytest.approx(signal), t
+    assert math.degrees(us.velocity(1.2)) == pytest.approx(500.0)
+    assert math.degrees(us.velocity(3.5)) == pytest.approx(-250.0)
+    assert us.behind == ((1.0, 2.0),) and us.duration == 4.0
+    deg40 = export.track(0, "0", signal=US)  # the limit is the signal's, whatever the map
+    assert deg(deg40, 1.4) == pytest.approx(28.0) and deg(deg40, 2.0) == pytest.approx(40.0)
+
+
+def _stepped(bare: BezierTrack, rate: float, times: np.ndarray, dt: float) -> np.ndarray:
+    """An independent check: the driver's rule stepped in time, every ``dt`` the signal moves
+    toward the curve (held at its start before it) by at most ``rate·dt``."""
+    out, v, k = [], bare.sample_y(-1.0)[0], 0
+    for t in times:
+        while k * dt < t:
+            k += 1
+            target = bare.sample_y(k * dt)[0]
+            v = target if abs(target - v) <= rate * dt else v + math.copysign(rate * dt, target - v)
+        out.append(v)
+    return np.array(out)
+
+
+@pytest.mark.parametrize("form", ["code", "json"])
+def test_the_limited_signal_matches_the_rule_stepped_in_time(tmp_path, form):
+    """The review's curves at 200 µs/s, and a folding curve and one overshooting 8192 at 2000
+    µs/s, all starting after 0 ms: the exact track agrees with the rule stepped every 0.1 ms."""
+    setup = ["rSVPin,0,1000,2000,200,1000", "rSVPin,1,1000,2000,2000,1800"]
+    cmds = ["sC,0,250,2000,4096,513,0,7110,-763,814", "sC,0,2250,1000,7110,331,-354,2277,-331,931",
+            "sC,1,300,700,1000,1400,0,7000,-200,0", "sC,1,1200,600,7000,300,9000,2000,-300,9000",
+            "sC,1,1800,300,1000,100,0,8000,-100,0"]  # fmt: skip
+    export = read_export(_forms(tmp_path, setup, [samples.Anim("", cmds)])[form])
+    times = np.linspace(-0.2, 5.0, 521)
+    for eid, rate in (("0", 200 * 8.192), ("1", 2000 * 8.192)):
+        track = export.track(0, eid, movement=UnitMap((0, 1), (0, 8192), "movement"))
+        assert track.behind, eid
+        segs = export.animation(0).segments[eid]
+        bare = BezierTrack(segs, 0.0, 1.0, "", track.base.start_y)
+        got = np.degrees(track.sample_array(times)[0])
+        assert np.max(np.abs(got - _stepped(bare, rate, times, 1e-4))) < 3 * rate * 1e-4, eid
 
 
 # ------------------------------------------------------------------------------ bad inputs
@@ -461,7 +539,8 @@ def _accepted(export, form: str) -> None:
 def _track_holds(export, index: int, eid: str, loop: bool) -> None:
     """One effector's track, mapped the rig's two ways onto 0-90° (movement, and the
     registered signal range when there is one): finite at any time, within 0-90° (or the
-    registered start, where the servo may sit before the first curve), as long as its curves."""
+    registered start, where the servo may sit before the first curve), as long as its curves
+    (longer where the registered speed limit holds the driver's signal back)."""
     anim = export.animation(index)
     segs = (anim.loop_segments if loop else anim.segments)[eid]
     eff = export.effectors.get(eid)
@@ -476,8 +555,11 @@ def _track_holds(export, index: int, eid: str, loop: bool) -> None:
         times |= {s.start_ms / 1000, (s.start_ms + s.dur_ms / 2) / 1000, s.end_ms / 1000}
     for kw in maps:
         track = export.track(index, eid, loop=loop, **kw)
-        assert track.duration == end_s
-        for t in sorted(times):
+        if getattr(track, "behind", ()):  # the registered speed limit: the signal may arrive later
+            assert track.duration >= end_s
+        else:
+            assert track.duration == end_s
+        for t in sorted(times | {track.duration}):
             u, du = track.sample(t)
             assert math.isfinite(u) and math.isfinite(du), (eid, t)
             assert lo <= math.degrees(u) <= hi, (eid, t, math.degrees(u))
@@ -604,7 +686,11 @@ def test_random_commands_give_tracks_or_format_errors(fuzz_dir, parts, form):
     if not curves and not any(c.startswith("tSYN") for c in others):
         want = [BezierSegment.from_command(*map(int, c.split(",")[2:])) for c in chain]
         assert list(segments["0"]) == want
-        assert export.track(0, "0", movement=DEG90).duration == want[-1].end_ms / 1000
+        track = export.track(0, "0", movement=DEG90)
+        if getattr(track, "behind", ()):  # the registered speed limit holds the signal back
+            assert track.duration >= want[-1].end_ms / 1000
+        else:
+            assert track.duration == want[-1].end_ms / 1000
 
 
 def test_shipped_samples_are_the_generators(tmp_path):

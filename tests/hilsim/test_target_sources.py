@@ -7,6 +7,7 @@ from __future__ import annotations
 import importlib.util
 import json
 import math
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -60,7 +61,34 @@ def test_bottango_signal_and_movement_maps():
         assert deg(by_movement, t) == pytest.approx(deg(by_range, t))
     # the I2C servo is registered 2000 -> 1000 us: its range maps reversed
     rev = build({**base, "effector": "643", "degrees": [-45, 45], "animation": 0})
-    assert deg(rev, 0.0) == pytest.approx(-45.0)
+    assert deg(rev, 1.5) == pytest.approx(45.0)  # the curve's end, 1000 us
+    assert deg(rev, 0.0) == pytest.approx(0.0)  # parked at its start signal, 1500 us
+
+
+def test_bottango_start_and_speed_limit_through_hilsim_tracks(tmp_path, capsys):
+    """configs/bottango.toml on an export whose first curves start after 0 ms: the jaw (pin
+    servo 0, start 1200 µs, 500 µs/s) waits at its start signal, then moves at its limit;
+    one note says where the limit keeps the signal off the curves."""
+    spec = importlib.util.spec_from_file_location("sb", REPO / "tools" / "samples_bottango.py")
+    sb = importlib.util.module_from_spec(spec)
+    sys.modules.setdefault("sb", sb)
+    spec.loader.exec_module(sb)
+    setup = ["rSVPin,0,1000,2000,500,1200", "rSVI2C,64,3,2000,1000,3000,1500"]
+    talk = sb.Anim("Talk", ["sC,0,1000,400,4096,0,0,8192,0,0", "sC,643,500,500,4096,0,0,0,0,0"])
+    export = sb.write_code(tmp_path / "g.cpp", setup, [talk])
+    rig = (REPO / "configs" / "bottango.toml").read_text()
+    path = tmp_path / "r.toml"
+    path.write_text(rig.replace("animations/bottango/GeneratedCodeAnimations.cpp", str(export)))
+    assert main(["tracks", str(path), "--at", "0,0.9,1.4,2.0,2.6", "--json"]) == 0
+    out, err = capsys.readouterr()
+    # 1200 µs (8°) until 1.0 s; then 500 µs/s: 1400 µs (16°) at 1.4 s, 2000 µs (40°) at 2.6 s
+    assert json.loads(out)["jaw"] == pytest.approx([8.0, 8.0, 16.0, 28.0, 40.0])
+    # 643 (2000 -> 1000 µs is -45..45°): 1500 µs until 0.5 s, then 1000 µs/s (within its
+    # 3000) to 2000 µs at 1.0 s: 1900 µs (-36°) at 0.9 s
+    assert json.loads(out)["head_pan"] == pytest.approx([0.0, -36.0, -45.0, -45.0, -45.0])
+    notes = [ln for ln in err.splitlines() if "speed limit" in ln]
+    assert len(notes) == 1 and 'animation 0 "Talk" effector 0' in notes[0]
+    assert "(500 us/s) keeps the driver's signal off the curves once (1.000-2.600 s)" in notes[0]
 
 
 def test_acceptance_through_hilsim_tracks(capsys):
@@ -231,3 +259,18 @@ def test_what_the_files_say_is_reported(capsys):
     assert 'animation 1 "Idle": idle animation' in err
     assert main(["tracks", str(REPO / "configs" / "blender_servo.toml"), "--at", "0"]) == 0
     assert "cannot tell an unchanged position from one Blender dropped" in capsys.readouterr().err
+
+
+def test_a_marker_byte_the_arduino_library_misreads_is_said_once(tmp_path, capsys):
+    """Both joints of configs/blender_servo.toml on r53.bin, whose servo 10 has ID 0x0A: one
+    line on stderr, naming servo and frame; the values are the file's records."""
+    rig = (REPO / "configs" / "blender_servo.toml").read_text()
+    bin_file = (ANIM / "blender_servo" / "r53.bin").as_posix()
+    path = tmp_path / "r.toml"
+    path.write_text(rig.replace('animations/blender_servo/r53.json"', f'{bin_file}", fps = 30'))
+    assert main(["tracks", str(path), "--at", "0.5", "--json"]) == 0
+    out, err = capsys.readouterr()
+    lines = [ln for ln in err.splitlines() if "0x0a" in ln]
+    assert len(lines) == 1 and "r53.bin: servo 10 in frame 0: its ID is 0x0a" in lines[0]
+    assert lines[0].startswith("hilsim tracks: note: ") and "reads the 5-byte records" in lines[0]
+    assert json.loads(out)["arm"] == pytest.approx([151.487 - 90], abs=1e-3)

@@ -9,6 +9,9 @@ A servo missing from a frame holds its previous value: the add-on drops unchange
 and out-of-range ones alike. :meth:`BlenderServoAnimation.notes` says how many frames were
 held. The file does not say the positions' unit (µs, PCA9685 ticks or degrees). The caller
 gives a :class:`~hilsim.targets.formats.common.UnitMap`, or the bone's :class:`BoneSettings`::
+In ``.bin`` and ``.h`` a ``0A`` or ``3C`` byte inside a record (an ID or position byte) is
+read as data here; the add-on's Arduino library misreads it, which
+:meth:`BlenderServoAnimation.misread_note` says in one line.
 
     anim = read_blender_servo(path, fps=None)          # fps only for .bin
     track = anim.track(0, UnitMap((1000, 2000), (0, 40), "us"), interpolation="hold")
@@ -27,6 +30,7 @@ import numpy as np
 
 from hilsim.targets.formats.blender_servo_forms import (
     MAX_SERVO_ID,
+    arduino_misread,
     is_int,
     is_number,
     parse_h,
@@ -154,14 +158,35 @@ class BlenderServoAnimation:
         """Frames that carry no position for ``servo_id`` (held from the frame before)."""
         return tuple(np.setdiff1d(np.arange(self.n_frames), self._listed(servo_id)[0]).tolist())
 
+    def misread_note(self) -> str | None:
+        """One line when a ``.bin``/``.h`` record's ID or position byte is 0x0A or 0x3C, which
+        the add-on's own Arduino library takes for a frame end or a record start wherever it
+        stands (it drops the record; a 0x0A also puts every later frame a frame late): hilsim
+        reads fixed 5-byte records, so it plays the file as exported. None otherwise (and for
+        ``.json``, which that library does not read)."""
+        found = arduino_misread(self.servo, self.position) if self.form != "json" else None
+        if found is None:
+            return None
+        n, r, what = found
+        others = f"1 of {n} such records here" if n > 1 else "the only such record here"
+        return (
+            f"{self.path}: servo {int(self.servo[r])} in frame {int(self.frame_of[r])}: {what}: "
+            f"it drops the record ({others}; each 0x0a also plays every later frame a frame "
+            "late); hilsim reads the 5-byte records, as exported"
+        )
+
     def notes(self, servo_id: int) -> tuple[str, ...]:
         """What the rig should print about this servo's frames: frames held for lack of a
-        position, which the format cannot tell apart from positions dropped as out of range."""
+        position, which the format cannot tell apart from positions dropped as out of range;
+        and, for the whole file, :meth:`misread_note` (the same line for every servo, so a
+        rig that prints each line once prints it once)."""
+        misread = self.misread_note()
+        notes = [misread] if misread else []
         held = self.held_frames(servo_id)
         if not held:
-            return ()
+            return tuple(notes)
         first = int(self._listed(servo_id)[0][0])
-        notes = [
+        notes += [
             f"{self.path}: servo {servo_id}: {len(held)} of {self.n_frames} frames carry no "
             f"position and hold the one before (first such frame: {held[0]}); the format cannot "
             f"tell an unchanged position from one Blender dropped as outside the bone's range"

@@ -232,6 +232,35 @@ def tokens(body: bytes, base: int, path: str | Path, line: Where) -> bytes:
     return bytes(values)
 
 
+# ------------------------------------------------------------ what the Arduino library misreads
+#: the bytes the add-on's Arduino library (BlenderServoAnimation 2.0.0) takes for markers
+#: wherever they stand: ``ServoManager::parseData`` stops a frame at any 0x0A, and
+#: ``Command::write`` restarts its 5-byte command at any 0x3C
+MARKERS = {FRAME_END: "a frame end", REC_START: "a record start"}
+_FIELDS = ("its ID", "its position's high byte", "its position's low byte")
+
+
+def arduino_misread(servo: np.ndarray, position: np.ndarray) -> tuple[int, int, str] | None:
+    """The records whose ID or position byte is a marker byte (:data:`MARKERS`) -> (how many,
+    the first one's index, ``"its ID is 0x0a, ... as a frame end"``); None when none is."""
+    fields = np.stack([servo, position >> 8, position & 0xFF], axis=1)
+    hit = np.isin(fields, list(MARKERS))
+    rows = np.flatnonzero(hit.any(axis=1))
+    if not rows.size:
+        return None
+    r = int(rows[0])
+    k = int(np.argmax(hit[r]))
+    value = int(fields[r, k])
+    return (
+        int(rows.size),
+        r,
+        (
+            f"{_FIELDS[k]} is 0x{value:02x}, which the add-on's Arduino library (2.0.0) reads as "
+            f"{MARKERS[value]} wherever it stands"
+        ),
+    )
+
+
 # --------------------------------------------------------------------------------- helpers
 
 

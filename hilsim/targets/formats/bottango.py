@@ -12,6 +12,8 @@ The rig's use is one call per joint::
   per effector) and ``info`` (commands skipped, folding curves).
 * :meth:`BottangoExport.track` gives a :class:`~.bottango_curve.BezierTrack`. Exactly one of
   ``signal=`` (the registered signal, e.g. µs, to degrees) or ``movement=`` (0..1 to degrees).
+* With a registration the track is what the driver does (:mod:`.bottango_slew`): the start
+  signal until the first curve, then the curves at most the registered speed limit fast.
 
 Commands that move no joint (colour, on/off, audio, ...) are skipped and counted; an unknown
 command is a FormatError naming its line. The commands read and their units:
@@ -29,7 +31,9 @@ from typing import Any
 
 from hilsim.targets.formats.bottango_curve import Y_MAX, BezierSegment, BezierTrack
 from hilsim.targets.formats.bottango_forms import Line, RawExport, read_code, read_json, read_sd
+from hilsim.targets.formats.bottango_slew import driver_terms, driver_track
 from hilsim.targets.formats.common import FormatError, UnitMap
+from hilsim.targets.tracks import Track
 
 __all__ = [
     "Animation", "BezierSegment", "BezierTrack", "BottangoExport", "Effector",
@@ -139,10 +143,10 @@ class BottangoExport:
         signal: UnitMap | None = None,
         movement: UnitMap | None = None,
         loop: bool = False,
-    ) -> BezierTrack:
-        """One effector's curve in one animation (its loop data with ``loop=True``) in
-        joint radians; ``signal`` maps the effector's signal unit to degrees, ``movement``
-        maps 0..1 to degrees (exactly one of the two)."""
+    ) -> Track:
+        """One effector's curve in one animation in joint radians, as the driver plays it
+        (``loop=True``: its loop data, from its first curve's start, not the start signal);
+        ``signal`` maps the signal to degrees, ``movement`` 0..1 to degrees (exactly one)."""
         anim = self.animation(animation)
         table = anim.loop_segments if loop else anim.segments
         eid = str(effector)
@@ -176,7 +180,11 @@ class BottangoExport:
         k = math.radians(umap.deg_per_unit)
         offset = math.radians(umap.degrees[0]) + k * (lo - umap.source[0])
         src = f"{self.path} animation {anim.index} effector {eid}"
-        return BezierTrack(table[eid], offset, k * (hi - lo) / Y_MAX, src)
+        eff = self.effectors.get(eid)
+        start, rate = driver_terms(eff)
+        curve = BezierTrack(table[eid], offset, k * (hi - lo) / Y_MAX, src, None if loop else start)
+        limit = f"{eff.max_per_s:g} {eff.unit}/s" if eff is not None else ""
+        return driver_track(curve, rate, limit)
 
 
 def read_export(path: str | Path, form: str | None = None) -> BottangoExport:

@@ -15,6 +15,8 @@ The value is clamped to 0..8192, as the firmware clamps the signal. The track ho
 start value before, each end value in a gap, and its last end value after.
 
 The curve, the proof of monotonicity and the edge cases: ``docs/targets.md`` (Bottango curves).
+Before the first segment the track holds its ``start_y`` (the registration's start signal);
+the driver's speed limit on top is :mod:`.bottango_slew`.
 """
 
 from __future__ import annotations
@@ -90,7 +92,7 @@ class BezierSegment:
             return
         # x'(u)/3 = (1-u)^2 a + 2(1-u)u (b - a) + u^2 (d - b)  =  p u^2 + q u + r
         p, q, r = a - 2.0 * (b - a) + (d - b), 2.0 * (b - a) - 2.0 * a, a
-        cuts = sorted(u for u in _quadratic_roots(p, q, r) if 0.0 < u < 1.0)
+        cuts = sorted(u for u in quadratic_roots(p, q, r) if 0.0 < u < 1.0)
         knots = [0.0, *cuts, 1.0]
         pieces = [(lo, hi, self._x(lo), self._x(hi)) for lo, hi in pairwise(knots) if hi > lo]
         object.__setattr__(self, "_pieces", tuple(pieces))
@@ -191,7 +193,7 @@ class BezierSegment:
         return y, (yb - ya) / (h1 - h0) if h1 > h0 else 0.0
 
 
-def _quadratic_roots(p: float, q: float, r: float) -> list[float]:
+def quadratic_roots(p: float, q: float, r: float) -> list[float]:
     """Real roots of p u^2 + q u + r (stable form; the linear case when p = 0)."""
     if p == 0.0:
         return [-r / q] if q != 0.0 else []
@@ -211,10 +213,12 @@ class BezierTrack(Track):
 
     ``segments`` sorted by start, none starting before the previous one ends (the reader
     checks); ``offset_rad`` and ``rad_per_y`` map Bottango's 0..8192 to joint radians
-    (``rad = offset_rad + rad_per_y·y``, from the setup's signal range and the rig's unit map).
+    (``rad = offset_rad + rad_per_y·y``, from the setup's signal range and the rig's unit map);
+    ``start_y`` (0..8192) is held before the first segment, where the driver parks the
+    effector at its registered start signal (None: the first segment's start value).
     """
 
-    __slots__ = ("_ends", "_starts", "offset_rad", "rad_per_y", "segments", "source")
+    __slots__ = ("_ends", "_starts", "offset_rad", "rad_per_y", "segments", "source", "start_y")
 
     def __init__(
         self,
@@ -222,13 +226,18 @@ class BezierTrack(Track):
         offset_rad: float,
         rad_per_y: float,
         source: str = "",
+        start_y: float | None = None,
     ) -> None:
         if not segments:
             raise ValueError(f"{source or 'a Bottango track'}: no curve segments")
         if not (math.isfinite(offset_rad) and math.isfinite(rad_per_y)):
             raise ValueError("offset_rad and rad_per_y must be finite")
+        if start_y is not None and not 0.0 <= start_y <= Y_MAX:
+            raise ValueError(f"start_y must be in 0..{Y_MAX:g}, got {start_y!r}")
         self.segments = tuple(segments)
         self.offset_rad, self.rad_per_y, self.source = float(offset_rad), float(rad_per_y), source
+        #: the value held before the first segment (None: the first segment's start value)
+        self.start_y = None if start_y is None else float(start_y)
         self._starts = [s.start_ms for s in self.segments]
         self._ends = [s.end_ms for s in self.segments]
         for i in range(1, len(self.segments)):
@@ -240,7 +249,8 @@ class BezierTrack(Track):
         ms = t * 1000.0
         i = bisect_right(self._starts, ms) - 1
         if i < 0:
-            y, rate = float(self.segments[0].y0), 0.0
+            y = float(self.segments[0].y0) if self.start_y is None else self.start_y
+            rate = 0.0
         elif ms <= self._ends[i]:
             y, rate = self.segments[i].value_rate(ms)
         else:
