@@ -194,16 +194,19 @@ class _Child:
             t.start()
 
     def _read_stdout(self) -> None:
+        assert self.proc.stdout is not None  # a pipe (__init__): for the type checker
         for line in self.proc.stdout:
             if line.strip() == "ready":
                 self.ready.set()
 
     def _read_stderr(self, echo: Callable[[str], None]) -> None:
+        assert self.proc.stderr is not None  # a pipe (__init__): for the type checker
         for line in self.proc.stderr:
             echo(f"[{self.name}] {line.rstrip()}")
 
     def send(self, text: str | None) -> None:
         """A line to the child's stdin; None closes it (stop)."""
+        assert self.proc.stdin is not None  # a pipe (__init__): for the type checker
         with contextlib.suppress(OSError, ValueError):
             if text is None:
                 self.proc.stdin.close()

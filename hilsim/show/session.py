@@ -26,11 +26,12 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 from drivers.clock import MonotonicClock
 from drivers.dynamixel.startup import Expectation, ReadMode, StartupReport
 from drivers.protocol2.wire_time import cycle_bytes, cycle_time_s
+from hilsim._types import JsonDict
 from hilsim.exit_codes import ExitCode
 from hilsim.rig import Rig, TelemetryFailurePolicy
 from hilsim.rig.joint_map import JointMap
@@ -40,6 +41,7 @@ from hilsim.show.stop import StopFlag
 
 if TYPE_CHECKING:
     from drivers.dynamixel.bus import DynamixelBus
+    from hilsim.live.director import Director
     from hilsim.telemetry import TelemetryWriter
 
 #: Fraction of a tick the bus transaction may take; the rest is for the host.
@@ -138,7 +140,7 @@ def check_bus(rig: Rig, bus: DynamixelBus, say: Callable[[str], None]) -> list[s
     return notes
 
 
-def check_teach(rig: Rig, bus: DynamixelBus, director: Any) -> None:
+def check_teach(rig: Rig, bus: DynamixelBus, director: Director | None) -> None:
     """A show's teach-by-hand joints go limp; a servo whose Drive Mode has bit 3 set (Torque
     On by Goal Update) would turn its torque back on at the next goal, under a person's hand:
     refused before anything moves (ShowRefusedError naming the servo)."""
@@ -250,7 +252,7 @@ class ShowResult:
     ticks: int
     wall_s: float
     exit_policy: str
-    summary: dict[str, Any] = field(default_factory=dict)
+    summary: JsonDict = field(default_factory=dict)
     #: the run directory (its telemetry, events, summary.json)
     run_dir: Path | None = None
     #: why summary.json could not be written (the writer's error), else None
@@ -265,7 +267,7 @@ def run_show(
     *,
     duration_s: float | None,
     stop: StopFlag,
-    on_status: Callable[[dict], None] | None = None,
+    on_status: Callable[[JsonDict], None] | None = None,
     start_at: float | None = None,
 ) -> ShowResult:
     """Run the show and close its telemetry with the summary (``docs/summary.md``).
@@ -320,7 +322,7 @@ def run_show(
     return show
 
 
-def _close_quietly(telemetry: TelemetryWriter, summary: dict) -> None:
+def _close_quietly(telemetry: TelemetryWriter, summary: JsonDict) -> None:
     import contextlib
 
     with contextlib.suppress(Exception):
