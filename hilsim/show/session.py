@@ -147,7 +147,7 @@ def check_teach(rig: Rig, bus: DynamixelBus, director: Director | None) -> None:
     from drivers.dynamixel.errors import DynamixelError
     from drivers.protocol2.control_table import DRIVE_MODE
 
-    teach = getattr(director, "teach", None)
+    teach = None if director is None else director.teach
     if teach is None:
         return
     for i in teach.limp_indices:
