@@ -51,7 +51,7 @@ import struct
 import threading
 from collections.abc import Callable, Collection, ItemsView, Mapping, Sequence
 from dataclasses import dataclass
-from typing import Any, Literal, NamedTuple
+from typing import Any, Literal, NamedTuple, TypeGuard
 
 from hilsim.live.inbox import LiveEvent
 from hilsim.live.netguard import Address, DropLine, DropLog, GuardConfig, NetGuard, UdpReceiver
@@ -426,7 +426,7 @@ class OscInput:
         return None if cur is None else cur.deg
 
 
-def _is_number(x: object) -> bool:
+def _is_number(x: object) -> TypeGuard[float]:
     return isinstance(x, int | float) and not isinstance(x, bool)
 
 

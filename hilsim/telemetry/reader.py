@@ -87,7 +87,8 @@ class Run:
 
     @property
     def overrun(self) -> np.ndarray:
-        return self.columns["overrun"] != 0
+        overrun: np.ndarray = self.columns["overrun"] != 0
+        return overrun
 
     @property
     def comm_errors(self) -> np.ndarray:
@@ -198,7 +199,9 @@ def _read_lines(path: Path, warnings: list[str]) -> tuple[list[str], bool]:
     return [ln for ln in lines if ln.strip()], bool(partial)
 
 
-def _read_csv(csv_path: Path, warnings: list[str]) -> tuple[dict, tuple[str, ...], bool]:
+def _read_csv(
+    csv_path: Path, warnings: list[str]
+) -> tuple[dict[str, np.ndarray], tuple[str, ...], bool]:
     lines, truncated = _read_lines(csv_path, warnings)
     if not lines:
         raise RunFormatError(f"{csv_path} has no header")
@@ -207,7 +210,9 @@ def _read_csv(csv_path: Path, warnings: list[str]) -> tuple[dict, tuple[str, ...
     return {name: data[:, k].copy() for k, name in enumerate(names)}, joints, truncated
 
 
-def _read_parquet(pq_dir: Path, warnings: list[str]) -> tuple[dict, tuple[str, ...], bool]:
+def _read_parquet(
+    pq_dir: Path, warnings: list[str]
+) -> tuple[dict[str, np.ndarray], tuple[str, ...], bool]:
     """Parquet parts -> CSV columns in CSV units (format.py: the Parquet columns)."""
     try:
         import pyarrow.parquet as pq
