@@ -16,8 +16,13 @@ import json
 import math
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from hilsim.exit_codes import ExitCode
+
+if TYPE_CHECKING:
+    from hilsim.rig import Rig
+    from hilsim.show.parts import Parts
 
 HELP = (
     "show what a rig's animation asks of each joint (targets at times as JSON, or a preview plot)"
@@ -97,7 +102,7 @@ def run(args: argparse.Namespace) -> int:
     return _preview(args, rig, parts)
 
 
-def _preview(args: argparse.Namespace, rig, parts) -> int:
+def _preview(args: argparse.Namespace, rig: Rig, parts: Parts) -> int:
     from hilsim.show.preview import plot_preview, preview
     from hilsim.targets.check import check_tracks
 
