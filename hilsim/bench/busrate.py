@@ -19,11 +19,12 @@ from __future__ import annotations
 import gc
 import math
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 from drivers.dynamixel.bench_session import ADDR_RETURN_DELAY, BenchBus, BenchError
 from drivers.protocol2.wire_time import DEFAULT_TURNAROUND_S, cycle_time_s
+from hilsim._types import JsonDict
 from hilsim.bench.sched import DEFAULT_PRIORITY, SCHED_OTHER, realtime
 
 
@@ -75,7 +76,7 @@ class BusRate:
         """Measured cycle time minus the model's (µs): what the host adds per cycle."""
         return (1.0 / self.achieved_hz - self.model_s) * 1e6
 
-    def as_dict(self) -> dict:
+    def as_dict(self) -> JsonDict:
         return {
             "ids": list(self.ids),
             "baud": self.baud,
@@ -135,6 +136,7 @@ def run_cycles(
     if cycles is not None:
         with realtime(sched, priority, rest_s=gap_s) as (actual, _locked):
             return _timed(tx, rx, now, warmup, None, cycles, actual)
+    assert duration_s is not None  # exactly one of the two (checked above)
     parts = []
     n_chunks = max(1, math.ceil(duration_s / chunk_s - 1e-9))
     for _ in range(n_chunks):
@@ -149,7 +151,15 @@ def run_cycles(
     )
 
 
-def _timed(tx, rx, now, warmup, duration_s, cycles, sched) -> CycleTiming:
+def _timed(
+    tx: Callable[[], int],
+    rx: Callable[[], int],
+    now: Callable[[], float],
+    warmup: int,
+    duration_s: float | None,
+    cycles: int | None,
+    sched: str,
+) -> CycleTiming:
     """The timed loop itself: two bound-method calls and a result check per cycle."""
     gc_was_enabled = gc.isenabled()
     gc.disable()
@@ -165,6 +175,7 @@ def _timed(tx, rx, now, warmup, duration_s, cycles, sched) -> CycleTiming:
                     failures += 1
             n = cycles
         else:
+            assert duration_s is not None  # exactly one of the two (run_cycles)
             end = t0 + duration_s
             while now() < end:
                 if tx() or rx():

@@ -33,6 +33,17 @@ import time
 from collections.abc import Callable, Iterator
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
+
+from hilsim._types import JsonDict
+
+if TYPE_CHECKING:
+    import argparse
+
+    import dynamixel_sdk  # (no type information: its PortHandler is Any to the checker)
+
+    from drivers.dynamixel.port import PortHandler
+    from hilsim.bench.report import BenchReport
 
 #: The repository root (``configs/demo.toml`` lives there).
 REPO = Path(__file__).resolve().parents[2]
@@ -136,7 +147,7 @@ class CpuResult:
         lines += [f"  {n}" for n in self.notes]
         return "\n".join(lines) + "\n"
 
-    def as_dict(self) -> dict:
+    def as_dict(self) -> JsonDict:
         return {
             "sdk": asdict(self.sdk),
             "hilsim": asdict(self.hilsim),
@@ -162,6 +173,7 @@ def emulator(ids: str = "1-4", baud: int = BAUD) -> Iterator[str]:
         text=True,
         cwd=REPO,
     )
+    assert proc.stdout is not None  # a pipe (stdout=PIPE)
     try:
         path = proc.stdout.readline().strip()
         if not path.startswith("/dev/"):
@@ -179,7 +191,7 @@ def emulator(ids: str = "1-4", baud: int = BAUD) -> Iterator[str]:
 
 
 # ----------------------------------------------------------------------- SDK cycles
-def _bare_port(path: str):
+def _bare_port(path: str) -> dynamixel_sdk.PortHandler:
     from drivers.dynamixel.port import SdkPortHandler
 
     port = SdkPortHandler(path)  # the SDK's own: timeout=0, busy-polls readPort
@@ -188,7 +200,7 @@ def _bare_port(path: str):
     return port
 
 
-def _hilsim_port(path: str):
+def _hilsim_port(path: str) -> PortHandler:
     from drivers.dynamixel.link import Link
 
     return Link.open(path, baud=BAUD).port  # as a show opens it
@@ -197,7 +209,7 @@ def _hilsim_port(path: str):
 class _Cycler:
     """One port, the SDK's group objects built once: :meth:`run` times ``cycles`` cycles."""
 
-    def __init__(self, port) -> None:
+    def __init__(self, port: dynamixel_sdk.PortHandler) -> None:
         from drivers.dynamixel.bench_session import BenchBus
         from drivers.dynamixel.link import Link
 
@@ -233,7 +245,10 @@ class _Cycler:
 def measure_cycles(path: str, *, cycles: int = 500, repeats: int = 7) -> tuple[CycleCpu, CycleCpu]:
     """The bare SDK's and hilsim's CPU and wall per cycle over the pty at ``path``,
     alternating repeat by repeat (so load drifts reach both), best of ``repeats``."""
-    ports: dict[str, Callable] = {"bare SDK (busy-poll)": _bare_port, "hilsim": _hilsim_port}
+    ports: dict[str, Callable[[str], dynamixel_sdk.PortHandler]] = {
+        "bare SDK (busy-poll)": _bare_port,
+        "hilsim": _hilsim_port,
+    }
     samples: dict[str, list[tuple[float, float, int]]] = {k: [] for k in ports}
     for _ in range(repeats):
         for name, opener in ports.items():
@@ -285,6 +300,7 @@ def demo_once(path: str, *, window_s: float = 6.0, settle_s: float = 1.5) -> Dem
             text=True,
             cwd=REPO,
         )
+        assert proc.stderr is not None  # a pipe (stderr=PIPE)
         err = []
         try:
             for line in proc.stderr:  # "hilsim run: demo: ... -> DIR": the show starts
@@ -376,7 +392,9 @@ def compare_waits(*, seconds: float = 3.0, repeats: int = 2) -> list[WaitCpu]:
     return [min(r, key=lambda w: w.cpu_us) for r in runs]
 
 
-def measure(*, quick: bool = False, demo: bool = True, progress=lambda _s: None) -> CpuResult:
+def measure(
+    *, quick: bool = False, demo: bool = True, progress: Callable[[str], None] = lambda _s: None
+) -> CpuResult:
     """Everything above over one ``hilsim emulate`` pty (~10 s quick, ~40 s in full)."""
     if not hasattr(os, "openpty") or not Path("/proc/self/stat").exists():
         raise RuntimeError("needs pseudo-terminals and /proc (Linux)")
@@ -393,7 +411,9 @@ def measure(*, quick: bool = False, demo: bool = True, progress=lambda _s: None)
     return result
 
 
-def for_bench(args, report, progress) -> CpuResult | None:
+def for_bench(
+    args: argparse.Namespace, report: BenchReport, progress: Callable[[str], None]
+) -> CpuResult | None:
     """The measurement for ``hilsim bench``'s parsed ``args``, or None where it does not
     belong (a rig, a port, the virtual clock) or cannot run (then a note in ``report``)."""
     if args.config or args.port or args.clock != "real":

@@ -27,6 +27,7 @@ import shutil
 import subprocess
 from dataclasses import dataclass, field
 
+from hilsim._types import JsonDict
 from hilsim.bench.sched import SCHED_FIFO, SCHED_OTHER
 
 INSTALL_HINT = "sudo apt-get install rt-tests"
@@ -129,7 +130,7 @@ class CyclictestRun:
     def p99_us(self) -> float | None:
         return self.output.percentile(99) if self.output else None
 
-    def as_dict(self) -> dict:
+    def as_dict(self) -> JsonDict:
         out = self.output
         return {
             "command": " ".join(self.command),

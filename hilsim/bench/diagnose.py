@@ -33,6 +33,7 @@ from drivers.protocol2.wire_time import (
     read_bytes,
     wire_time_s,
 )
+from hilsim._types import JsonDict
 
 #: A latency timer at or above this (ms) is reported; FTDI's default is 16, tuned is 1.
 LATENCY_FLAG_MS = 2.0
@@ -119,7 +120,7 @@ class Finding:
     predicted_hz: float | None
     alternatives: dict[str, float] = field(default_factory=dict)
 
-    def as_dict(self) -> dict:
+    def as_dict(self) -> JsonDict:
         return {
             "check": self.check,
             "problem": self.problem,
@@ -137,7 +138,7 @@ class Diagnosis:
     current_hz: float
     all_fixed_hz: float
 
-    def as_dict(self) -> dict:
+    def as_dict(self) -> JsonDict:
         f = self.facts
         return {
             "port": f.port,
@@ -196,6 +197,7 @@ def gather_facts(bb: BenchBus, ids: Sequence[int], *, reads: int = 7) -> BusFact
     read_ms = model_ms = None
     probe = next((s for s in servos if s.return_delay_us is not None), None)
     if probe is not None:
+        assert probe.return_delay_us is not None  # the first servo that has one
         clock, item = bb.clock, ct.PRESENT_POSITION
         times = []
         for _ in range(reads):
@@ -286,7 +288,7 @@ def diagnose(facts: BusFacts) -> Diagnosis:
         zero = tuple(0.0 for _ in now.rdts)
         better = replace(now, rdts=zero)
         fixed = replace(fixed, rdts=zero)
-        worst = max(s.return_delay_us for s in big)
+        worst = max(s.return_delay_us or 0.0 for s in big)  # (all set: >= RDT_FLAG_US)
         findings.append(
             Finding(
                 "return_delay",

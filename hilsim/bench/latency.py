@@ -22,6 +22,7 @@ import math
 from collections.abc import Sequence
 from contextlib import nullcontext
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -33,7 +34,11 @@ from drivers.dynamixel.bench_session import (
     position,
 )
 from drivers.protocol2.wire_time import DEFAULT_TURNAROUND_S, read_request_bytes, sync_write_bytes
+from hilsim._types import JsonDict
 from hilsim.bench.sched import DEFAULT_PRIORITY, percentile, realtime
+
+if TYPE_CHECKING:
+    from drivers.dxlsim.bus import TraceRecord
 
 INST_SYNC_WRITE = 0x83
 FRACTION_63 = 1.0 - math.exp(-1.0)  # 63.2 %: one time constant of a first-order lag
@@ -81,8 +86,8 @@ class LatencyResult:
         """Step tick start -> first sample at 63 % of the step."""
         return self._motion(FRACTION_63)
 
-    def as_dict(self) -> dict:
-        def stats(x: np.ndarray) -> dict:
+    def as_dict(self) -> JsonDict:
+        def stats(x: np.ndarray) -> JsonDict:
             x = x[np.isfinite(x)] * 1e6
             if len(x) == 0:
                 return {"p50": None, "p99": None, "max": None}
@@ -166,6 +171,7 @@ def measure_latency(
     marks = [0] * (ticks + 1)  # trace / write-time index at each tick start
     failures = 0
     log = trace if trace is not None else write_times
+    assert log is not None  # one of the two (checked above)
     gc_was_enabled = gc.isenabled()
     gc.disable()
     try:
@@ -203,6 +209,7 @@ def measure_latency(
     else:
         method = "host clock at writePort + wire-time model (estimate)"
         rdt = (bb.read(ids[0], ADDR_RETURN_DELAY, 1) or 0) * 2e-6
+        assert write_times is not None  # no trace: the write times (checked above)
         wire_end, reply_start = _from_writes(
             write_times, marks, len(ids), bb.baud, rdt + DEFAULT_TURNAROUND_S
         )
@@ -226,7 +233,7 @@ def measure_latency(
     )
 
 
-def _from_trace(trace, marks: list[int]) -> tuple[np.ndarray, np.ndarray]:
+def _from_trace(trace: Sequence[TraceRecord], marks: list[int]) -> tuple[np.ndarray, np.ndarray]:
     """Per tick: end of the Sync Write on the wire, start of the first reply byte (NaN if none)."""
     ticks = len(marks) - 1
     wire_end = np.full(ticks, np.nan)

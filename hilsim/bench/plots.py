@@ -9,6 +9,8 @@
 from __future__ import annotations
 
 from pathlib import Path
+from types import ModuleType
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -17,11 +19,14 @@ from hilsim.bench.busrate import BusRate
 from hilsim.bench.latency import FRACTION_63, LatencyResult
 from hilsim.bench.report import LoopResult
 
+if TYPE_CHECKING:
+    from matplotlib.figure import Figure
+
 PLAIN_COLOR, FAST_COLOR = "#d95f02", "#1b9e77"
 OURS_COLOR, CT_COLOR = "#1f77b4", "#7f7f7f"
 
 
-def _pyplot():
+def _pyplot() -> ModuleType:
     import matplotlib
 
     matplotlib.use("Agg")
@@ -55,7 +60,7 @@ def plot_lateness(loop: LoopResult, path: str | Path) -> Path:
         va="top",
         fontsize=9,
     )
-    if ct_vals is not None:
+    if c is not None and ct_vals is not None:  # (ct_vals: c has a histogram)
         ax.hist(
             ct_vals,
             bins=bins,
@@ -159,7 +164,7 @@ def plot_bus_rate(rows: list[BusRate], path: str | Path) -> Path:
     return _save(fig, path, plt)
 
 
-def _minor_label(y: float, _pos) -> str:
+def _minor_label(y: float, _pos: int | None) -> str:
     """Label minor log ticks 2, 3, 5 × 10^k only, so the axis stays readable."""
     lead = y / 10 ** np.floor(np.log10(y))
     return f"{y:,.0f}" if round(lead) in (2, 3, 5) else ""
@@ -212,7 +217,7 @@ def _fmt_us(x: float) -> str:
     return f"{x:.2f} µs" if x < 10 else f"{x:.0f} µs"
 
 
-def _save(fig, path: str | Path, plt) -> Path:
+def _save(fig: Figure, path: str | Path, plt: ModuleType) -> Path:
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=110)

@@ -23,7 +23,9 @@ import platform
 import textwrap
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
+from hilsim._types import JsonDict
 from hilsim.bench.busrate import BusRate
 from hilsim.bench.cyclictest import INSTALL_HINT, CyclictestRun
 from hilsim.bench.diagnose import Diagnosis
@@ -39,7 +41,7 @@ class LoopResult:
     cyclictest: CyclictestRun | None
     cyclictest_installed: bool
 
-    def as_dict(self) -> dict:
+    def as_dict(self) -> JsonDict:
         o, c = self.ours, self.cyclictest
         c_p99 = c.p99_us if c is not None else None
         return {
@@ -123,9 +125,9 @@ class BenchReport:
                 )
         return out or ["Nothing here limits the loop below its wire-time model."]
 
-    def as_dict(self) -> dict:
+    def as_dict(self) -> JsonDict:
         loops = [lr.as_dict() for lr in self.loops]
-        return _finite(
+        out: JsonDict = _finite(
             {
                 "command": self.command,
                 "quick": self.quick,
@@ -141,6 +143,7 @@ class BenchReport:
                 "files": list(self.files),
             }
         )
+        return out
 
     def write_json(self, path: str | Path) -> None:
         Path(path).write_text(json.dumps(self.as_dict(), indent=2, ensure_ascii=False) + "\n")
@@ -164,7 +167,7 @@ class BenchReport:
         return "\n".join(lines).rstrip() + "\n"
 
 
-def host_info() -> dict:
+def host_info() -> JsonDict:
     return {
         "node": platform.node(),
         "cpus": os.cpu_count(),
@@ -302,8 +305,8 @@ def _wrap(text: str, indent: int, hang: int) -> str:
     )
 
 
-def _finite(obj):
-    """Replace NaN/inf by None, recursively (JSON has no NaN)."""
+def _finite(obj: Any) -> Any:
+    """Replace NaN/inf by None, recursively (JSON has no NaN); tuples become lists."""
     if isinstance(obj, float):
         return obj if math.isfinite(obj) else None
     if isinstance(obj, dict):

@@ -203,11 +203,11 @@ def realtime(
         except (PermissionError, OSError):
             actual = SCHED_OTHER
     libc = _libc() if actual == SCHED_FIFO else None
-    locked = bool(libc) and libc.mlockall(_MCL_CURRENT | _MCL_FUTURE) == 0
+    locked = libc is not None and libc.mlockall(_MCL_CURRENT | _MCL_FUTURE) == 0
     try:
         yield actual, locked
     finally:
-        if locked:
+        if locked and libc is not None:  # (locked: libc is there)
             libc.munlockall()
         if old is not None and actual == SCHED_FIFO:
             os.sched_setscheduler(0, *old)

@@ -30,9 +30,10 @@ import os
 import statistics
 import tempfile
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
+from typing import Any, TypeVar
 
 import dynamixel_sdk as sdk
 
@@ -44,6 +45,7 @@ from drivers.dynamixel.startup import ReadMode
 from drivers.fill import Packed
 from drivers.protocol2 import control_table as ct
 from drivers.protocol2.crc import crc16
+from hilsim._types import JsonDict
 from hilsim.bench import report
 from hilsim.rig import load_rig
 from hilsim.show.loop import HilLoop
@@ -56,6 +58,8 @@ TARGET_RATIO = {4: 1.3, 16: 1.1}  # the goal: hilsim's tick at most this × the 
 STAGES = ("safety", "map", "driver", "targets", "telemetry", "springs")
 _FAST_SYNC_READ = 0x8A
 _BAUD = 1_000_000
+#: the SDK's PortHandler or hilsim's (a subclass); the SDK has no type information
+_Port = TypeVar("_Port", bound=sdk.PortHandler)
 
 
 # ----------------------------------------------------------------------- the fake port
@@ -104,7 +108,7 @@ class InstantSerial:
             crc = crc16(out[-2:], crc)
         return bytes(out)
 
-    def write(self, data) -> int:
+    def write(self, data: Iterable[int]) -> int:  # bytes, or the SDK's list of ints
         data = bytes(data)
         self.writes += 1
         self.last_write = data
@@ -132,7 +136,7 @@ class InstantSerial:
         self.is_open = False
 
 
-def _opened(port, ser: InstantSerial):
+def _opened(port: _Port, ser: InstantSerial) -> _Port:
     """``port`` as ``openPort``/``setupPort`` leave it, on ``ser``."""
     port.ser = ser
     port.baudrate = _BAUD
@@ -174,8 +178,8 @@ class BareSdkCycle:
         goals = self._goals[self._k % 64]
         self._k += 1
         ph, port, wparam, n = self.ph, self.port, self._wparam, self.n
-        for j, goal in enumerate(goals):
-            wparam[5 * j + 1 : 5 * j + 5] = goal.to_bytes(4, "little", signed=True)
+        for j, pulses in enumerate(goals):
+            wparam[5 * j + 1 : 5 * j + 5] = pulses.to_bytes(4, "little", signed=True)
         goal, present = ct.GOAL_POSITION, ct.PRESENT_POSITION
         if ph.syncWriteTxOnly(port, goal.addr, goal.size, wparam, 5 * n) != sdk.COMM_SUCCESS:
             raise RuntimeError("bare SDK cycle: Sync Write failed")
@@ -220,7 +224,9 @@ class _RowsOnly(TelemetryWriter):
         ring.publish_pending()
         ring.tail = ring.handed_over()
 
-    def close(self, summary=None, *, timeout_s: float = 10.0) -> dict:
+    def close(
+        self, summary: Mapping[str, Any] | None = None, *, timeout_s: float = 10.0
+    ) -> JsonDict:
         self._close_files()
         return {}
 
@@ -324,7 +330,7 @@ class TickRow:
     def ratio(self) -> float:
         return self.tick_us / self.bare_sdk_us
 
-    def as_dict(self) -> dict:
+    def as_dict(self) -> JsonDict:
         return {**asdict(self), "ratio": self.ratio, "target_ratio": TARGET_RATIO.get(self.servos)}
 
 
@@ -336,7 +342,7 @@ class TickCost:
     load_before: list[float] | None = None
     load_after: list[float] | None = None
 
-    def as_dict(self) -> dict:
+    def as_dict(self) -> JsonDict:
         return {
             "what": "host CPU of one tick (no wire time): hilsim's HilLoop._tick + the row's "
             "amendment vs a bare dynamixel-sdk Sync Write + Fast Sync Read cycle (changeParam, "
@@ -428,7 +434,10 @@ def measure_row(
         )
         row = TickRow(n, best["bare"] * 1e6, best["tick"] * 1e6)
         if stages:
-            calls = {"tick": tick, **{f"stage:{k}": c for k, c in tick.stages().items()}}
+            calls: dict[str, Callable[[], object]] = {
+                "tick": tick,
+                **{f"stage:{k}": c for k, c in tick.stages().items()},
+            }
             staged = interleaved(
                 calls, rounds=max(2, rounds // 2), reps=reps, between=tick.between_rounds
             )

@@ -9,6 +9,10 @@ import math
 import sys
 import threading
 import time
+from collections.abc import Callable
+from typing import TextIO
+
+from hilsim._types import JsonDict
 
 #: a show that completes with more than this share of overrunning ticks, or of failed reads,
 #: ends with a verdict line saying so (the exit code stays 0: the show did go on)
@@ -27,7 +31,14 @@ class StatusLine:
     writes: a terminal paused with Ctrl-S or a pipe nobody reads never holds up the loop
     (only the newest lines wait). :meth:`close` ends it before the end-of-show lines."""
 
-    def __init__(self, rate_hz: float, stream=None, *, tty: bool | None = None, clock=None):
+    def __init__(
+        self,
+        rate_hz: float,
+        stream: TextIO | None = None,
+        *,
+        tty: bool | None = None,
+        clock: Callable[[], float] | None = None,
+    ) -> None:
         self.stream = sys.stderr if stream is None else stream
         self.tty = self.stream.isatty() if tty is None else tty
         self.rate_hz, self._clock = rate_hz, clock or time.perf_counter
@@ -40,7 +51,7 @@ class StatusLine:
         self._thread = threading.Thread(target=self._write, name="hilsim-status", daemon=True)
         self._thread.start()
 
-    def __call__(self, st: dict) -> None:
+    def __call__(self, st: JsonDict) -> None:
         wall = self._clock() - self._start
         if not self.tty and wall - self._logged < LOG_STATUS_S:
             return
@@ -91,7 +102,7 @@ class StatusLine:
                 self.stream.write("\n")  # (after the line being written: the stream's lock)
 
 
-def print_stats(summary: dict) -> None:
+def print_stats(summary: JsonDict) -> None:
     from hilsim.telemetry.stats import comm_errors
 
     lat = summary.get("lateness_us") or {}
@@ -112,7 +123,7 @@ def print_stats(summary: dict) -> None:
     )
 
 
-def verdict(summary: dict, ticks_run: int) -> str | None:
+def verdict(summary: JsonDict, ticks_run: int) -> str | None:
     """One line when a completed show was not healthy (overruns, failed reads, lost rows)."""
     from hilsim.telemetry.stats import comm_errors
 

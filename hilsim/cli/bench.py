@@ -20,10 +20,15 @@ import argparse
 import sys
 import time
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from drivers.clock import DEFAULT_SPIN_S
 from hilsim.cli._args import add_baud, add_ids, add_port, parse_baud, parse_ids, usage_error
 from hilsim.exit_codes import ExitCode
+
+if TYPE_CHECKING:  # the bench is imported when it runs
+    from hilsim.bench.report import BenchReport
+    from hilsim.bench.runner import BenchPlan
 
 HELP = "measure loop timing, bus rate and latency beside the physical limit; diagnose the bus"
 #: the scheduler's spin window without a rig (µs)
@@ -74,7 +79,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--bauds", default="1000000,4000000", help="emulator sweep: baud rates")
 
 
-def build_plan(args: argparse.Namespace, argv_text: str = "hilsim bench"):
+def build_plan(args: argparse.Namespace, argv_text: str = "hilsim bench") -> BenchPlan:
     """The :class:`~hilsim.bench.runner.BenchPlan` for parsed arguments (may load the rig)."""
     from hilsim.bench.runner import BenchPlan, BusTarget
 
@@ -112,8 +117,8 @@ def build_plan(args: argparse.Namespace, argv_text: str = "hilsim bench"):
         )
     if args.port:
         baud = parse_baud(args.baud) if args.baud else _url_baud(args.port) or 1_000_000
-        ids = parse_ids(args.ids)
-        ids = tuple(ids) if ids else None
+        parsed = parse_ids(args.ids)
+        ids = tuple(parsed) if parsed else None
         return BenchPlan(
             **common,
             target=BusTarget(args.port, baud, ids),
@@ -173,7 +178,7 @@ def run(args: argparse.Namespace) -> int:
     return int(ExitCode.OK)
 
 
-def _plots(report, out: Path) -> list[str]:
+def _plots(report: BenchReport, out: Path) -> list[str]:
     from hilsim.bench import plots
 
     files = []

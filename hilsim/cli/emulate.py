@@ -18,6 +18,7 @@ import argparse
 import json
 import signal
 import sys
+from types import FrameType
 
 from drivers.dxlsim.pty_server import PtyServer
 from drivers.dxlsim.url import DEFAULT_HOST_BAUD, DxlsimUrl
@@ -110,9 +111,9 @@ def run(args: argparse.Namespace) -> int:
     except ValueError as exc:  # FaultSpecError is one too
         return usage_error("emulate", exc)
     server = PtyServer(bus)
-    got = {}
+    got: dict[str, int] = {}
 
-    def on_signal(signum, _frame):
+    def on_signal(signum: int, _frame: FrameType | None) -> None:
         got["signal"] = signum
         server.stop()
 

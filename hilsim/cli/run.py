@@ -34,6 +34,7 @@ from hilsim.show.run_dir import RunDir, RunDirError, make_run_dir
 if TYPE_CHECKING:
     from hilsim.rig import Rig
     from hilsim.show import Show, ShowResult
+    from hilsim.targets import TargetSet
 
 HELP = "run a rig: springs follow the animation, streamed to the servos (or the emulator)"
 
@@ -162,7 +163,7 @@ def run(args: argparse.Namespace) -> int:
         return int(ExitCode.SIGINT)
 
 
-def _run_group(args: argparse.Namespace, rigs) -> int:
+def _run_group(args: argparse.Namespace, rigs: tuple[Rig, ...]) -> int:
     """Several buses: one child process each (:mod:`hilsim.show.group`), a table at the end."""
     from hilsim.show.group import format_rows, run_group
 
@@ -176,7 +177,7 @@ def _run_group(args: argparse.Namespace, rigs) -> int:
         _say(str(exc))
         return EXIT_USAGE
     run_dir = made.path
-    names = [r.bus_name for r in rigs]
+    names = [str(r.bus_name) for r in rigs]  # several buses: each is named ([buses.<name>])
     _say(
         f"{rig.name}: {len(rigs)} buses ({', '.join(names)}), one process each, "
         f"{'virtual' if args.virtual_time else 'real'} time -> {run_dir}"
@@ -357,7 +358,7 @@ def _say_telemetry_failed(show: ShowResult, run_dir: Path) -> None:
         _say(f"{run_dir / 'summary.json'}: {show.summary_error}")
 
 
-def _track_warnings(rig, targets, duration_s: float | None) -> list[str]:
+def _track_warnings(rig: Rig, targets: TargetSet, duration_s: float | None) -> list[str]:
     """Targets beyond a joint's limits or speed, found at load (joint, time, value)."""
     from hilsim.targets.check import check_tracks
 

@@ -18,8 +18,13 @@ import json
 import math
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from hilsim.exit_codes import ExitCode
+
+if TYPE_CHECKING:
+    from hilsim.rig import Rig
+    from hilsim.show.parts import Parts
 
 HELP = (
     "show what a rig's animation asks of each joint (targets at times as JSON, or a preview plot)"
@@ -104,14 +109,15 @@ def run(args: argparse.Namespace) -> int:
     return _preview(args, shows)
 
 
-def _preview(args: argparse.Namespace, shows) -> int:
+def _preview(args: argparse.Namespace, shows: list[tuple[Rig, Parts]]) -> int:
     from hilsim.show.preview import combine, plot_preview, preview
     from hilsim.targets.check import check_tracks
 
     rig = shows[0][0]
     lengths = [parts.targets.duration for _rig, parts in shows]
     # the figure's length: its longest bus's (a bus that never ends: the figure never does)
-    longest = None if None in lengths else max(lengths)
+    ends = [d for d in lengths if d is not None]
+    longest = max(ends) if len(ends) == len(lengths) else None
     duration = args.duration or longest or ENDLESS_PREVIEW_S
     if args.duration is None and longest is None:
         _say(f"the animation never ends: previewing its first {ENDLESS_PREVIEW_S:g} s")
@@ -123,7 +129,7 @@ def _preview(args: argparse.Namespace, shows) -> int:
     for each, parts in shows:
         for w in check_tracks(parts.targets, each.joints, each.loop.period_s, duration_s=duration):
             _say(f"warning: {w}")
-    p = previews[0] if len(shows) == 1 else combine(previews, [r.bus_name for r, _ in shows])
+    p = previews[0] if len(shows) == 1 else combine(previews, [str(r.bus_name) for r, _ in shows])
     for i, name in enumerate(p.joints):
         count = int(p.clamped[:, i].sum())
         if count:

@@ -308,7 +308,7 @@ class AudioOut:
     # ------------------------------------------------------------------ the show
     def play(
         self,
-        path: str | os.PathLike,
+        path: str | os.PathLike[str],
         file_offset_s: float,
         at_show_t: float,
         now_show_t: float,

@@ -58,7 +58,9 @@ class EffectorMap:
 
     def unit_map(self, reg_lo: float, reg_hi: float) -> UnitMap:
         """The export reader's :class:`UnitMap` from the signal to degrees."""
-        lo, hi = (reg_lo, reg_hi) if self.signal_lo is None else (self.signal_lo, self.signal_hi)
+        lo, hi = self.signal_lo, self.signal_hi
+        if lo is None or hi is None:  # no [signal]: the export's register range (both or none)
+            lo, hi = reg_lo, reg_hi
         return UnitMap((lo, hi), (self.deg_lo, self.deg_hi), "signal")
 
 
@@ -96,7 +98,9 @@ def _effectors(table: Any, where: str, joints: Iterable[str]) -> dict[str, Effec
             f'{key}: a table of effectors, e.g. [inputs.bottango.effectors."0"] joint = "jaw", '
             "degrees = [0, 40]"
         )
-    names, out, used = tuple(joints), {}, {}
+    names = tuple(joints)
+    out: dict[str, EffectorMap] = {}
+    used: dict[str, str] = {}  # joint -> the effector driving it
     for eid, spec in table.items():
         k = f'{key}."{eid}"'
         if not eid.isascii() or not eid.isprintable() or "," in eid or not 0 < len(eid) <= 16:
@@ -124,7 +128,7 @@ def _effectors(table: Any, where: str, joints: Iterable[str]) -> dict[str, Effec
     return out
 
 
-def from_table(table: dict, where: str, joint_names: Iterable[str]) -> BottangoConfig:
+def from_table(table: dict[str, Any], where: str, joint_names: Iterable[str]) -> BottangoConfig:
     """``[inputs.bottango]`` (see the module docstring) -> :class:`BottangoConfig`."""
     if not isinstance(table, dict):
         raise ValueError(f"{where}: a table")
@@ -171,7 +175,7 @@ def from_table(table: dict, where: str, joint_names: Iterable[str]) -> BottangoC
     return BottangoConfig(_effectors(table.get("effectors"), where, joint_names), **kw)
 
 
-def _tcp(table: dict, where: str, kw: dict[str, Any]) -> None:
+def _tcp(table: dict[str, Any], where: str, kw: dict[str, Any]) -> None:
     allow = table.get("allow", [])
     if not isinstance(allow, list) or not all(isinstance(a, str) for a in allow):
         raise ValueError(f'{where}.allow: a list of addresses, e.g. ["192.168.1.20"]')

@@ -32,10 +32,13 @@ import threading
 import time
 import tty
 from collections.abc import Callable
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from hilsim.live.bottango_config import BottangoConfig
 from hilsim.live.netguard import TokenBucket
+
+if TYPE_CHECKING:
+    from hilsim.live.bottango_live import BottangoLive
 
 READ_SIZE = 4096
 
@@ -46,7 +49,7 @@ class BottangoLink:
 
     def __init__(
         self,
-        engine: Any,
+        engine: BottangoLive,
         config: BottangoConfig,
         now: Callable[[], float],
         *,
@@ -104,6 +107,7 @@ class BottangoLink:
             os.unlink(link)  # a stale link from an earlier run
         elif os.path.lexists(link):
             raise ValueError(f"inputs.bottango.link: {link} exists and is not a symlink")
+        assert self.path is not None  # start() opened the pty first
         try:
             os.symlink(self.path, link)
         except OSError as exc:

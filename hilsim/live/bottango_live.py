@@ -26,8 +26,9 @@ import threading
 from collections import deque
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING
 
+from hilsim._types import JsonDict
 from hilsim.live.bottango_config import (
     MAX_LINE,
     NETWORK_VERSION,
@@ -40,6 +41,9 @@ from hilsim.live.inbox import LiveEvent
 from hilsim.live.netguard import DropCounts, DropLog
 from hilsim.targets.formats.bottango_curve import Y_MAX, BezierSegment, BezierTrack
 from hilsim.targets.formats.common import UnitMap
+
+if TYPE_CHECKING:  # the transport is imported when the input starts
+    from hilsim.live.bottango_link import BottangoLink
 
 __all__ = ["BottangoConfig", "BottangoLive", "BottangoPoll", "EffectorMap", "from_table"]
 
@@ -76,7 +80,10 @@ class _Effector:
     hi: float
     signal: float  # where it is (held between curves)
     umap: UnitMap | None = None  # signal -> joint degrees (None: no joint)
-    curves: deque = field(default_factory=lambda: deque(maxlen=MAX_CURVES))
+    #: (sequence number, curve, start ms, end ms), the latest MAX_CURVES sent
+    curves: deque[tuple[int, BezierTrack, float, float]] = field(
+        default_factory=lambda: deque(maxlen=MAX_CURVES)
+    )
 
 
 class BottangoLive:
@@ -111,10 +118,11 @@ class BottangoLive:
         self._said: set[str] = set()
         self._handshake = False
         self._modules: deque[bytes] | None = None
-        self._sync_ms, self._sync_t = 0, None
+        self._sync_ms = 0
+        self._sync_t: float | None = None  # show time of the last tSYN (None: none yet)
         self._seq = 0
         self._stop: str | None = None
-        self._link: Any = None
+        self._link: BottangoLink | None = None
 
     @classmethod
     def from_config(cls, config: BottangoConfig) -> BottangoLive:
@@ -153,7 +161,7 @@ class BottangoLive:
             events.append(LiveEvent(t, "stop", "bottango", {"message": stop}))
         return BottangoPoll(values, events, stop is not None, stop)
 
-    def summary(self) -> dict:
+    def summary(self) -> JsonDict:
         with self._lock:
             drops = {k: n for k, n in self.drops.snapshot().items() if n}
             return {**self.counts, "effectors": sorted(self._eff), "drops": drops}
@@ -248,8 +256,8 @@ class BottangoLive:
         if name in ("sC", "sCI"):
             return self._curve(t, name, a)
         if name in ("xE", "xC"):
-            for eff in self._eff.values():
-                self._clear(t, eff)
+            for each in self._eff.values():
+                self._clear(t, each)
             if name == "xE":
                 self._eff.clear()
             return [OK]

@@ -28,15 +28,35 @@ import contextlib
 import math
 from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Protocol
 
+from drivers.clock import Clock
+from hilsim._types import JsonDict
 from hilsim.live.controls import Controls
 from hilsim.live.inbox import MAX_LIVE_DEG, LiveEvent
 from hilsim.live.showfile import ShowSpec
 from hilsim.targets.tracks import TargetSet, Track
 
+if TYPE_CHECKING:  # each input's module is imported when a show uses that input
+    from hilsim.live.audio_out import AudioOut
+    from hilsim.live.bottango_live import BottangoLive
+    from hilsim.live.gamepad import GamepadInput
+    from hilsim.live.keyboard import KeyboardInput
+    from hilsim.live.midi import MidiCcInput, MidiTriggerInput
+    from hilsim.live.osc import OscInput
+    from hilsim.live.show import ShowRuntime
+    from hilsim.live.takes import Take
+    from hilsim.live.teach import Teach
+    from hilsim.live.timecode import MtcChase
+
 #: an event's ``detail`` keys that the log line's own fields take
 _RESERVED = frozenset(("kind", "message", "t", "event", "tick"))
+
+
+class StopRequest(Protocol):
+    """Where a stop command goes (the show's stop flag): the show ends by its exit policy."""
+
+    def request_command(self, what: str) -> None: ...
 
 
 class DirectedTrack(Track):
@@ -71,8 +91,8 @@ class Director:
         self.base = base  # the rig's own targets (under the show)
         self.offset = 0.0  # t_show - t_sim (MTC chase)
         self.t0: float | None = None  # the clock time of tick 0
-        self.clock: Any = None
-        self.runtime: Any = None
+        self.clock: Clock | None = None  # the show's clock, from open()
+        self.runtime: ShowRuntime | None = None
         inner = list(base.tracks)
         if spec.runtime is not None:
             from hilsim.live.show import ShowRuntime
@@ -89,9 +109,9 @@ class Director:
                     tr.end = end
         self._build_inputs(spec, silent)
         self._log: Callable[..., None] = lambda *a, **k: None
-        self._stop: Any = None
+        self._stop: StopRequest | None = None
         self._closers: list[Callable[[], None]] = []
-        self.take = None
+        self.take: Take | None = None
         if spec.record is not None:
             from hilsim.live.takes import Take
 
@@ -120,8 +140,15 @@ class Director:
                     f"trigger {key!r}: the show has no [inputs.{section[kind]}], so nothing "
                     "can send it"
                 )
-        self.osc = self.midi = self.midi_triggers = self.chase = None
-        self.bottango = self.gamepad = self.keyboard = self.teach = self.audio = None
+        self.osc: OscInput | None = None
+        self.midi: MidiCcInput | None = None
+        self.midi_triggers: MidiTriggerInput | None = None
+        self.chase: MtcChase | None = None
+        self.bottango: BottangoLive | None = None
+        self.gamepad: GamepadInput | None = None
+        self.keyboard: KeyboardInput | None = None
+        self.teach: Teach | None = None
+        self.audio: AudioOut | None = None
         cues = () if self.runtime is None else tuple(self.runtime.spec.cues)
         #: cues and joint values from the program running the show (hilsim.Show)
         self.api = Controls(self.names, cues)
@@ -181,9 +208,12 @@ class Director:
     def now(self) -> float:
         """The show time a receiver stamps a message with: 0 until tick 0, then clock − t0."""
         t0 = self.t0
-        return 0.0 if t0 is None else max(0.0, self.clock.now() - t0)
+        if t0 is None:
+            return 0.0
+        assert self.clock is not None  # open() gave it, before begin() set t0
+        return max(0.0, self.clock.now() - t0)
 
-    def open(self, clock: Any, say: Callable[[str], None]) -> None:
+    def open(self, clock: Clock, say: Callable[[str], None]) -> None:
         """Start the receivers (sockets, ports, threads) before anything moves. Raises
         ValueError / OSError / RuntimeError with one line on a port that cannot be opened."""
         self.clock = clock
@@ -192,6 +222,7 @@ class Director:
             if self.osc is not None:
                 from hilsim.live.osc import listen
 
+                assert spec.osc is not None  # self.osc is built from it
                 rx = listen(self.osc, spec.osc.port, self.now, max_rx_per_s=spec.osc.max_rx_per_s)
                 self._closers.append(rx.close)
                 say(f"OSC on {spec.osc.guard.bind_address}:{spec.osc.port}: "
@@ -201,6 +232,7 @@ class Director:
             if sinks:
                 from hilsim.live.midi import open_midi_input
 
+                assert spec.midi is not None  # the show file gives [inputs.mtc] one too
                 port = open_midi_input(spec.midi.port, sinks, self.now)
                 self._closers.append(port.close)
                 say(f"MIDI in: {port.name}")
@@ -214,7 +246,7 @@ class Director:
             self.close_inputs()
             raise
 
-    def begin(self, t0: float, log: Callable[..., None], stop: Any) -> None:
+    def begin(self, t0: float, log: Callable[..., None], stop: StopRequest | None) -> None:
         """Tick 0 is at clock time ``t0``; ``log(kind, message, **fields)`` writes an event,
         ``stop.request_command(what)`` ends the show through the exit policy."""
         self.t0, self._log, self._stop = t0, log, stop
@@ -249,6 +281,7 @@ class Director:
                     events.append(ev)
             for joint in osc.updated:  # only what arrived: a held value is set already
                 cur = osc.targets.get(joint)
+                assert cur is not None  # set by this poll; a target is never removed
                 self._set(joint, cur.deg, cur.t)
         midi = self.midi
         if midi is not None:
@@ -302,7 +335,13 @@ class Director:
         if self.take is not None:
             self.take.record(t_msg + self.offset, joint, deg)
 
-    def _poll_part(self, part: Any, t: float, events: list, triggers: list) -> None:
+    def _poll_part(
+        self,
+        part: GamepadInput | BottangoLive | Controls,
+        t: float,
+        events: list[LiveEvent],
+        triggers: list[str],
+    ) -> None:
         """A gamepad or the Bottango live driver: values, triggers, events, a stop."""
         p = part.poll(t)
         events += getattr(p, "events", ())
@@ -316,7 +355,7 @@ class Director:
             if self._stop is not None:
                 self._stop.request_command(what)
 
-    def _stop_command(self, what: str, ev: LiveEvent, events: list) -> None:
+    def _stop_command(self, what: str, ev: LiveEvent, events: list[LiveEvent]) -> None:
         events.append(ev)
         self.counts["stops"] += 1
         if self._stop is not None:
@@ -325,6 +364,7 @@ class Director:
     def _sound(self, ev: LiveEvent, t_show: float) -> list[LiveEvent]:
         """A clip in front with a sound starts it, in step with the clip (late: further into
         the file); a cue without one, or a cue's end, stops the sound playing."""
+        assert self.audio is not None  # called only with a show's sounds
         path = ev.detail.get("sound")
         if path:
             return self.audio.play(path, float(ev.detail.get("sound_offset_s", 0.0)), ev.t, t_show)
@@ -360,11 +400,11 @@ class Director:
         return "; ".join(parts) or "waiting for input"
 
     # ------------------------------------------------------------------ the end
-    def close(self, run_dir: Path | None) -> dict:
+    def close(self, run_dir: Path | None) -> JsonDict:
         """Stop the inputs; write the take (raw CSV and reduced keys) into ``run_dir``;
         return the summary's ``live`` section. Never raises: a full disk is said in it."""
         self.close_inputs()
-        out: dict[str, Any] = {"show": self.spec.name, **self.counts}
+        out: JsonDict = {"show": self.spec.name, **self.counts}
         if self.osc is not None:
             out["osc_drops"] = self.osc.guard.drops.snapshot()
         for name in ("midi", "chase", "bottango", "gamepad", "keyboard", "teach", "audio"):
@@ -379,12 +419,13 @@ class Director:
             out["takes"] = self._write_takes(run_dir)
         return out
 
-    def _write_takes(self, run_dir: Path) -> dict:
-        written: dict[str, Any] = {}
+    def _write_takes(self, run_dir: Path) -> JsonDict:
+        written: JsonDict = {}
         try:
             if self.take is not None and any(len(self.take.raw(j)[0]) for j in self.take.joints):
                 from hilsim.live.takes import write_take
 
+                assert self.spec.record is not None  # the take is made from it
                 written["live"] = write_take(
                     self.take, run_dir / "take", self.spec.record.tolerance_deg
                 )

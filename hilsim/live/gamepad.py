@@ -123,7 +123,7 @@ def _int(x: object, where: str) -> int:
     return x
 
 
-def _items(table: Mapping[str, Any], key: str, where: str) -> list[tuple[int, Mapping]]:
+def _items(table: Mapping[str, Any], key: str, where: str) -> list[tuple[int, Mapping[str, Any]]]:
     items = table.get(key, [])
     if not isinstance(items, list) or not all(isinstance(t, Mapping) for t in items):
         raise ValueError(f"{where}.{key}: must be an array of tables ([[...{key}]])")
@@ -302,8 +302,9 @@ class GamepadInput:
                     self._stop.wait(period)
             finally:
                 src, self._src = self._src, None
-                with contextlib.suppress(Exception):
-                    src.close()
+                if src is not None:
+                    with contextlib.suppress(Exception):
+                        src.close()
 
         self._thread = threading.Thread(target=run, name="hilsim-gamepad", daemon=True)
         self._thread.start()

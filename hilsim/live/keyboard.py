@@ -120,7 +120,7 @@ class KeyboardInput:
         self.typed = 0  #: keys handed to the loop, in all
         self.error: str | None = None  #: why the reader stopped early, if it did
         self._fd = fd
-        self._saved: list | None = None
+        self._saved: list[Any] | None = None  # termios.tcgetattr's (flags, speeds, chars)
         self._lock = threading.Lock()
         self._thread: threading.Thread | None = None
         self._wake: tuple[int, int] | None = None
@@ -227,6 +227,7 @@ class KeyboardInput:
             saved, self._saved = self._saved, None
         if saved is None:
             return
+        assert self._fd is not None  # start() saved the mode of this terminal
         import termios
 
         with contextlib.suppress(OSError, termios.error):

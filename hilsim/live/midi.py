@@ -26,7 +26,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Any, Protocol
+from typing import Any, Protocol, TypeGuard
 
 from hilsim.live.inbox import DEFAULT_CAPACITY, MAX_LIVE_DEG, Inbox, LiveEvent
 
@@ -104,7 +104,7 @@ class CcMapping:
         return self.min_deg + (self.max_deg - self.min_deg) * raw / self.full_scale
 
 
-def _is_int(x: object) -> bool:
+def _is_int(x: object) -> TypeGuard[int]:
     return isinstance(x, int) and not isinstance(x, bool)
 
 

@@ -58,6 +58,8 @@ class NetGuardError(ValueError):
 
 
 Network = ipaddress.IPv4Network | ipaddress.IPv6Network
+#: a datagram's sender as the socket gives it: (host, port), IPv6 (host, port, flow, scope)
+Address = tuple[str, int] | tuple[str, int, int, int]
 
 
 def _parse_networks(entries: Iterable[str]) -> tuple[Network, ...]:
@@ -257,7 +259,7 @@ class UdpReceiver:
     def __init__(
         self,
         guard: NetGuard,
-        feed: Callable[[float, bytes, tuple], None],
+        feed: Callable[[float, bytes, Address], None],
         port: int,
         clock: Callable[[], float],
         *,
@@ -295,7 +297,8 @@ class UdpReceiver:
 
     @property
     def address(self) -> tuple[str, int]:
-        return self._sock.getsockname()[:2]
+        host, port = self._sock.getsockname()[:2]  # (IPv6 adds flow info and scope id)
+        return host, port
 
     def _run(self) -> None:
         # A thread inherits its creator's policy: started from a SCHED_FIFO loop, a receiver

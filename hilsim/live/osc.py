@@ -27,12 +27,12 @@ import collections
 import math
 import struct
 import threading
-from collections.abc import Callable, Collection, Mapping
+from collections.abc import Callable, Collection, ItemsView, Mapping, Sequence
 from dataclasses import dataclass
-from typing import NamedTuple
+from typing import Any, Literal, NamedTuple, TypeGuard
 
 from hilsim.live.inbox import LiveEvent
-from hilsim.live.netguard import DropLog, GuardConfig, NetGuard, UdpReceiver
+from hilsim.live.netguard import Address, DropLine, DropLog, GuardConfig, NetGuard, UdpReceiver
 
 JOINT_PREFIX = "/hilsim/joint/"
 CUE_PREFIX = "/hilsim/cue/"
@@ -50,9 +50,20 @@ class OscDecodeError(ValueError):
     """The bytes are not a well-formed OSC 1.0 packet of the types we read."""
 
 
+#: one decoded argument: i h (int), f d (float), s (str), b (bytes), T F N I (True False None inf)
+OscArg = int | float | str | bytes | bool | None
+
+#: what one message asks of the loop: a joint's value (deg), a cue or trigger address, a stop
+_Action = (
+    tuple[Literal["joint"], str, float]
+    | tuple[Literal["cue", "trigger"], str]
+    | tuple[Literal["stop"]]
+)
+
+
 class OscMessage(NamedTuple):
     address: str
-    args: tuple
+    args: tuple[OscArg, ...]
 
 
 def _string(data: bytes, start: int, pos: int, end: int) -> tuple[bytes, int]:
@@ -75,7 +86,7 @@ def _message(data: bytes, start: int, end: int) -> OscMessage:
     tags, pos = _string(data, start, pos, end)
     if not tags.startswith(b","):
         raise OscDecodeError("the type tag string does not start with ','")
-    args: list = []
+    args: list[OscArg] = []
     for code in tags[1:].decode("ascii", "replace"):
         if code in _FIXED:
             size, fmt = _FIXED[code]
@@ -161,7 +172,7 @@ class LiveTargets:
     def get(self, joint: str) -> LiveTarget | None:
         return self._targets.get(joint)
 
-    def items(self):
+    def items(self) -> ItemsView[str, LiveTarget]:
         return self._targets.items()
 
     def set(self, joint: str, deg: float, t: float, events: list[LiveEvent]) -> None:
@@ -218,7 +229,7 @@ class LiveTargets:
         self._next_loss = nxt
 
 
-def _sender_host(sender) -> str:
+def _sender_host(sender: Address | str) -> str:
     return sender[0] if isinstance(sender, tuple) else str(sender)
 
 
@@ -260,7 +271,7 @@ class OscInput:
         self.updated: tuple[str, ...] = ()
 
     # -- the receiver's side ------------------------------------------------------------
-    def feed(self, t: float, data: bytes, sender) -> None:
+    def feed(self, t: float, data: bytes, sender: Address | str) -> None:
         """One datagram received at show time ``t`` from ``sender`` ((host, port) or host).
 
         Never raises: a datagram is dropped whole (counted) or decoded, and then each of its
@@ -281,7 +292,7 @@ class OscInput:
         if actions:
             self._hand_over(t, actions)
 
-    def _action(self, msg: OscMessage):
+    def _action(self, msg: OscMessage) -> _Action | None:
         """("joint", name, deg) | ("cue", name) | ("stop",) | None (counted as a drop)."""
         drops = self.guard.drops
         address, args = msg
@@ -316,7 +327,7 @@ class OscInput:
         drops.count("unknown")
         return None
 
-    def _hand_over(self, t: float, actions: list) -> None:
+    def _hand_over(self, t: float, actions: list[_Action]) -> None:
         with self._lock:
             self._fresh = True
             for action in actions:
@@ -361,6 +372,7 @@ class OscInput:
             out.extend(events)
         self.targets.check(t, out)
         drops = self.guard.drops
+        lines: Sequence[DropLine]
         if drops.version == self._drops_seen and not self._drop_log.pending:
             lines = ()
         else:
@@ -392,11 +404,11 @@ class OscInput:
         return None if cur is None else cur.deg
 
 
-def _is_number(x) -> bool:
+def _is_number(x: object) -> TypeGuard[float]:
     return isinstance(x, int | float) and not isinstance(x, bool)
 
 
-def listen(osc: OscInput, port: int, clock: Callable[[], float], **kw) -> UdpReceiver:
+def listen(osc: OscInput, port: int, clock: Callable[[], float], **kw: Any) -> UdpReceiver:
     """A UDP socket on the guard's address feeding ``osc`` from a thread (see
     :class:`~hilsim.live.netguard.UdpReceiver`); ``clock()``: the show time the loop polls with."""
     return UdpReceiver(osc.guard, osc.feed, port, clock, name="OSC", **kw)

@@ -68,7 +68,9 @@ class ShowTrack(Track):
             local = math.fmod(local, period)
         return self._track.sample(local)
 
-    def _set(self, track: Track, start: float, period: float, held: Any) -> None:
+    def _set(
+        self, track: Track, start: float, period: float, held: tuple[float, float] | None
+    ) -> None:
         self._track, self._start, self._period, self._held = track, start, period, held
 
 
@@ -194,9 +196,11 @@ class ShowRuntime:
         follows them, the timeline, timers and queued triggers, the idle layer. Returns this
         tick's events in time order (all at times <= ``t``)."""
         t = float(t)
-        first = self._t_last is None
-        prev = -math.inf if first else self._t_last
-        self._events = events = []
+        last = self._t_last
+        first = last is None
+        prev = -math.inf if last is None else last
+        events: list[LiveEvent] = []
+        self._events = events
         change_t = t
         if not first and t < prev:  # time went back (a timecode jump): no negative clip times
             self._cue_start = min(self._cue_start, t)
@@ -294,7 +298,8 @@ class ShowRuntime:
         return keys
 
     def _wall(self, t: float) -> datetime:
-        return self.wall_start + timedelta(seconds=t)  # type: ignore[operator]
+        assert self.wall_start is not None  # __init__ set it: a cue has a window
+        return self.wall_start + timedelta(seconds=t)
 
     # ------------------------------------------------------------------ timeline
     def _timeline(self, t: float, change_t: float) -> float:
@@ -402,8 +407,8 @@ class ShowRuntime:
         cue = self._cue
         cue_tr = self._per_joint[cue.clip] if cue is not None else None
         cue_dur = self.spec.clips[cue.clip].duration if cue is not None else None
-        tl_tr = tl_start = None
-        tl_period = 0.0
+        tl_tr: tuple[Track | None, ...] | None = None
+        tl_start = tl_period = 0.0
         if self._tl_active:
             entry = self._tl[self._tl_i]
             tl_tr, tl_start = self._per_joint[entry.clip], entry.at_s
@@ -411,15 +416,14 @@ class ShowRuntime:
             tl_period = dur if entry.loop and dur else 0.0
         idle_tr = self._per_joint[self._idle[self._idle_i].name] if self._idle_i >= 0 else None
         for j, st in enumerate(self.tracks):
-            if cue_tr is not None and cue_tr[j] is not None:
-                tr = cue_tr[j]
+            if cue_tr is not None and (tr := cue_tr[j]) is not None:
                 held = None
                 if self._cue_held:
                     held = (tr.sample(cue_dur or 0.0)[0], 0.0)
                 st._set(tr, self._cue_start, 0.0, held)
-            elif tl_tr is not None and tl_tr[j] is not None:
-                st._set(tl_tr[j], tl_start, tl_period, None)
-            elif idle_tr is not None and idle_tr[j] is not None:
-                st._set(idle_tr[j], self._idle_start, 0.0, None)
+            elif tl_tr is not None and (tr := tl_tr[j]) is not None:
+                st._set(tr, tl_start, tl_period, None)
+            elif idle_tr is not None and (tr := idle_tr[j]) is not None:
+                st._set(tr, self._idle_start, 0.0, None)
             else:
                 st._set(st.base, 0.0, 0.0, None)

@@ -31,7 +31,7 @@ from hilsim.targets.sources import rig_file
 from hilsim.targets.tracks import Track
 
 #: what ``make_track(spec, joint_name, where)`` is: one clip track from its target table
-MakeTrack = Callable[[dict, str, str], Track]
+MakeTrack = Callable[[dict[str, Any], str, str], Track]
 
 CUE_KEYS = ("trigger", "clip", "then", "lockout_s", "window")
 IDLE_KEYS = ("clips", "order", "seed")
@@ -131,12 +131,12 @@ class _Section:
     def fail(self, key: str, what: str) -> ValueError:
         return ValueError(f"{self.where}: {key}: {what}")
 
-    def table(self, key: str, value: Any) -> dict:
+    def table(self, key: str, value: Any) -> dict[str, Any]:
         if not isinstance(value, dict):
             raise self.fail(key, f"must be a table, got {value!r}")
         return value
 
-    def unknown(self, key: str, table: dict, allowed: Sequence[str]) -> None:
+    def unknown(self, key: str, table: dict[str, Any], allowed: Sequence[str]) -> None:
         for k in table:
             if k not in allowed:
                 raise self.fail(f"{key}.{k}", f"unknown key; the keys are {', '.join(allowed)}")
@@ -178,7 +178,7 @@ class _Section:
 
 
 def read_runtime(
-    doc: dict,
+    doc: dict[str, Any],
     where: str,
     base_dir: Path,
     joint_names: Sequence[str],

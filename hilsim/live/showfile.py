@@ -20,13 +20,20 @@ import math
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from hilsim.live.inbox import MAX_LIVE_DEG
 from hilsim.live.midi import CcMapping
 from hilsim.live.netguard import GuardConfig
 from hilsim.rig import Rig, RigError
 from hilsim.rig.reader import Reader
+
+if TYPE_CHECKING:  # each section's reader is imported when a show file has that section
+    from hilsim.live.bottango_config import BottangoConfig
+    from hilsim.live.gamepad import GamepadConfig
+    from hilsim.live.keyboard import KeyboardConfig
+    from hilsim.live.show_spec import MakeTrack, RuntimeSpec
+    from hilsim.live.teach import TeachConfig
 
 #: the default OSC port of ``hilsim run --live``
 DEFAULT_OSC_PORT = 9000
@@ -74,15 +81,15 @@ class ShowSpec:
     path: Path | None
     name: str
     seed: int = 0
-    runtime: Any = None  # hilsim.live.show_spec.RuntimeSpec, or None: no clips or cues
+    runtime: RuntimeSpec | None = None  # None: no clips or cues
     osc: OscConfig | None = None
     midi: MidiConfig | None = None
     mtc: MtcConfig | None = None
-    bottango: Any = None
-    gamepad: Any = None
-    keyboard: Any = None
+    bottango: BottangoConfig | None = None
+    gamepad: GamepadConfig | None = None
+    keyboard: KeyboardConfig | None = None
     record: RecordConfig | None = None
-    teach: Any = None
+    teach: TeachConfig | None = None
     notes: list[str] = field(default_factory=list)
 
 
@@ -102,7 +109,7 @@ def joint_ranges(rig: Rig) -> dict[str, tuple[float, float]]:
     return {j.name: (math.degrees(j.min_rad), math.degrees(j.max_rad)) for j in rig.joints}
 
 
-def load_show(path: str | Path, rig: Rig, make_track) -> ShowSpec:
+def load_show(path: str | Path, rig: Rig, make_track: MakeTrack) -> ShowSpec:
     """Read and check a show file against ``rig`` (its joints). ``make_track(spec, joint,
     where)`` builds one clip track. Raises RigError (one line)."""
     path = Path(path)
@@ -182,13 +189,17 @@ def _osc(r: Reader, rig: Rig) -> OscConfig:
     if not all(isinstance(a, str) for a in allow):
         raise r.fail("allow", f"a list of addresses or networks as strings, got {allow!r}")
     interface = r.get("interface", str, None)
-    sizes = {
-        "max_packet_bytes": r.integer("max_packet_bytes", 1024, lo=16, hi=65507),
-        "rate_per_s": r.number("rate_per_s", 1000.0, positive=True, at_most=1e6),
-        "burst": r.integer("burst", 200, lo=1, hi=1_000_000),
-    }
+    max_packet_bytes = r.integer("max_packet_bytes", 1024, lo=16, hi=65507)
+    rate_per_s = r.number("rate_per_s", 1000.0, positive=True, at_most=1e6)
+    burst = r.integer("burst", 200, lo=1, hi=1_000_000)
     try:
-        guard = GuardConfig(interface=interface, allow=tuple(allow), **sizes)
+        guard = GuardConfig(
+            interface=interface,
+            allow=tuple(allow),
+            max_packet_bytes=max_packet_bytes,
+            rate_per_s=rate_per_s,
+            burst=burst,
+        )
     except ValueError as exc:
         raise RigError(f"{r.path}: {r.where}: {exc}") from None
     ranges = joint_ranges(rig)

@@ -32,7 +32,7 @@ from pathlib import Path
 import numpy as np
 import numpy.typing as npt
 
-from hilsim._types import FloatArray
+from hilsim._types import FloatArray, JsonDict
 from hilsim.targets.tracks import Keyframes
 
 
@@ -260,7 +260,7 @@ def write_take(
     reduce_deg: float | None = None,
     origin_s: float = 0.0,
     comment: Sequence[str] = (),
-) -> dict:
+) -> JsonDict:
     """Write a take into ``directory`` (created): ``raw.csv`` (every sample), ``keys.csv``
     (linear keys within ``tolerance_deg`` of the take; ``held``: of the take *as it was live*,
     each value held until the next, so a jump stays a jump) and ``take.toml``, a

@@ -100,8 +100,9 @@ class Teach:
         tolerance_deg: float | None = None,
     ) -> None:
         self.names = tuple(joint_names)
-        config = teach if isinstance(teach, TeachConfig) else None
-        if config is None:
+        if isinstance(teach, TeachConfig):
+            config = teach
+        else:
             config = TeachConfig.from_table({"joints": list(teach)}, "teach", self.names)
         tol = config.tolerance_deg if tolerance_deg is None else tolerance_deg
         self.config = TeachConfig.from_table(

@@ -161,6 +161,10 @@ class MtcChase:
             return None
         if self.state in ("held", "cued"):
             return self._held
+        return self._running(t)
+
+    def _running(self, t: float) -> float:
+        """The show time at ``t`` while the timecode runs (locked, or freewheeling on)."""
         run_on = max(self.freewheel_s, self._frame_s)
         return self._anchor_show + (min(t, self._alive_t + run_on) - self._anchor_t)
 
@@ -196,7 +200,7 @@ class MtcChase:
                 )
             )
         if self.state == "freewheel" and t - self._alive_t >= max(self.freewheel_s, self._frame_s):
-            self._held = self.show_time(t)  # type: ignore[assignment]
+            self._held = self._running(t)  # (freewheel: what show_time(t) gives)
             self.state = "held"
             events.append(LiveEvent(t, "timecode_held", self.source, {"show_time_s": self._held}))
         return ChasePoll(self.show_time(t), self.state, self.timecode, events)

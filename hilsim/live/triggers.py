@@ -202,7 +202,8 @@ class Timers:
                 n = trig.value
                 due = t >= n and math.floor(t / n) > math.floor(max(prev, 0.0) / n)
             else:
-                wall = self.wall_start + timedelta(seconds=t)  # type: ignore[operator]
+                assert self.wall_start is not None  # __init__ refused a daily without it
+                wall = self.wall_start + timedelta(seconds=t)
                 nxt = self._next.get(i)
                 if nxt is None:
                     nxt = self._next[i] = next_daily(wall, trig.value)

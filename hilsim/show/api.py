@@ -28,15 +28,16 @@ import threading
 from collections.abc import Callable
 from pathlib import Path
 from types import TracebackType
-from typing import TYPE_CHECKING, Any, Self
+from typing import TYPE_CHECKING, Self
 
+from hilsim._types import JsonDict
 from hilsim.live.controls import Controls
 from hilsim.rig import Rig, load_rigs, select_bus
+from hilsim.show.end import ShowResult
 from hilsim.show.parts import Parts, build_parts, with_show
 from hilsim.show.run_dir import RunDir, RunDirError, make_run_dir
 from hilsim.show.session import (
     ShowRefusedError,
-    ShowResult,
     check_bus,
     check_teach,
     open_bus,
@@ -109,7 +110,7 @@ class Show:
                 raise ValueError("port and bus apply to a rig file; this rig is loaded already")
             self.rig = rig
         else:
-            self.rig = select_bus(load_rigs(rig, port=port), bus)
+            self.rig = select_bus(load_rigs(Path(rig), port=port), bus)
         self.port = port_for(self.rig, virtual_time)
         parts = build_parts(self.rig)
         if show is not None or live:
@@ -208,7 +209,7 @@ class Show:
     def run(
         self,
         *,
-        on_status: Callable[[dict[str, Any]], None] | None = None,
+        on_status: Callable[[JsonDict], None] | None = None,
         start_at: float | None = None,
         on_stop: Callable[[int, str], None] | None = None,
     ) -> ShowResult:

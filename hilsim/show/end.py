@@ -20,7 +20,7 @@ from hilsim.rig import TelemetryFailurePolicy
 from hilsim.telemetry import TelemetryWriter, WriterFailedError
 
 if TYPE_CHECKING:
-    from drivers.servo_bus import ServoBus
+    from drivers.dynamixel.bus import DynamixelBus
     from hilsim.show.loop import RunResult
     from hilsim.show.parts import Parts
 
@@ -48,7 +48,7 @@ class ShowResult:
 
 
 def end_show(
-    parts: Parts, bus: ServoBus, telemetry: TelemetryWriter, result: RunResult, wall: float
+    parts: Parts, bus: DynamixelBus, telemetry: TelemetryWriter, result: RunResult, wall: float
 ) -> ShowResult:
     """The outcome of a show that ran (``result``, ``wall`` seconds), and its record's end."""
     rig = parts.rig

@@ -11,6 +11,7 @@ from __future__ import annotations
 import contextlib
 import math
 import time
+from typing import Any
 
 from drivers.servo_bus import ServoBus
 from hilsim.safety.filter import SafetyFilter
@@ -25,7 +26,7 @@ class ShowLog:
         self._stalls_unreported = 0
         self._limits_seen: dict[str, dict[str, int]] = {}
 
-    def event(self, kind: str, message: str, **fields) -> None:
+    def event(self, kind: str, message: str, **fields: Any) -> None:
         """An events.jsonl line; never raises (it may run while handling a failure)."""
         with contextlib.suppress(Exception):  # a broken writer must not stop the exit path
             self.telemetry.event(kind, message, **fields)

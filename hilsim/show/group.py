@@ -261,6 +261,7 @@ class _Child:
             t.start()
 
     def _read_stdout(self) -> None:
+        assert self.proc.stdout is not None  # a pipe (__init__): for the type checker
         for line in self.proc.stdout:
             if line.strip() == "ready":
                 self.ready.set()
@@ -281,11 +282,13 @@ class _Child:
         return self.exited_at if failed else None
 
     def _read_stderr(self, echo: Callable[[str], None]) -> None:
+        assert self.proc.stderr is not None  # a pipe (__init__): for the type checker
         for line in self.proc.stderr:
             echo(f"[{self.name}] {line.rstrip()}")
 
     def send(self, text: str | None) -> None:
         """A line to the child's stdin; None closes it (stop)."""
+        assert self.proc.stdin is not None  # a pipe (__init__): for the type checker
         with contextlib.suppress(OSError, ValueError):
             if text is None:
                 self.proc.stdin.close()
@@ -398,7 +401,7 @@ def run_group(
         stopper = first_stop(ends, signalled_at)
     # a bus sent SIGTERM whose own stop came before it was not stopped by the parent
     stopped = [c.name for c in sent if c.stop is None or c.stop.at >= signalled_at]
-    if stopper is not None:
+    if stopper is not None and start_at is not None:  # (a stopper needs the shared start)
         row = rows[[o.name for o in outcomes].index(stopper)]
         # on virtual clocks the instant is only the signal to go: counted from when it was sent
         went = start_at - START_MARGIN_S if "--virtual-time" in extra else start_at

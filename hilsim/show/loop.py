@@ -43,7 +43,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from drivers.fill import Packed
-from drivers.servo_bus import PresentReading, ServoBus, ServoBusError
+from drivers.servo_bus import ExitReport, PresentReading, ServoBus, ServoBusError
+from hilsim._types import JsonDict
 from hilsim.exit_codes import ExitCode, for_signal
 from hilsim.rig import OverrunPolicy, TelemetryFailurePolicy
 from hilsim.show.events import ShowLog
@@ -86,7 +87,7 @@ class RunResult:
     ticks: int
     exit_policy: str = ""
     exit_policy_confirmed: bool | None = None
-    loop: dict = field(default_factory=dict)
+    loop: JsonDict = field(default_factory=dict)
 
 
 def _signal_name(signum: int) -> str:
@@ -122,7 +123,7 @@ class HilLoop:
         *,
         duration_s: float | None = None,
         stop: StopFlag | None = None,
-        on_status: Callable[[dict], None] | None = None,
+        on_status: Callable[[JsonDict], None] | None = None,
         start_at: float | None = None,
         on_stop: Callable[[int, str], None] | None = None,
     ) -> None:
@@ -188,7 +189,7 @@ class HilLoop:
         self._k = 0
         self.overruns = 0  # for the live status line; the summary counts them from telemetry
         #: what only the loop knows, for the summary's ``loop`` section
-        self.loop_stats: dict = {"skipped_ticks": 0, "sched": "SCHED_OTHER"}
+        self.loop_stats: JsonDict = {"skipped_ticks": 0, "sched": "SCHED_OTHER"}
 
     # ------------------------------------------------------------------ start / stop
     def _stopping(self) -> bool:
@@ -236,18 +237,18 @@ class HilLoop:
                 self.bus.set_torque(True, ids=[rig.joints[i].servo_id for i in self._limp])
             report = self.bus.apply_exit_policy(policy, retries=rig.safety.exit_retries)
         except Exception as exc:  # the bus may be gone: say so loudly, never hang
-            report = getattr(exc, "report", None)
-            if report is None:
+            partial: ExitReport | None = getattr(exc, "report", None)  # ExitPolicyError's
+            if partial is None:
                 msg = f"exit policy {policy!r} NOT confirmed: {exc}"
                 self.log.event("exit_policy", msg, confirmed=[], unconfirmed=list(self.bus.ids))
             else:
-                msg = str(report)
+                msg = str(partial)
                 self.log.event(
                     "exit_policy",
                     msg,
-                    confirmed=list(report.confirmed),
-                    unconfirmed=list(report.unconfirmed_ids),
-                    notes=list(report.notes),
+                    confirmed=list(partial.confirmed),
+                    unconfirmed=list(partial.unconfirmed_ids),
+                    notes=list(partial.notes),
                 )
             return msg, False
         msg = str(report)

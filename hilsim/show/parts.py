@@ -7,17 +7,22 @@ from a rig; :func:`with_show` adds a show file's (or ``--live``'s) director. Err
 
 from __future__ import annotations
 
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from hilsim.dynamics.integrators import Integrator, make_integrator
 from hilsim.rig import Rig, RigError
 from hilsim.rig.joint_map import JointMap
+from hilsim.rig.model import JointConfig
 from hilsim.safety.filter import SafetyFilter
-from hilsim.targets import TargetSet, track_from_spec
+from hilsim.targets import TargetSet, Track, track_from_spec
+
+if TYPE_CHECKING:  # the live package is imported only for a show (see with_show)
+    from hilsim.live.director import Director
 
 __all__ = ["Parts", "build_parts", "build_targets", "track_maker", "with_show"]
 
@@ -32,17 +37,21 @@ class Parts:
     safety: SafetyFilter
     integrator: Integrator
     #: live inputs and the show runtime (``hilsim run --show/--live``), or None
-    director: Any = None
+    director: Director | None = None
 
 
-def track_maker(rig: Rig, base_dir: Path, source: Path | str, notes: list[str]):
+#: ``make(spec, joint, where)``: a joint's track from a target table (see :func:`track_maker`)
+TrackMaker = Callable[[Mapping[str, Any], JointConfig, str], Track]
+
+
+def track_maker(rig: Rig, base_dir: Path, source: Path | str, notes: list[str]) -> TrackMaker:
     """``make(spec, joint, where)``: one of ``rig``'s joints' track from a target table in the
     file ``source`` (a rig or a show file; relative paths from ``base_dir``), each animation
     file read once whichever joints use it; what the files say goes into ``notes``; an error
     is a RigError naming ``source`` and ``where``."""
-    cache: dict = {}
+    cache: dict[object, object] = {}  # parsed files by path (or by file and options)
 
-    def make(spec: dict, joint, where: str):
+    def make(spec: Mapping[str, Any], joint: JointConfig, where: str) -> Track:
         try:
             return track_from_spec(
                 spec,

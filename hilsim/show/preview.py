@@ -17,12 +17,16 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from hilsim._types import FloatArray
 from hilsim.show.parts import Parts
 from hilsim.show.stepper import Stepper, TickBuffers
+
+if TYPE_CHECKING:  # matplotlib is imported when a preview is plotted, not before
+    from matplotlib.artist import Artist
 
 #: a command this far (rad) from the spring's position was changed by the safety filter
 CLAMP_TOLERANCE_RAD = 1e-9
@@ -124,7 +128,7 @@ def preview(parts: Parts, duration_s: float) -> Preview:
     clamped[:soft] = False  # the soft start's blend, not a limit
     return Preview(
         joints=tuple(rig.joint_names),
-        t=np.arange(ticks) * period,
+        t=np.arange(ticks, dtype=np.float64) * period,
         target_deg=np.degrees(target),
         spring_deg=np.degrees(spring),
         cmd_deg=np.degrees(out),
@@ -159,7 +163,7 @@ def plot_preview(p: Preview, path: Path, title: str, dpi: int = 110) -> Path:
             ax.plot(p.t[hit], p.cmd_deg[hit, i], "|", color="red", ms=6, label="safety filter")
         ax.set_ylabel(f"{p.buses[i]}: {name} (deg)" if p.buses else f"{name} (deg)")
         ax.grid(alpha=0.3)
-    legend = {}
+    legend: dict[str, Artist] = {}
     for ax in axes:  # one legend for every panel's lines, on the first
         for handle, label in zip(*ax.get_legend_handles_labels(), strict=True):
             legend.setdefault(label, handle)

@@ -22,6 +22,9 @@ from drivers.clock import precise_timers
 #: while the telemetry writer thread holds it; this asks the holder to let go within 100 µs.
 REALTIME_SWITCH_INTERVAL_S = 100e-6
 
+#: a process's scheduling policy, priority and CPU set (what :func:`_restore` puts back)
+_SchedState = tuple[int, os.sched_param, set[int]]
+
 
 def try_realtime(priority: int | None, cpu: int | None) -> str:
     """Ask for SCHED_FIFO and CPU affinity; warn (never fail) when not permitted.
@@ -48,7 +51,7 @@ def try_realtime(priority: int | None, cpu: int | None) -> str:
     return sched
 
 
-def _snapshot() -> tuple | None:
+def _snapshot() -> _SchedState | None:
     """This process's scheduling policy, priority and CPU set, or None where the OS has none."""
     try:
         return os.sched_getscheduler(0), os.sched_getparam(0), os.sched_getaffinity(0)
@@ -56,7 +59,7 @@ def _snapshot() -> tuple | None:
         return None
 
 
-def _restore(state: tuple | None) -> None:
+def _restore(state: _SchedState | None) -> None:
     if state is None:
         return
     policy, param, cpus = state

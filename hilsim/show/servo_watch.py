@@ -35,7 +35,9 @@ from drivers.servo_bus import (
     ServoBusError,
     ServoHealth,
 )
+from hilsim._types import FloatArray
 from hilsim.rig.joint_map import JointMap
+from hilsim.rig.model import JointConfig
 from hilsim.show.monitors import FollowingMonitor, HealthSchedule, SilenceBudget
 
 #: a health read runs only when the tick has its expected time, times this, plus
@@ -70,7 +72,7 @@ class ServoWatch:
     def __init__(
         self,
         bus: ServoBus,
-        joints: Sequence,
+        joints: Sequence[JointConfig],
         joint_map: JointMap,
         *,
         period_s: float,
@@ -184,11 +186,13 @@ class ServoWatch:
                     f"last read {ReadStatus(s).name}"
                 )
 
-    def check_following(self, present, cmd) -> None:
+    def check_following(
+        self, present: FloatArray | list[float], cmd: FloatArray | list[float]
+    ) -> None:
         """``present`` and ``cmd`` in the joint frame (rad): arrays or lists of floats."""
         err = self.following.update(
-            present if type(present) is list else present.tolist(),
-            cmd if type(cmd) is list else cmd.tolist(),
+            present if isinstance(present, list) else present.tolist(),
+            cmd if isinstance(cmd, list) else cmd.tolist(),
         )
         if err is None:
             return
@@ -207,7 +211,7 @@ class ServoWatch:
             health = self.bus.read_health(self.ids[i], HealthPart.ALL)
         except (ServoBusError, ValueError):
             return f"{fallback} (its health could not be read)"
-        if health.ok:
+        if health.problem is None:  # health.ok, spelled so that the checker narrows it
             return f"{fallback} (it reports torque on, no hardware error)"
         return f"{health.problem.value}: {health.detail}"
 
@@ -277,7 +281,7 @@ class ServoWatch:
         self, i: int, health: ServoHealth, k: int, *, explained: bool, gap_s: float = 0.0
     ) -> None:
         limp = i in self.limp
-        if health.ok or (limp and health.problem is HealthProblem.TORQUE_OFF):
+        if health.problem is None or (limp and health.problem is HealthProblem.TORQUE_OFF):
             if (
                 limp
                 and health.torque_on is None

@@ -25,11 +25,12 @@ from __future__ import annotations
 import time
 from collections.abc import Callable
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 from drivers.clock import MonotonicClock
 from drivers.dynamixel.startup import Expectation, ReadMode, StartupReport
 from drivers.protocol2.wire_time import cycle_bytes, cycle_time_s
+from hilsim._types import JsonDict
 from hilsim.rig import Rig
 from hilsim.rig.joint_map import JointMap
 from hilsim.show.end import ShowResult, close_quietly, crashed, end_show
@@ -39,6 +40,7 @@ from hilsim.show.stop import StopFlag
 
 if TYPE_CHECKING:
     from drivers.dynamixel.bus import DynamixelBus
+    from hilsim.live.director import Director
     from hilsim.telemetry import TelemetryWriter
 
 #: Fraction of a tick the bus transaction may take; the rest is for the host.
@@ -137,14 +139,14 @@ def check_bus(rig: Rig, bus: DynamixelBus, say: Callable[[str], None]) -> list[s
     return notes
 
 
-def check_teach(rig: Rig, bus: DynamixelBus, director: Any) -> None:
+def check_teach(rig: Rig, bus: DynamixelBus, director: Director | None) -> None:
     """A show's teach-by-hand joints go limp; a servo whose Drive Mode has bit 3 set (Torque
     On by Goal Update) would turn its torque back on at the next goal, under a person's hand:
     refused before anything moves (ShowRefusedError naming the servo)."""
     from drivers.dynamixel.errors import DynamixelError
     from drivers.protocol2.control_table import DRIVE_MODE
 
-    teach = getattr(director, "teach", None)
+    teach = None if director is None else director.teach
     if teach is None:
         return
     for i in teach.limp_indices:
@@ -247,7 +249,7 @@ def run_show(
     *,
     duration_s: float | None,
     stop: StopFlag,
-    on_status: Callable[[dict], None] | None = None,
+    on_status: Callable[[JsonDict], None] | None = None,
     start_at: float | None = None,
     on_stop: Callable[[int, str], None] | None = None,
 ) -> ShowResult:

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import copy
 from dataclasses import dataclass
+from typing import TypeVar
 
 import numpy as np
 
@@ -26,8 +27,10 @@ from hilsim.targets import TargetSet
 
 __all__ = ["Stepper", "TickBuffers"]
 
-#: u(t) and u'(t) as the integrator takes them
-Sampled = tuple
+#: u(t) and u'(t) as the integrator takes them: tuples of floats, or the buffers themselves
+Sampled = tuple[tuple[float, ...] | FloatArray, tuple[float, ...] | FloatArray]
+
+_Part = TypeVar("_Part")
 
 
 @dataclass
@@ -152,7 +155,7 @@ class Stepper:
         )
 
 
-def _copy(part):
+def _copy(part: _Part) -> _Part | None:
     """A deep copy of ``part``, or None where deepcopy refuses it."""
     try:
         return copy.deepcopy(part)

@@ -51,12 +51,17 @@ CHUNK_TICKS = 1 << 17
 
 
 class JointLimits(Protocol):
-    """What :func:`check_tracks` needs of a joint (:class:`hilsim.rig.JointConfig` has it)."""
+    """What :func:`check_tracks` needs of a joint (:class:`hilsim.rig.JointConfig` has it);
+    read-only, so a frozen dataclass fits."""
 
-    name: str
-    min_rad: float
-    max_rad: float
-    max_speed_rad_s: float
+    @property
+    def name(self) -> str: ...
+    @property
+    def min_rad(self) -> float: ...
+    @property
+    def max_rad(self) -> float: ...
+    @property
+    def max_speed_rad_s(self) -> float: ...
 
 
 @dataclass(frozen=True)

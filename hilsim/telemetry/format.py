@@ -145,7 +145,8 @@ class TickRecord:
 
 
 def _address(a: np.ndarray) -> int:
-    return a.__array_interface__["data"][0]
+    address: int = a.__array_interface__["data"][0]
+    return address
 
 
 class TelemetryError(Exception):

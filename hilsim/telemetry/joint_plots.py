@@ -8,7 +8,7 @@ import math
 import os
 import tomllib
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, TypeGuard
 
 import numpy as np
 
@@ -62,6 +62,11 @@ ACTED_TOLERANCE_RAD = 1e-9
 MIN_SPAN_DEG = 2.0
 
 
+def _number(x: object) -> TypeGuard[float]:
+    """A TOML number (an int or a float, not a bool)."""
+    return isinstance(x, int | float) and not isinstance(x, bool)
+
+
 def _rig_copy(run: Run) -> dict[str, Any]:
     """The run's ``rig.toml`` copy, parsed; {} when there is none or it does not parse."""
     if not run.config_text:
@@ -80,8 +85,7 @@ def soft_start_s(run: Run) -> float | None:
         return None
     table = data.get("safety", {})
     value = table.get("soft_start_s", DEFAULT_SOFT_START_S) if isinstance(table, dict) else None
-    ok = isinstance(value, int | float) and not isinstance(value, bool)
-    return float(value) if ok and math.isfinite(value) and value >= 0 else None
+    return float(value) if _number(value) and math.isfinite(value) and value >= 0 else None
 
 
 def joint_limits_deg(run: Run) -> dict[str, tuple[float, float]]:
@@ -98,8 +102,7 @@ def joint_limits_deg(run: Run) -> dict[str, tuple[float, float]]:
         if not isinstance(table, dict) or not isinstance(table.get("name"), str):
             continue
         lo, hi = table.get("min_deg"), table.get("max_deg")
-        ok = all(isinstance(x, int | float) and not isinstance(x, bool) for x in (lo, hi))
-        if ok and math.isfinite(lo) and math.isfinite(hi) and lo < hi:
+        if _number(lo) and _number(hi) and math.isfinite(lo) and math.isfinite(hi) and lo < hi:
             out[table["name"]] = (float(lo), float(hi))
     return out
 
@@ -110,7 +113,7 @@ def safety_acted(
     """Per tick (bool, like ``cmd``): the filter changed the command, or the spring was beyond a
     limit. Ticks with a NaN command or spring (none recorded) count as not acted."""
     with np.errstate(invalid="ignore"):
-        acted = np.abs(cmd - sim_x) > ACTED_TOLERANCE_RAD
+        acted: np.ndarray = np.abs(cmd - sim_x) > ACTED_TOLERANCE_RAD
         if limits_rad is not None:
             acted |= (sim_x < limits_rad[0]) | (sim_x > limits_rad[1])
     return acted

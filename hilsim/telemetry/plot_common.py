@@ -11,7 +11,7 @@ one column with those margins, the pads constrained layout would leave.
 from __future__ import annotations
 
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Literal
 
 import numpy as np
 
@@ -19,6 +19,7 @@ from hilsim.telemetry.reader import Run
 
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
+    from matplotlib.legend import Legend
 
 
 #: summary.json's "clock" for a run on the emulator's virtual clock
@@ -53,7 +54,8 @@ class Ruler:
 
     def __init__(self, fig: Figure) -> None:
         self.fig = fig
-        self.renderer = fig.canvas.get_renderer()
+        # new_figure()'s Agg canvas has a renderer; matplotlib types fig.canvas as the base
+        self.renderer = fig.canvas.get_renderer()  # type: ignore[attr-defined]
         self._texts: dict[tuple[str, str], tuple[float, float]] = {}
 
     def size(self, artist: Any) -> tuple[float, float]:
@@ -83,7 +85,10 @@ class Ruler:
         from matplotlib.font_manager import FontProperties
 
         if (text, kind) not in self._texts:
-            prop = FontProperties(size=mpl.rcParams[f"{kind}.labelsize"])
+            key: Literal["xtick.labelsize", "ytick.labelsize"] = (
+                "xtick.labelsize" if kind == "xtick" else "ytick.labelsize"
+            )
+            prop = FontProperties(size=mpl.rcParams[key])
             measure = self.renderer.get_text_width_height_descent
             width = measure(text, prop, ismath=text.count("$") >= 2)[0]
             height = measure("lp", prop, ismath=False)[1]
@@ -106,7 +111,7 @@ class Ruler:
         return TICK + self.tick_labels(ax.xaxis)[1] + LABEL_PAD + self.size(ax.xaxis.label)[1]
 
 
-def legend_pad(legend: Any) -> float:
+def legend_pad(legend: Legend) -> float:
     """The gap (in) between a legend and the point it is anchored to (its borderaxespad)."""
     return legend.borderaxespad * legend.prop.get_size_in_points() / 72
 

@@ -110,28 +110,31 @@ def plot_run(
             request = {"run": os.fspath(run), "out_dir": out_dir, "start": start, "end": end}
             outcome = worker.draw({**request, "dpi": dpi})
             if outcome is not None:
-                return _unpack(outcome)
+                paths: list[Path] = _unpack(outcome)  # the worker's draw(): the paths
+                return paths
         worker.close()
     if not isinstance(run, Run):
         run = read_run(run)
     out = Path(out_dir) if out_dir is not None else run.path / "plots"
-    kw = {"start": start, "end": end, "dpi": dpi}
     joints_path, lateness_path, timing_path = (out / n for n in PNG_NAMES)
     if not (can_fork() if parallel is None else parallel):
         return [
-            plot_joints(run, joints_path, **kw),
-            plot_lateness(run, lateness_path, **kw),
-            plot_timing(run, timing_path, **kw),
+            plot_joints(run, joints_path, start=start, end=end, dpi=dpi),
+            plot_lateness(run, lateness_path, start=start, end=end, dpi=dpi),
+            plot_timing(run, timing_path, start=start, end=end, dpi=dpi),
         ]
     # imported once, before the fork: both processes use them
     from matplotlib.backends.backend_agg import FigureCanvasAgg  # noqa: F401
     from matplotlib.figure import Figure  # noqa: F401
 
     out.mkdir(parents=True, exist_ok=True)
-    child = _fork(lambda: plot_joints(run, joints_path, **kw))
+    child = _fork(lambda: plot_joints(run, joints_path, start=start, end=end, dpi=dpi))
     try:
         try:
-            mine = [plot_lateness(run, lateness_path, **kw), plot_timing(run, timing_path, **kw)]
+            mine = [
+                plot_lateness(run, lateness_path, start=start, end=end, dpi=dpi),
+                plot_timing(run, timing_path, start=start, end=end, dpi=dpi),
+            ]
         except Exception:
             child.wait()  # let it finish its figure; this process's error is the one reported
             raise
@@ -183,7 +186,8 @@ class _Child:
             raise PlotProcessError(
                 f"the process drawing a figure ended without a result ({_how(self.status)})"
             ) from None
-        return _unpack(outcome)
+        path: Path = _unpack(outcome)  # the child's figure
+        return path
 
 
 def _unpack(outcome: tuple[str, Any]) -> Any:
@@ -289,7 +293,8 @@ class _Worker:
             raise
         self.close()
         try:
-            return pickle.loads(data)
+            outcome: tuple[str, Any] = pickle.loads(data)
+            return outcome
         except Exception:  # it died before it could say
             return None
 
@@ -344,4 +349,5 @@ def _warm_up() -> None:
 
     fig = Figure()
     FigureCanvasAgg(fig)
-    fig.text(0, 0, "0").get_window_extent(fig.canvas.get_renderer())
+    renderer = fig.canvas.get_renderer()  # type: ignore[attr-defined]  # (as in plot_common)
+    fig.text(0, 0, "0").get_window_extent(renderer)

@@ -15,6 +15,7 @@ import json
 import math
 import os
 import zlib
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from functools import cached_property
 from pathlib import Path
@@ -93,7 +94,8 @@ class Run:
 
     @property
     def overrun(self) -> np.ndarray:
-        return self.columns["overrun"] != 0
+        overrun: np.ndarray = self.columns["overrun"] != 0
+        return overrun
 
     @property
     def comm_errors(self) -> np.ndarray:
@@ -216,7 +218,11 @@ def _read_lines(path: Path, warnings: list[str]) -> tuple[list[str], bool]:
     return [ln for ln in lines if ln.strip()], bool(partial)
 
 
-def _read_csv(csv_path: Path, warnings: list[str]) -> tuple[dict, tuple[str, ...], bool, int]:
+#: the rows' columns, the joint names, whether the last line was cut, the rows' version
+_Rows = tuple[dict[str, np.ndarray], tuple[str, ...], bool, int]
+
+
+def _read_csv(csv_path: Path, warnings: list[str]) -> _Rows:
     lines, truncated = _read_lines(csv_path, warnings)
     if not lines:
         raise RunFormatError(f"{csv_path} has no header")
@@ -225,7 +231,7 @@ def _read_csv(csv_path: Path, warnings: list[str]) -> tuple[dict, tuple[str, ...
     return {name: data[:, k].copy() for k, name in enumerate(names)}, joints, truncated, version
 
 
-def _read_parquet(pq_dir: Path, warnings: list[str]) -> tuple[dict, tuple[str, ...], bool, int]:
+def _read_parquet(pq_dir: Path, warnings: list[str]) -> _Rows:
     """Parquet parts -> CSV columns in CSV units (format.py: the Parquet columns)."""
     try:
         import pyarrow.parquet as pq
@@ -278,6 +284,7 @@ def read_run(run_dir: str | os.PathLike[str]) -> Run:
     tolerated and listed in ``Run.warnings``."""
     path = Path(run_dir)
     warnings: list[str] = []
+    read: Callable[[Path, list[str]], _Rows]
     if (path / TELEMETRY_CSV).is_file():
         rows_file, read = TELEMETRY_CSV, _read_csv
     elif (path / TELEMETRY_CSV_GZ).is_file():

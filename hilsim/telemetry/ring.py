@@ -16,10 +16,18 @@ from __future__ import annotations
 
 import struct
 from operator import attrgetter
+from typing import Any
 
 import numpy as np
+import numpy.typing as npt
 
 from hilsim.telemetry.format import HEAD_COLUMNS, JOINT_FIELDS, TAIL_FIELDS, TickRecord
+
+#: the arrays :meth:`TickRing.put` last checked (joint block, target, sim_x, sim_v, cmd,
+#: present) and a memoryview of the block (None: not stacked). Memoryviews of arrays are
+#: taken as ``a.data`` (the same view as ``memoryview(a)``), which numpy's stubs type on
+#: Python 3.11 too (they declare ``ndarray.__buffer__`` from 3.12 only).
+_StackSeen = tuple[object, object, object, object, object, object, memoryview | None]
 
 
 class TickRing:
@@ -42,14 +50,15 @@ class TickRing:
         self._tail_at = base + len(JOINT_FIELDS) * n
         self._tail_of = attrgetter(*TAIL_FIELDS)
         # the loop writes rows through struct packers on the ring's memory (drivers.fill)
-        self._bytes = memoryview(self.rows).cast("B")
+        self._bytes = self.rows.data.cast("B")  # memoryview(rows), see _StackSeen
         self._doubles = self._bytes.cast("d")
         self._pack_head = struct.Struct(f"{base}d").pack_into
         self._pack_status = struct.Struct(f"{n}d").pack_into
         self._pack_tail = struct.Struct(f"{len(TAIL_FIELDS)}d").pack_into
         self._pack_late = struct.Struct("5d").pack_into  # stage times, overrun
-        self._stack_seen: tuple = (None,) * 6 + (None,)  # arrays last checked, their block
-        self._status_seen: tuple = (None, None)  # a status array and its memoryview
+        self._stack_seen: _StackSeen = (None,) * 6 + (None,)  # arrays last checked, their block
+        #: a status array and its values (a memoryview of a uint8 array's, else the array)
+        self._status_seen: tuple[object, Any] = (None, None)
         self.cursor = 0  # the loop's
         self.tail = 0  # the writer's: rows copied out
 
@@ -102,20 +111,23 @@ class TickRing:
         self._pack_tail(self._bytes, 8 * (at + self._tail_at), *self._tail_of(rec))
         self.cursor = (head << 1) | 1
 
-    def _stacked(self, rec: TickRecord, block: np.ndarray | None) -> tuple:
+    def _stacked(self, rec: TickRecord, block: np.ndarray | None) -> _StackSeen:
         """Kept for these arrays: whether :meth:`TickRecord.stacked` (worked out once per
         set of arrays; a tick pays six identity checks), and a memoryview of the block."""
-        ok = block is not None and rec.stacked() and block.size == 5 * self.n_joints
-        view = memoryview(block) if ok else None  # type: ignore[arg-type]
+        view = None
+        if block is not None and rec.stacked() and block.size == 5 * self.n_joints:
+            view = block.data  # memoryview(block)
         seen = (block, rec.target, rec.sim_x, rec.sim_v, rec.cmd, rec.present, view)
         self._stack_seen = seen
         return seen
 
-    def _status_values(self, status) -> None:
+    def _status_values(self, status: npt.ArrayLike) -> None:
         """Kept for this status array: its values as Python ints (a uint8 array's through
         a memoryview)."""
-        ok = isinstance(status, np.ndarray) and status.dtype == np.uint8 and status.ndim == 1
-        self._status_seen = (status, memoryview(status) if ok else status)
+        values: Any = status
+        if isinstance(status, np.ndarray) and status.dtype == np.uint8 and status.ndim == 1:
+            values = status.data  # memoryview(status)
+        self._status_seen = (status, values)
 
     def amend(self, rec: TickRecord) -> bool:
         """Rewrite the late columns (stage times, overrun) of the pending row if it is
@@ -147,7 +159,7 @@ class TickRing:
         are free once this returns."""
         start = self.tail % self.size
         count = min(self.pending(), max_rows, self.size - start)
-        rows = self.rows[start : start + count].tolist()
+        rows: list[list[float]] = self.rows[start : start + count].tolist()
         self.tail += count
         return rows
 

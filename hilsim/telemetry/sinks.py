@@ -294,7 +294,7 @@ class ParquetSink:
             self._batches.pop()
         return written
 
-    def _write_table(self, batches: list, rows: int) -> Any:
+    def _write_table(self, batches: list[Any], rows: int) -> Any:  # pyarrow's (untyped)
         pa = self._pa
         sink = pa.BufferOutputStream()
         self._pq.write_table(  # C++, without the GIL
@@ -334,7 +334,7 @@ class ParquetSink:
                 view[big] = np.where(scaled[big] > 0, INT_INF, -INT_INF)
             nan[:, lo:hi] = bad
             yield
-        has_nan = nan.any(axis=1).tolist()
+        has_nan: list[bool] = np.any(nan, axis=1).tolist()  # (np.any: typed as an array)
         arrays = []
         for k, typ in enumerate(self._types):
             col = q[k] if self._dtypes[k] == np.int64 else q[k].astype(self._dtypes[k])

@@ -170,7 +170,8 @@ class RunStats:
         self._chunk_ticks = int(chunk_ticks)
         self._done: list[tuple[np.ndarray, np.ndarray]] = []
         self._new_chunk()
-        self._status_seen: tuple = (None, None)  # a status array and a memoryview of it
+        #: a status array and a memoryview of it (None: not a uint8 array of n)
+        self._status_seen: tuple[object, memoryview | None] = (None, None)
         self._last_tick: int | None = None
         self.safety_limits: dict[str, dict[str, int]] | None = None
         self.safety_ticks: dict[str, int] | None = None
@@ -181,8 +182,8 @@ class RunStats:
         self._s = np.zeros((self._chunk_ticks, self._n), dtype=np.int8)
         self._i = 0
         # add() packs each tick into the chunks' memory (drivers.fill: no numpy call per tick)
-        self._f_bytes = memoryview(self._f).cast("B")
-        self._s_bytes = memoryview(self._s).cast("B")
+        self._f_bytes = self._f.data.cast("B")  # memoryview(a), typed (see telemetry.ring)
+        self._s_bytes = self._s.data.cast("B")
 
     def add(self, rec: TickRecord) -> None:
         """Store one tick: its start time, lateness, overrun, stage times and read status."""
@@ -205,8 +206,10 @@ class RunStats:
         status, n = rec.status, self._n
         seen = self._status_seen
         if seen[0] is not status:  # a status array's bytes, viewed once
-            ok = type(status) is np.ndarray and status.dtype == np.uint8 and status.shape == (n,)
-            seen = self._status_seen = (status, memoryview(status) if ok else None)
+            view = None
+            if type(status) is np.ndarray and status.dtype == np.uint8 and status.shape == (n,):
+                view = status.data  # memoryview(status)
+            seen = self._status_seen = (status, view)
         if seen[1] is not None:
             self._s_bytes[i * n : (i + 1) * n] = seen[1]  # 0..3: the same bytes as int8
         else:

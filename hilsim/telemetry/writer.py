@@ -601,7 +601,7 @@ class TelemetryWriter:
             on_disk = os.fstat(f.fileno()).st_size - self._events_flushed
         except (OSError, ValueError):
             on_disk = 0
-        lost = []
+        lost: list[dict[str, Any]] = []
         for ev, n in self._unflushed:
             if on_disk >= n and not lost:
                 on_disk -= n
