@@ -174,7 +174,8 @@ class Motion:
         off = self.offset()
         return MotionState(self.x + off, self.v, self.r + off, self.rv)
 
-    def run_to(self, t: float) -> None:
+    # long on purpose: one pass of the motion profile, in the e-Manual's order
+    def run_to(self, t: float) -> None:  # noqa: PLR0912, PLR0915
         k_end = int((t - self._t0) * self._inv_dt + _GRID_EPS)
         k = self.k
         if k_end <= k:

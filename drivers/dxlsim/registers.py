@@ -198,7 +198,8 @@ class RegisterFile:
         return 0 if f is None else self._raw(f, raws)[target - f.addr]
 
     # --- Write -----------------------------------------------------------------------------
-    def validate(self, addr: int, data: bytes) -> tuple[int, Updates]:
+    # long on purpose: the Write checks in the e-Manual's order
+    def validate(self, addr: int, data: bytes) -> tuple[int, Updates]:  # noqa: C901
         """Check a Write of ``data`` at ``addr``: ``(error number, [(field, value), ...])``.
 
         Per field in address order: undefined/read-only/EEPROM with torque on -> Access

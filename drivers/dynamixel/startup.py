@@ -197,7 +197,8 @@ def retry(
     raise AssertionError("unreachable")
 
 
-def check_servo(link: Link, exp: Expectation, *, attempts: int, fast_required: bool) -> ServoCheck:
+# long on purpose: one servo's start-up check, each fact in turn
+def check_servo(link: Link, exp: Expectation, *, attempts: int, fast_required: bool) -> ServoCheck:  # noqa: C901
     """Compare one servo with its :class:`Expectation` over ``link``; read-only.
 
     Pings it, then reads its control table up to Present Position in one Read (each step

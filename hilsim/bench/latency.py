@@ -114,7 +114,7 @@ class LatencyResult:
         }
 
 
-def measure_latency(
+def measure_latency(  # noqa: PLR0915 (one measurement, step by step)
     bb: BenchBus,
     ids: Sequence[int],
     *,

@@ -258,7 +258,8 @@ class Director:
                 close()
 
     # ------------------------------------------------------------------ one tick
-    def tick(self, k: int, t: float, present_rad: Sequence[float]) -> None:
+    # long on purpose: one tick: each input in turn, in the order they act
+    def tick(self, k: int, t: float, present_rad: Sequence[float]) -> None:  # noqa: C901, PLR0912
         """Tick ``k`` at show time ``t`` (s, k·period): poll, decide, log. ``present_rad``: the
         joints' present positions (joint frame) read this tick."""
         events: list[LiveEvent] = []

@@ -168,7 +168,8 @@ class SafetyFilter:
             fatal=False,
         )
 
-    def filter(self, desired_rad: FloatArray, out: FloatArray) -> SafetyEvent | None:
+    # long on purpose: hot path: one pass over the joints, every limit in order
+    def filter(self, desired_rad: FloatArray, out: FloatArray) -> SafetyEvent | None:  # noqa: C901, PLR0912, PLR0915
         """Make one tick's desired positions safe; write them into ``out``.
 
         Args:

@@ -325,7 +325,7 @@ def child_argv(config: str, bus: str, run_dir: Path, extra: Sequence[str]) -> li
     ]
 
 
-def run_group(
+def run_group(  # noqa: C901, PLR0912 (the group's life: start, watch, stop, record)
     config: str,
     buses: Sequence[str],
     run_dir: Path,

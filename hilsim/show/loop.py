@@ -399,7 +399,8 @@ class HilLoop:
         return t0
 
     # ------------------------------------------------------------------ one tick
-    def _tick(self, k: int, t_sched: float, t_top: float, t_actual: float) -> None:
+    # long on purpose: hot path: the tick in the order it runs
+    def _tick(self, k: int, t_sched: float, t_top: float, t_actual: float) -> None:  # noqa: PLR0915
         """Tick k: safety filter, Sync Write + Sync Read, telemetry, the checks, the springs
         to tick k+1. Its stage times go into the tick record.
 

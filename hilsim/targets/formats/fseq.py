@@ -138,7 +138,8 @@ class FseqHeader:
         return ", ".join(f"{s + 1}-{s + n}" if n > 1 else f"{s + 1}" for s, n in self.sparse_ranges)
 
 
-def parse_header(data: Data, path: str | Path = "<bytes>") -> FseqHeader:
+# long on purpose: the header's fields in file order, each checked
+def parse_header(data: Data, path: str | Path = "<bytes>") -> FseqHeader:  # noqa: C901, PLR0912
     """The checked header of ``data`` (bytes, or any buffer such as an mmap)."""
     size = len(data)
 
