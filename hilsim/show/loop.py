@@ -33,7 +33,6 @@ from __future__ import annotations
 import contextlib
 import logging
 import math
-import signal
 import sys
 import time
 import traceback
@@ -53,7 +52,7 @@ from hilsim.show.parts import Parts
 from hilsim.show.realtime import REALTIME_SWITCH_INTERVAL_S, realtime
 from hilsim.show.servo_watch import LoopFaultError, ServoWatch
 from hilsim.show.stepper import Stepper, TickBuffers
-from hilsim.show.stop import StopFlag
+from hilsim.show.stop import StopFlag, signal_name
 from hilsim.show.warm_up import warm_up
 from hilsim.telemetry import TelemetryWriter, WriterFailedError
 from hilsim.telemetry.format import TickRecord
@@ -66,11 +65,6 @@ INTEGRATION_BEHIND_S = 0.5
 #: read, torque on, Bus Watchdog armed) this long before the shared tick 0, and at most 0.4 of
 #: its watchdog period, so its servos never wait out their watchdog before the first tick
 SHARED_START_LEAD_S = 0.1
-
-EXIT_OK = ExitCode.OK
-EXIT_FAULT = ExitCode.FAULT
-EXIT_SIGINT = ExitCode.SIGINT
-EXIT_SIGTERM = ExitCode.SIGTERM
 
 log = logging.getLogger(__name__)
 
@@ -88,13 +82,6 @@ class RunResult:
     exit_policy: str = ""
     exit_policy_confirmed: bool | None = None
     loop: JsonDict = field(default_factory=dict)
-
-
-def _signal_name(signum: int) -> str:
-    try:
-        return signal.Signals(signum).name
-    except ValueError:
-        return f"signal {signum}"
 
 
 class HilLoop:
@@ -289,7 +276,7 @@ class HilLoop:
                 stop = self.stop
                 if stop.signum is not None:
                     exit_code = for_signal(stop.signum)
-                    reason = f"stopped by {_signal_name(stop.signum)}"
+                    reason = f"stopped by {signal_name(stop.signum)}"
                 else:
                     exit_code, reason = int(ExitCode.STOPPED), f"stopped by {stop.command}"
                 if not self._energised:

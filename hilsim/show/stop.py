@@ -7,9 +7,10 @@ thread; the first request wins.
 
 from __future__ import annotations
 
+import signal
 from dataclasses import dataclass
 
-__all__ = ["StopFlag"]
+__all__ = ["StopFlag", "signal_name"]
 
 
 @dataclass
@@ -29,3 +30,11 @@ class StopFlag:
     def request_command(self, what: str) -> None:
         if self.signum is None and self.command is None:
             self.command = what
+
+
+def signal_name(signum: int) -> str:
+    """``SIGTERM`` for 15; ``signal 99`` for a number that names none."""
+    try:
+        return signal.Signals(signum).name
+    except ValueError:
+        return f"signal {signum}"

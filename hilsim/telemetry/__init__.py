@@ -5,7 +5,7 @@
 ``ring``    the lock-free single-producer ring of tick rows between the loop and the writer thread
 ``sinks``   one writer per telemetry format: exact CSV, csv.gz, Parquet (``telemetry.format``)
 ``writer``  :class:`TelemetryWriter`: the rows (through a sink), ``events.jsonl``, fsync,
-            ``summary.json``
+            ``summary.json``; the loop's side of it (``writer_thread``: the writer thread's)
 ``stats``   :class:`RunStats`: the one book of per-tick facts behind the summary
 ``reader``  :func:`read_run`: a run directory back as arrays
 ``plots``   the PNGs of a run (matplotlib imported inside the functions)

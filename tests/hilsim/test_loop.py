@@ -25,8 +25,9 @@ from drivers.dynamixel.bus import DynamixelBus
 from drivers.dynamixel.units import rad_to_ticks
 from hilsim.cli import main
 from hilsim.dynamics.springs import Spring
+from hilsim.exit_codes import ExitCode
 from hilsim.rig import load_rig
-from hilsim.show.loop import EXIT_FAULT, HilLoop
+from hilsim.show.loop import HilLoop
 from hilsim.show.parts import build_parts, build_targets
 from hilsim.targets import TargetSet, Track
 from hilsim.telemetry import TelemetryWriter
@@ -220,7 +221,9 @@ def test_non_finite_target_never_reaches_the_wire(emulated, tmp_path, bad):
     base = build_targets(rig)
     targets = TargetSet([NanAfter(0.6, bad), *base.tracks[1:]], rig.joint_names)
     rig, result, run = run_loop(bus, path, tmp_path / "run", targets)
-    assert result.exit_code == EXIT_FAULT and "safety" in result.reason and "pan" in result.reason
+    assert (
+        result.exit_code == ExitCode.FAULT and "safety" in result.reason and "pan" in result.reason
+    )
     assert np.all(np.isfinite(run.joint("cmd")))
     for sid, goals in wire_goals(bus).items():
         lo, hi = limits_in_ticks(rig)[sid]
@@ -245,7 +248,7 @@ def test_non_finite_from_the_integrator_never_reaches_the_wire(emulated, tmp_pat
         loop.integrator.step = bad_step
 
     rig, result, run = run_loop(bus, path, tmp_path / "run", patch=poison)
-    assert result.exit_code == EXIT_FAULT and "tail" in result.reason
+    assert result.exit_code == ExitCode.FAULT and "tail" in result.reason
     assert run.n_ticks == 100  # the poisoned tick stops before its row: it is in the events
     (safety,) = [e for e in run.events if e["kind"] == "safety"][-1:]
     assert any(math.isnan(v) for v in safety["sim_x"])  # the offending state is kept
@@ -337,7 +340,7 @@ def fault_time(run, bus, t_bus: float) -> float:
 
 def test_sustained_timeouts_stop_within_the_budget(emulated, tmp_path):
     bus, path = emulated(faults="drop:id=2,at=1.0")
-    assert run_cli(path, tmp_path / "run", "--duration", "5") == EXIT_FAULT
+    assert run_cli(path, tmp_path / "run", "--duration", "5") == ExitCode.FAULT
     run = read_run(tmp_path / "run")
     reason = run.summary["exit_reason"]
     assert "servo 2 (tail)" in reason and "budget 40 ms" in reason
@@ -352,7 +355,7 @@ def test_sustained_timeouts_stop_within_the_budget(emulated, tmp_path):
 
 def test_hardware_error_stops_naming_the_servo(emulated, tmp_path):
     bus, path = emulated(faults="hardware_error:id=3,at=0.5,bits=overheating")
-    assert run_cli(path, tmp_path / "run", "--duration", "5") == EXIT_FAULT
+    assert run_cli(path, tmp_path / "run", "--duration", "5") == ExitCode.FAULT
     run = read_run(tmp_path / "run")
     assert "servo 3 (jaw): hardware error" in run.summary["exit_reason"]
     assert run.columns["t_actual"][-1] == pytest.approx(fault_time(run, bus, 0.5), abs=0.005)
@@ -360,7 +363,7 @@ def test_hardware_error_stops_naming_the_servo(emulated, tmp_path):
 
 def test_unplug_stops_safely(emulated, tmp_path):
     bus, path = emulated(faults="unplug:at=0.7")
-    assert run_cli(path, tmp_path / "run", "--duration", "5") == EXIT_FAULT
+    assert run_cli(path, tmp_path / "run", "--duration", "5") == ExitCode.FAULT
     run = read_run(tmp_path / "run")
     assert run.summary["exit_reason"].startswith("bus:")
     assert run.columns["t_actual"][-1] == pytest.approx(fault_time(run, bus, 0.7), abs=0.005)
@@ -371,7 +374,7 @@ def test_overrun_policy_stop(emulated, tmp_path):
     text = RIG.replace("rate_hz = 250", 'rate_hz = 250\noverrun_policy = "stop"')
     bus, path = emulated(text, faults="late:id=1,at=0.5,count=1,delay=0.003")
     _rig, result, _run = run_loop(bus, path, tmp_path / "run")
-    assert result.exit_code == EXIT_FAULT and "overrun" in result.reason
+    assert result.exit_code == ExitCode.FAULT and "overrun" in result.reason
 
 
 # ------------------------------------------------------------------ refusals before anything moves
