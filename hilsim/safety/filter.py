@@ -36,14 +36,7 @@ from hilsim.safety.limits import (
     SafetyParams,
 )
 
-__all__ = [
-    "COUNTER_KINDS",
-    "SafetyCounters",
-    "SafetyEvent",
-    "SafetyFault",
-    "SafetyFilter",
-    "SafetyParams",
-]
+__all__ = ["SafetyFilter"]
 
 
 def _brake_step(room: float, a: float) -> float:

@@ -7,7 +7,7 @@ import json
 import numpy as np
 import pytest
 
-from hilsim.safety.filter import COUNTER_KINDS, SafetyFilter
+from hilsim.safety import COUNTER_KINDS, SafetyFilter
 from hilsim.telemetry.stats import RunStats
 from tests.hilsim.tick_rows import stats_record
 

@@ -10,7 +10,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 
-from hilsim.safety.filter import SafetyEvent, SafetyFault, SafetyFilter, SafetyParams
+from hilsim.safety import SafetyEvent, SafetyFault, SafetyFilter, SafetyParams
 
 DT = 0.002
 LOWER = np.array([-1.0, -0.5, 0.0])
