@@ -13,24 +13,44 @@ this one class, so the preview runs the show's parts exactly as the loop does.
 
 from __future__ import annotations
 
-import copy
 from dataclasses import dataclass
-from typing import TypeVar
+from typing import Protocol
 
 import numpy as np
 
 from hilsim._types import FloatArray
-from hilsim.dynamics.integrators import Integrator
-from hilsim.safety import SafetyEvent, SafetyFilter
+from hilsim.dynamics.integrators import TargetLike
+from hilsim.safety import SafetyEvent
 from hilsim.show.parts import Parts
-from hilsim.targets import TargetSet
 
 __all__ = ["Stepper", "TickBuffers"]
 
-#: u(t) and u'(t) as the integrator takes them: tuples of floats, or the buffers themselves
-Sampled = tuple[tuple[float, ...] | FloatArray, tuple[float, ...] | FloatArray]
+#: u(t) and u'(t) as tuples of floats, as the tick hands them to the springs
+Sampled = tuple[tuple[float, ...], tuple[float, ...]]
 
-_Part = TypeVar("_Part")
+
+class Filters(Protocol):
+    """What the stepper needs of the safety filter."""
+
+    def filter(self, desired_rad: FloatArray, out: FloatArray, /) -> SafetyEvent | None: ...
+
+
+class Samples(Protocol):
+    """What the stepper needs of the targets."""
+
+    def sample(
+        self, t: float, out_pos: FloatArray, out_vel: FloatArray | None = None, /
+    ) -> None: ...
+
+    def sample_into(self, t: float, out_pos: FloatArray, /) -> Sampled: ...
+
+
+class Steps(Protocol):
+    """What the stepper needs of the springs."""
+
+    def step(
+        self, x: FloatArray, v: FloatArray, h: float, t: float, target: TargetLike, /
+    ) -> None: ...
 
 
 @dataclass
@@ -57,8 +77,7 @@ class TickBuffers:
         return cls(block, u, x, v, cmd, present, np.zeros(n))
 
     def copy(self) -> TickBuffers:
-        n = len(self.du)
-        out = TickBuffers.zeros(n)
+        out = TickBuffers.zeros(len(self.du))
         out.block[:] = self.block
         out.du[:] = self.du
         return out
@@ -68,9 +87,9 @@ class Stepper:
     """Steps one show's safety filter, targets and springs on one set of buffers.
 
     Args:
-        safety: the filter every command passes; None (a warm-up copy that failed): skipped.
-        targets: one track per joint; None: the springs follow the target held in ``u``.
-        integrator: the springs; None: not stepped.
+        safety: the filter every command passes.
+        targets: one track per joint.
+        integrator: the springs.
         h: the integration step (s); ``substeps`` steps make one tick.
         buffers: the arrays the tick works in.
         live_targets: the targets are a show's live inputs (never sampled outside the show).
@@ -78,9 +97,9 @@ class Stepper:
 
     def __init__(
         self,
-        safety: SafetyFilter | None,
-        targets: TargetSet | None,
-        integrator: Integrator | None,
+        safety: Filters,
+        targets: Samples,
+        integrator: Steps,
         h: float,
         substeps: int,
         buffers: TickBuffers,
@@ -108,56 +127,27 @@ class Stepper:
     def command(self) -> SafetyEvent | None:
         """``cmd`` from ``x`` through the safety filter; its event, if any."""
         b = self.buffers
-        return None if self.safety is None else self.safety.filter(b.x, b.cmd)
+        return self.safety.filter(b.x, b.cmd)
 
     def sample(self, t: float) -> Sampled:
-        """u(t) into ``u`` (recorded) and both as the springs take them."""
-        targets, b = self.targets, self.buffers
-        if targets is None:
-            return (tuple(b.u.tolist()), (0.0,) * len(b.u))
-        return targets.sample_into(t, b.u)
+        """u(t) into ``u`` (recorded), and u, u' as the springs take them."""
+        return self.targets.sample_into(t, self.buffers.u)
 
     def advance(self, t: float, first: Sampled | None = None) -> None:
         """The springs from ``t`` to the next tick, the target held over each substep.
         ``first``: u(t), u'(t) when :meth:`sample` gave them this tick."""
-        integ, b, h = self.integrator, self.buffers, self.h
-        if integ is None:
-            return
-        targets = self.targets
+        b, h = self.buffers, self.h
         if first is None:  # (a catch-up tick: nothing recorded, the arrays as they are)
-            if targets is None:
-                first = self.sample(t)
-            else:
-                targets.sample(t, b.u, b.du)
-                first = (b.u, b.du)
-        integ.step(b.x, b.v, h, t, first)
+            self.targets.sample(t, b.u, b.du)
+            self.integrator.step(b.x, b.v, h, t, (b.u, b.du))
+        else:
+            self.integrator.step(b.x, b.v, h, t, first)
+        if self.substeps > 1:
+            self._substeps(t)
+
+    def _substeps(self, t: float) -> None:
+        b, h, targets, integ = self.buffers, self.h, self.targets, self.integrator
         for j in range(1, self.substeps):
             ts = t + j * h
-            if targets is not None:
-                targets.sample(ts, b.u, b.du)
+            targets.sample(ts, b.u, b.du)
             integ.step(b.x, b.v, h, ts, (b.u, b.du))
-
-    def scratch_copy(self) -> Stepper:
-        """A stepper on copies of these parts and buffers, for a warm-up: nothing the show
-        keeps is touched. A part that cannot be copied is None; a show's live targets and
-        the targets' tracks are not copied (a new set over the same pure tracks)."""
-        targets = self.targets
-        fresh = None
-        if targets is not None and not self.live_targets and type(targets) is TargetSet:
-            fresh = TargetSet(targets.tracks, targets.names)
-        return Stepper(
-            _copy(self.safety),
-            fresh,
-            _copy(self.integrator),
-            self.h,
-            self.substeps,
-            self.buffers.copy(),
-        )
-
-
-def _copy(part: _Part) -> _Part | None:
-    """A deep copy of ``part``, or None where deepcopy refuses it."""
-    try:
-        return copy.deepcopy(part)
-    except Exception:  # whatever deepcopy refuses: that part is not warmed
-        return None

@@ -14,10 +14,16 @@ to miss and is not warmed.
 
 from __future__ import annotations
 
+import copy
 import time
+from typing import TypeVar
 
+from hilsim._types import FloatArray
+from hilsim.dynamics.integrators import TargetLike
 from hilsim.rig.joint_map import JointMap
-from hilsim.show.stepper import Stepper
+from hilsim.safety import SafetyEvent
+from hilsim.show.stepper import Sampled, Samples, Stepper
+from hilsim.targets import TargetSet
 from hilsim.telemetry.format import TickRecord
 
 __all__ = ["BUDGET_S", "WARM_UP_TICKS", "warm_up"]
@@ -27,6 +33,8 @@ __all__ = ["BUDGET_S", "WARM_UP_TICKS", "warm_up"]
 WARM_UP_TICKS = 16
 #: the most the runs may take: the servos' Bus Watchdog counts the silence
 BUDGET_S = 0.010
+
+T = TypeVar("T")
 
 
 def warm_up(
@@ -41,7 +49,7 @@ def warm_up(
     Returns None, or what failed: the show then starts cold."""
     try:
         end = time.perf_counter() + BUDGET_S
-        scratch = stepper.scratch_copy()
+        scratch = _scratch(stepper)
         cmd = scratch.buffers.cmd
         for _ in range(n):
             scratch.command()
@@ -55,3 +63,58 @@ def warm_up(
     except Exception as exc:  # a warm-up must never keep a show from starting
         return f"{type(exc).__name__}: {exc}"
     return None
+
+
+def _scratch(stepper: Stepper) -> Stepper:
+    """A stepper on copies of ``stepper``'s parts and buffers: nothing the show keeps is
+    touched. A part deepcopy refuses is left out (the filter lets every command through, the
+    springs stand still); the targets are a new set over the same pure tracks (copying them
+    would take as long as the animation is), or a target held still for a show's live ones."""
+    buffers = stepper.buffers.copy()
+    targets = stepper.targets
+    scratch_targets: Samples
+    if stepper.live_targets or type(targets) is not TargetSet:
+        scratch_targets = _Held(buffers.u)
+    else:
+        scratch_targets = TargetSet(targets.tracks, targets.names)
+    return Stepper(
+        _copy(stepper.safety) or _NoFilter(),
+        scratch_targets,
+        _copy(stepper.integrator) or _NoSprings(),
+        stepper.h,
+        stepper.substeps,
+        buffers,
+    )
+
+
+def _copy(part: T) -> T | None:
+    """A deep copy of ``part``, or None where deepcopy refuses it."""
+    try:
+        return copy.deepcopy(part)
+    except Exception:  # whatever deepcopy refuses: that part is not warmed
+        return None
+
+
+class _NoFilter:
+    def filter(self, desired_rad: FloatArray, out: FloatArray, /) -> SafetyEvent | None:
+        return None
+
+
+class _NoSprings:
+    def step(self, x: FloatArray, v: FloatArray, h: float, t: float, target: TargetLike, /) -> None:
+        return None
+
+
+class _Held:
+    """The target where it is, still."""
+
+    def __init__(self, u: FloatArray) -> None:
+        self._held: Sampled = (tuple(u.tolist()), (0.0,) * len(u))
+
+    def sample(self, t: float, out_pos: FloatArray, out_vel: FloatArray | None = None, /) -> None:
+        out_pos[:] = self._held[0]
+        if out_vel is not None:
+            out_vel[:] = 0.0
+
+    def sample_into(self, t: float, out_pos: FloatArray, /) -> Sampled:
+        return self._held

@@ -9,7 +9,6 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-import hilsim.show.stepper as stepper_mod
 import hilsim.show.warm_up as warm_mod
 from hilsim.bench.tick import HilsimTick
 from hilsim.safety.filter import SafetyFilter
@@ -77,9 +76,9 @@ def test_every_stage_runs_n_times_on_copies_and_the_show_keeps_nothing(tick, mon
     _spy(monkeypatch, TargetSet, "sample_into", seen["sample"], loop.targets)
     _spy(monkeypatch, RunStats, "add", seen["stats"], loop.telemetry.stats)
     copied = []
-    deepcopy = stepper_mod.copy.deepcopy
+    deepcopy = warm_mod.copy.deepcopy
     monkeypatch.setattr(
-        stepper_mod.copy, "deepcopy", lambda o, m=None: copied.append(o) or deepcopy(o, m)
+        warm_mod.copy, "deepcopy", lambda o, m=None: copied.append(o) or deepcopy(o, m)
     )
     before = _state(loop)
     assert _warm(loop, 7) is None
@@ -91,14 +90,14 @@ def test_every_stage_runs_n_times_on_copies_and_the_show_keeps_nothing(tick, mon
 
 def test_a_part_that_cannot_be_copied_is_left_out_and_the_rest_warmed(tick, monkeypatch):
     loop = tick.loop
-    deepcopy, filtered, stepped = stepper_mod.copy.deepcopy, [], []
+    deepcopy, filtered, stepped = warm_mod.copy.deepcopy, [], []
 
     def refuse_springs(obj, memo=None):
         if obj is loop.integrator:
             raise TypeError("cannot pickle '_thread.lock' object")
         return deepcopy(obj, memo)
 
-    monkeypatch.setattr(stepper_mod.copy, "deepcopy", refuse_springs)
+    monkeypatch.setattr(warm_mod.copy, "deepcopy", refuse_springs)
     _spy(monkeypatch, SafetyFilter, "filter", filtered, loop.safety)
     _spy(monkeypatch, type(loop.integrator), "step", stepped, loop.integrator)
     before = _state(loop)
