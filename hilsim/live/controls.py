@@ -13,7 +13,7 @@ import threading
 from collections.abc import Iterable
 from dataclasses import dataclass, field
 
-from hilsim.live.inbox import MAX_LIVE_DEG, LiveEvent
+from hilsim.live.inbox import MAX_LIVE_DEG
 from hilsim.live.show_spec import API_CUE
 
 __all__ = ["Controls", "ControlsPoll"]
@@ -21,11 +21,10 @@ __all__ = ["Controls", "ControlsPoll"]
 
 @dataclass
 class ControlsPoll:
-    """What arrived since the last tick: joint values (deg), cue triggers, events."""
+    """What arrived since the last tick: joint values (deg) and cue triggers."""
 
     values: dict[str, float] = field(default_factory=dict)
     triggers: list[str] = field(default_factory=list)
-    events: list[LiveEvent] = field(default_factory=list)
 
 
 class Controls:
