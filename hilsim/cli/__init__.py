@@ -28,6 +28,7 @@ from hilsim.exit_codes import ExitCode
 SUBCOMMANDS: dict[str, str] = {
     "run": "hilsim.cli.run",
     "scan": "hilsim.cli.scan",
+    "setup": "hilsim.cli.setup",
     "plot": "hilsim.cli.plot",
     "bench": "hilsim.cli.bench",
     "emulate": "hilsim.cli.emulate",

@@ -55,3 +55,17 @@ class BusConfig:
         },
         example=1,
     )
+    return_delay_us: float | None = rig_key(
+        "number",
+        "The Return Delay Time every servo on this bus should have: the start-up check refuses "
+        "a longer one, and `hilsim setup` writes it.",
+        unit="µs",
+        default=None,
+        default_doc="none: any the tick has time for (the check), 0 (`hilsim setup`)",
+        bounds={
+            "nonnegative": True,
+            "at_most": 508.0,
+            "why": "Return Delay Time is 0..254 units of 2 µs",
+        },
+        example=0,
+    )

@@ -28,8 +28,8 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from drivers.clock import MonotonicClock
-from drivers.dynamixel.startup import Expectation, ReadMode, StartupReport
-from drivers.protocol2.wire_time import cycle_bytes, cycle_time_s
+from drivers.dynamixel.startup import Expectation, ReadMode
+from drivers.protocol2.wire_time import cycle_time_s
 from hilsim._types import JsonDict
 from hilsim.rig import Rig
 from hilsim.rig.joint_map import JointMap
@@ -109,7 +109,8 @@ def check_bus(rig: Rig, bus: DynamixelBus, say: Callable[[str], None]) -> list[s
     Delay Time) and that the bus can carry the tick rate. Each note is passed to ``say`` as
     it is found and returned (for ``events.jsonl``). Raises :class:`ShowRefusedError`.
     """
-    from drivers.dynamixel.errors import DynamixelError, StartupMismatch
+    from drivers.dynamixel.errors import DynamixelError
+    from hilsim.show.servo_check import check_everything, render
 
     latency_ms = bus.link.latency_timer_ms
     notes: list[str] = []
@@ -123,19 +124,25 @@ def check_bus(rig: Rig, bus: DynamixelBus, say: Callable[[str], None]) -> list[s
                 "previous run's hold exit, or another program that stopped); cleared"
             )
             say(notes[-1])
-        report = bus.check(expectations(rig, latency_ms))
-    except StartupMismatch as exc:
-        raise ShowRefusedError(
-            f"the servos on {rig.bus.port} do not match {rig.path}:\n{exc}"
-        ) from None
+        budget = BUS_SHARE_OF_TICK * rig.loop.period_s
+        report, problems, why = check_everything(
+            rig, bus, expectations(rig, latency_ms), budget, latency_ms
+        )
     except (DynamixelError, ValueError) as exc:
         raise ShowRefusedError(f"start-up check failed on {rig.bus.port}: {exc}") from None
+    if problems or report is None:
+        ids = sorted({p.servo_id for p in problems if p.servo_id is not None})
+        lines = [
+            f"the servos on {rig.bus.port} do not match {rig.path}: {len(problems)} problem(s)"
+            + (f" on servo(s) {ids}" if ids else "")
+            + "; nothing moved",
+            render(problems),
+            *why,
+        ]
+        raise ShowRefusedError("\n".join(lines))
     for note in report.notes:
         say(f"note: {note}")
     notes += report.notes
-    problem = bus_capacity_problem(rig, report, latency_ms)
-    if problem:
-        raise ShowRefusedError(f"{rig.path}: {problem}")
     return notes
 
 
@@ -174,39 +181,11 @@ def return_delay_budget_us(rig: Rig, latency_timer_ms: float = 0.0) -> float:
     return max(0.0, spare / (1 if fast else n) * 1e6)
 
 
-def bus_capacity_problem(rig: Rig, report: StartupReport, latency_timer_ms: float) -> str | None:
-    """Why this bus cannot carry the rig's tick rate, or None if it can.
-
-    Uses the wire-time model with what the start-up check found: the read mode in force, each
-    servo's Return Delay Time, and the adapter latency timer in force. The bus may use at most
-    ``BUS_SHARE_OF_TICK`` of a tick.
-    """
-    n = len(rig.joints)
-    fast = report.read_mode is ReadMode.FAST
-    rdts = [s.return_delay_us * 1e-6 for s in report.servos]
-    cycle = cycle_time_s(
-        n, report.baud, fast, return_delay_s=rdts, latency_s=latency_timer_ms * 1e-3
-    )
-    budget = BUS_SHARE_OF_TICK * rig.loop.period_s
-    if cycle <= budget:
-        return None
-    wire = 10.0 * cycle_bytes(n, fast) / report.baud
-    waits = rdts[0] if fast else sum(rdts)
-    return (
-        f"the bus cannot carry {rig.loop.rate_hz:g} Hz: one tick's Sync Write + "
-        f"{'Fast ' if fast else ''}Sync Read takes {cycle * 1e3:.2f} ms (wire "
-        f"{wire * 1e3:.2f} ms at {report.baud} bps, Return Delay {waits * 1e3:.2f} ms, USB "
-        f"latency timer {latency_timer_ms:g} ms, servo turnaround) against {budget * 1e3:.2f} ms "
-        f"({BUS_SHARE_OF_TICK:.0%} of a {rig.loop.period_s * 1e3:g} ms tick). Lower "
-        f"loop.rate_hz to {BUS_SHARE_OF_TICK / cycle:.0f} or less, or shorten the cycle: Return "
-        "Delay Time 0, a higher baud rate, a 1 ms latency timer, Fast Sync Read (`hilsim bench` "
-        "shows each)."
-    )
-
-
 def expectations(rig: Rig, latency_timer_ms: float = 0.0) -> list[Expectation]:
     """What each servo must look like for this rig to run (checked before anything moves)."""
     rdt_max = return_delay_budget_us(rig, latency_timer_ms)
+    if rig.bus.return_delay_us is not None:
+        rdt_max = min(rdt_max, rig.bus.return_delay_us)
     jmap = JointMap.of(rig.joints)
     return [
         Expectation(
