@@ -1,0 +1,197 @@
+"""``hilsim setup`` and the start-up check's one refusal, from factory-state servos.
+
+Factory state as a buyer has it: 57600 bit/s, Return Delay Time 500 µs (IDs already made
+unique). The rig asks 1 Mbit/s and Return Delay 0: the run refuses once naming every problem;
+``hilsim setup --yes`` fixes them and reads them back; the run then runs, exit 0.
+"""
+
+from __future__ import annotations
+
+import itertools
+import os
+from pathlib import Path
+
+import pytest
+
+import hilsim
+from drivers.clock import VirtualClock
+from drivers.dxlsim import DxlBus, VirtualServo, register_bus, unregister_bus
+from drivers.dxlsim.protocol import Instruction, StreamParser
+from drivers.dynamixel.configure import X_SERIES, Found, Settings, Target, plan
+from hilsim.cli import main
+from hilsim.exit_codes import ExitCode
+
+RIG = """
+name = "skull"
+[bus]
+port = "PORT"
+baud = 1000000
+return_delay_us = 0
+[loop]
+rate_hz = 250
+[safety]
+soft_start_s = 0.1
+[[joints]]
+name = "jaw"
+servo_id = 1
+model = "XL430-W250"
+min_deg = 0
+max_deg = 25
+spring = { frequency_hz = 5.0, damping_ratio = 0.9 }
+target = { type = "hold", value_deg = 5 }
+[[joints]]
+name = "pan"
+servo_id = 2
+model = "XL430-W250"
+min_deg = -60
+max_deg = 60
+spring = { frequency_hz = 5.0, damping_ratio = 0.9 }
+target = { type = "hold", value_deg = 0 }
+[[joints]]
+name = "tilt"
+servo_id = 3
+model = "XL430-W250"
+min_deg = -30
+max_deg = 30
+spring = { frequency_hz = 5.0, damping_ratio = 0.9 }
+target = { type = "hold", value_deg = 0 }
+"""
+
+_names = itertools.count()
+
+
+@pytest.fixture
+def factory(tmp_path):
+    """A named emulated bus of three factory-state XL430-W250s (IDs 1-3) and a rig file
+    (text changes via ``edit``) on it; yields ``make(edit=None, ids=(1, 2, 3))``."""
+    names = []
+
+    def make(edit=None, ids=(1, 2, 3), **servo_kw):
+        servos = [
+            VirtualServo("XL430-W250", i, baud=57_600, return_delay_us=500, t=0.0, **servo_kw)
+            for i in ids
+        ]
+        bus = DxlBus(servos, baud=1_000_000, clock=VirtualClock(), latency_timer_ms=1.0, trace=True)
+        name = f"setup{os.getpid()}-{next(_names)}"
+        register_bus(name, bus)
+        names.append(name)
+        text = RIG.replace("PORT", f"dxlsim://{name}")
+        if edit is not None:
+            text = edit(text)
+        path = tmp_path / f"{name}.toml"
+        path.write_text(text)
+        return bus, path
+
+    yield make
+    for n in names:
+        unregister_bus(n)
+
+
+def _writes(bus: DxlBus) -> list[int]:
+    return [
+        f.packet.instruction
+        for rec in bus.trace or ()
+        if rec.direction == "tx"
+        for f in StreamParser().feed(rec.data)
+        if f.packet.instruction in (Instruction.WRITE, Instruction.SYNC_WRITE)
+    ]
+
+
+def _refusal(path: Path, tmp_path: Path) -> str:
+    with pytest.raises(hilsim.ShowRefusedError) as info, hilsim.Show(path, out=tmp_path / "r"):
+        pytest.fail("a show started on factory servos")
+    return str(info.value)
+
+
+def test_factory_servos_refused_once_then_setup_then_the_show_runs(factory, tmp_path, capsys):
+    bus, path = factory()
+    text = _refusal(path, tmp_path)
+    table = text.splitlines()
+    # one table naming every problem: each servo's baud and Return Delay Time, the capacity
+    for sid, joint in ((1, "jaw"), (2, "pan"), (3, "tilt")):
+        rows = [line for line in table if line.startswith(f"{sid} ")]
+        assert any(joint in r and "baud" in r and "57600 bit/s" in r for r in rows), text
+        assert any("Return Delay Time" in r and "500 us" in r for r in rows), text
+        assert all(f"hilsim setup {path} --port dxlsim://" in r for r in rows), text
+    assert any(line.startswith("bus") and "bus capacity" in line for line in table), text
+    assert "after setup" in text
+    assert not _writes(bus), "the check wrote to a servo"
+
+    assert main(["setup", str(path)]) == ExitCode.OK  # a dry run writes nothing
+    out = capsys.readouterr()
+    assert "Return Delay Time" in out.out and "nothing written" in out.err
+    assert "57600 bit/s: 1 (XL430-W250), 2 (XL430-W250), 3 (XL430-W250)" in out.err
+    assert not _writes(bus)
+
+    assert main(["setup", str(path), "--yes"]) == ExitCode.OK
+    out = capsys.readouterr()
+    assert "read back at 1000000 bit/s" in out.out and "done: 3 servo(s)" in out.err
+    assert all(s.baud == 1_000_000 and s.return_delay_s == 0 for s in bus.servos)
+
+    with hilsim.Show(path, out=tmp_path / "run", duration=0.5) as show:
+        result = show.run()
+    assert result.exit_code == ExitCode.OK
+
+
+def test_model_row_names_the_rig_key_and_the_joint(factory, tmp_path):
+    _bus, path = factory(
+        lambda t: t.replace('model = "XL430-W250"\nmin_deg = -60', "min_deg = -60")
+    )
+    text = _refusal(path, tmp_path)
+    row = next(line for line in text.splitlines() if " model " in line)
+    assert row.startswith("2 ") and "pan" in row
+    assert 'joints[1].model = "XL430-W250"' in row
+
+
+def test_a_silent_servo_names_its_joint_and_who_answered(factory, tmp_path):
+    edit = lambda t: t.replace("servo_id = 3", "servo_id = 4")  # noqa: E731
+    _bus, path = factory(edit)
+    main(["setup", str(path), "--yes"])  # 1 and 2 set up; 3 is not the rig's, 4 is nowhere
+    text = _refusal(path, tmp_path)
+    row = next(line for line in text.splitlines() if line.startswith("4 "))
+    assert "tilt" in row and "answers Ping" in row
+    assert "IDs answering at 1000000: 1, 2" in row and "no answer at any other baud" in row
+
+
+def test_setup_renames_an_id(factory, tmp_path, capsys):
+    bus, path = factory(ids=(1, 2, 7))
+    assert main(["setup", str(path), "--yes", "--id", "7:3"]) == ExitCode.OK
+    assert sorted(s.id for s in bus.servos) == [1, 2, 3]
+    assert "ID" in capsys.readouterr().out
+
+
+def test_setup_says_which_servo_is_nowhere(factory, tmp_path, capsys):
+    _bus, path = factory(ids=(1, 2))
+    assert main(["setup", str(path)]) == ExitCode.USAGE
+    assert "not found at any baud: servo(s) 3 (tilt)" in capsys.readouterr().err
+
+
+def test_capacity_the_setup_cannot_cure_names_the_rate(factory, tmp_path):
+    _bus, path = factory(lambda t: t.replace("baud = 1000000", "baud = 57600"))
+    text = _refusal(path, tmp_path)
+    row = next(line for line in text.splitlines() if line.startswith("bus"))
+    assert "loop.rate_hz = " in row and "even after setup" in text
+
+
+def test_bad_id_flag_is_one_line(factory, capsys):
+    _bus, path = factory()
+    assert main(["setup", str(path), "--id", "7-3"]) == ExitCode.USAGE
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "OLD:NEW" in err
+
+
+def test_plan_widens_limits_and_keeps_shutdown_bits():
+    found = Found(1, 57_600, 1060, "XL430-W250", 46)
+    now = {
+        "return_delay": 0,
+        "mode": 3,
+        "min_position": 1000,
+        "max_position": 3000,
+        "shutdown": 0x01,
+        "status_return": 2,
+    }
+    target = Target(1, 57_600, position_ticks=(900, 2500), shutdown_bits=0x34)
+    changes = {c.key: c for c in plan(X_SERIES, found, Settings(now), target)}
+    assert set(changes) == {"min_position", "shutdown"}
+    assert changes["min_position"].wanted == 900  # widened, never narrowed
+    assert changes["shutdown"].wanted == 0x35  # the servo's own bits kept

@@ -1,0 +1,76 @@
+"""The factory-servo day on a pseudo-terminal, as a user types it: ``hilsim emulate`` serves
+factory-state servos (57600 bit/s, Return Delay 500 µs); ``hilsim run`` refuses once with one
+table; ``hilsim setup --yes`` changes the servos' baud (the pty's host side follows) and reads
+back; ``hilsim run`` then runs the show. Asserts behaviour, not speed."""
+
+from __future__ import annotations
+
+import signal
+import subprocess
+import sys
+
+import pytest
+
+from tests.hilsim.test_servo_setup import RIG
+
+pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="a Linux pty")
+
+
+@pytest.fixture
+def factory_pty():
+    proc = subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "hilsim",
+            "emulate",
+            "--ids",
+            "1-3",
+            "--model",
+            "XL430-W250",
+            "--baud",
+            "57600",
+            "--rdt-us",
+            "500",
+        ],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    path = proc.stdout.readline().strip()
+    if not path.startswith("/dev/"):
+        proc.kill()
+        pytest.fail(f"hilsim emulate printed {path!r}; stderr: {proc.stderr.read()}")
+    yield path
+    proc.send_signal(signal.SIGTERM)
+    try:
+        proc.wait(timeout=20)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        raise
+
+
+def _hilsim(*args: str) -> subprocess.CompletedProcess[str]:
+    return subprocess.run(
+        [sys.executable, "-m", "hilsim", *args], capture_output=True, text=True, timeout=300
+    )
+
+
+def test_refused_once_then_setup_on_the_pty_then_the_show_runs(factory_pty, tmp_path):
+    rig = tmp_path / "skull.toml"
+    rig.write_text(RIG.replace("PORT", factory_pty).replace("rate_hz = 250", "rate_hz = 50"))
+    run = ["run", str(rig), "--duration", "1", "--no-plots", "--out"]
+    first = _hilsim(*run, str(tmp_path / "a"))
+    assert first.returncode == 2, first.stderr
+    assert first.stderr.count("do not match") == 1
+    for item in ("baud", "Return Delay Time"):
+        assert first.stderr.count(f"  {item} ") == 3, first.stderr
+    assert f"hilsim setup {rig} --port {factory_pty} --yes" in first.stderr
+
+    setup = _hilsim("setup", str(rig), "--port", factory_pty, "--yes")
+    assert setup.returncode == 0, setup.stderr + setup.stdout
+    assert "57600 bit/s: 1 (XL430-W250), 2 (XL430-W250), 3 (XL430-W250)" in setup.stderr
+    assert "read back at 1000000 bit/s" in setup.stdout
+
+    second = _hilsim(*run, str(tmp_path / "b"))
+    assert second.returncode == 0, second.stderr
