@@ -240,6 +240,41 @@ MODEL_NAMES: dict[int, str] = {
 }
 MODEL_NUMBERS: dict[str, int] = {name: number for number, name in MODEL_NAMES.items()}
 
+#: No-load speed (rpm) at the recommended voltage, per model: the e-Manual's figure
+#: (``github:ROBOTIS-GIT/emanual`` ``_data/dxl_x_info.yml``), as the emulator's
+#: :data:`drivers.dxlsim.model_data.MODEL_DATA` has it (a test holds the two equal). A
+#: command faster than this cannot be followed, even unloaded.
+NO_LOAD_SPEED_RPM: dict[str, float] = {
+    "XM430-W350": 46.0,
+    "XM430-W210": 77.0,
+    "XH430-W350": 30.0,
+    "XH430-W210": 50.0,
+    "XH430-V350": 31.0,
+    "XH430-V210": 52.0,
+    "XL430-W250": 57.0,
+    "2XL430-W250": 57.0,
+    "XC430-W150": 106.0,
+    "XC430-W240": 70.0,
+    "XM540-W270": 30.0,
+    "XM540-W150": 53.0,
+    "XL330-M288": 103.0,
+    "XL330-M077": 383.0,
+    "XC330-M181": 129.0,
+    "XC330-M288": 81.0,
+    "XC330-T181": 104.0,
+    "XC330-T288": 65.0,
+}
+
+
+def no_load_speed_deg_s(name: str) -> float | None:
+    """A model's no-load speed in °/s (``"XM430-W350"`` -> 276.0), None if unknown."""
+    try:
+        rpm = NO_LOAD_SPEED_RPM.get(MODEL_NAMES[model_number(name)])
+    except ValueError:
+        return None
+    return None if rpm is None else rpm * 6.0
+
+
 #: Lowest firmware (addr 6) with Fast Sync/Bulk Read, by series (name prefix).
 FAST_READ_MIN_FIRMWARE: dict[str, int] = {"X330": 46, "X430": 45, "X540": 45}
 

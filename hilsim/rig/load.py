@@ -8,13 +8,14 @@ checks that span keys or sections.
 from __future__ import annotations
 
 import dataclasses
+import logging
 import math
 import os
 import tomllib
 from pathlib import Path
 from typing import Any
 
-from drivers.protocol2.control_table import model_number, series
+from drivers.protocol2.control_table import model_number, no_load_speed_deg_s, series
 from hilsim.dynamics.integrators import INTEGRATORS
 from hilsim.dynamics.springs import Spring
 from hilsim.dynamics.stability import check_stability
@@ -46,6 +47,8 @@ from hilsim.rig.model import (
     TelemetryConfig,
 )
 from hilsim.rig.reader import Reader, build, finish, read_key, read_table
+
+log = logging.getLogger("hilsim.rig")
 
 
 # ------------------------------------------------------------------------------------ the springs
@@ -390,6 +393,21 @@ def _check_stable(
             )
 
 
+def _check_speeds(path: Path, joints: tuple[JointConfig, ...]) -> None:
+    """A speed limit beyond the model's no-load speed is a warning (the servo cannot
+    follow such commands even unloaded; the show still runs, lagging)."""
+    for i, j in enumerate(joints):
+        top = no_load_speed_deg_s(j.model)
+        asked = math.degrees(j.max_speed_rad_s)
+        if top is not None and asked > top:
+            log.warning(
+                "%s: joints[%d].max_speed_deg_s (%s) = %g °/s is beyond the %s's no-load speed, "
+                "%g °/s (%g rpm): it lags such commands even unloaded; lower it to %d or name "
+                "a faster model",
+                path, i, j.name, asked, j.model, top, top / 6.0, int(top),
+            )  # fmt: skip
+
+
 def load_rig(path: str | Path, *, port: str | None = None, bus: str | None = None) -> Rig:
     """Read and validate a rig file. ``port`` overrides ``bus.port`` (the CLI's ``--port``);
     ``bus`` picks one of a rig's ``[buses.<name>]`` (a rig with several needs it). Raises
@@ -451,6 +469,7 @@ def load_rigs(path: str | Path, *, port: str | None = None) -> tuple[Rig, ...]:
                 f"at most {top_baud} bit/s, but {where}.baud = {baud}"
             )
     _check_stable(path, loop, max_substeps, joints)
+    _check_speeds(path, joints)
     if len(buses) > 1 and loop.cpu is not None:
         raise top.fail("loop.cpu", "would pin every bus's process to one CPU; leave it out")
     shared = dict(path=path, name=name, loop=loop, safety=safety, telemetry=telemetry, text=text)

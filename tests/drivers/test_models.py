@@ -122,6 +122,15 @@ def test_goal_ranges_follow_the_limit_fields(name):
             assert (m.field(goal).lo, m.field(goal).hi) == (-hi, hi)
 
 
+def test_the_hosts_no_load_speeds_are_the_emulators():
+    """The rig's speed check (control_table) and the emulator's motor use one figure."""
+    import drivers.protocol2.control_table as ct
+
+    assert {m.name: m.no_load_speed_rpm for m in MODELS.values()} == ct.NO_LOAD_SPEED_RPM
+    assert ct.no_load_speed_deg_s("xm430-w350-t") == 276.0
+    assert ct.no_load_speed_deg_s("XL430-W250") == 342.0
+
+
 def test_model_numbers_and_per_model_differences():
     """The emulator's models and the host's Model Number table name the same servos (the
     numbers: each e-Manual page's Model Number row)."""

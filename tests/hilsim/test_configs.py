@@ -1,5 +1,7 @@
 """Every rig shipped in configs/ runs on the set-up the README recommends (emulated here): four
-XM430-W350 at 1 Mbps, Return Delay Time 0, a U2D2 with its latency timer at 1 ms."""
+servos of the models the rig names (XM430-W350 where it names none of them for an ID) at 1 Mbps,
+Return Delay Time 0, a U2D2 with its latency timer at 1 ms. Every joint names its model, and
+no speed limit asks more than that model's no-load speed."""
 
 from __future__ import annotations
 
@@ -8,6 +10,7 @@ from pathlib import Path
 import pytest
 
 from hilsim.cli import main
+from hilsim.rig import load_rigs
 from hilsim.telemetry.reader import read_run
 
 REPO = Path(__file__).resolve().parents[2]
@@ -21,11 +24,28 @@ OWN_BUS = {"scale16.toml": "dxlsim://?ids=1-16&model=XM430-W350&rdt_us=0&baud=40
 SEVERAL_BUSES = {"two_buses.toml": ("left", "right")}
 
 
+def _with_models(rig: Path, url: str) -> str:
+    """``url`` with each servo of the rig at the model its joint names."""
+    models = ",".join(f"{j.servo_id}:{j.model}" for r in load_rigs(rig) for j in r.joints)
+    return url.replace("model=XM430-W350", f"model=XM430-W350,{models}")
+
+
+@pytest.mark.parametrize("rig", sorted((REPO / "configs").glob("*.toml")), ids=lambda p: p.name)
+def test_shipped_rig_names_each_model_and_asks_no_more_speed_than_it_has(rig, caplog):
+    text = rig.read_text()
+    assert text.count("[[joints]]") == len(
+        [line for line in text.splitlines() if line.startswith("model = ")]
+    ), f"{rig.name}: every joint names its servo's model"
+    with caplog.at_level("WARNING", logger="hilsim.rig"):
+        load_rigs(rig)
+    assert not [r.message for r in caplog.records if "no-load speed" in r.message]
+
+
 @pytest.mark.parametrize("rig", sorted((REPO / "configs").glob("*.toml")), ids=lambda p: p.name)
 def test_shipped_rig_runs_on_the_recommended_setup(rig, tmp_path, capsys):
     out = tmp_path / "run"
     buses = SEVERAL_BUSES.get(rig.name)
-    port = [] if buses else ["--port", OWN_BUS.get(rig.name, U2D2)]
+    port = [] if buses else ["--port", _with_models(rig, OWN_BUS.get(rig.name, U2D2))]
     code = main(
         ["run", str(rig), *port, "--virtual-time", "--no-plots", "--duration", "2",
          "--out", str(out)]

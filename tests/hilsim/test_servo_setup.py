@@ -195,3 +195,25 @@ def test_plan_widens_limits_and_keeps_shutdown_bits():
     assert set(changes) == {"min_position", "shutdown"}
     assert changes["min_position"].wanted == 900  # widened, never narrowed
     assert changes["shutdown"].wanted == 0x35  # the servo's own bits kept
+
+
+def test_a_speed_beyond_the_models_no_load_speed_is_a_warning_naming_both(tmp_path, caplog):
+    from hilsim.rig import load_rig
+
+    path = tmp_path / "rig.toml"
+    text = RIG.replace("PORT", "dxlsim://?ids=1-3").replace("baud = 1000000\n", "")
+    path.write_text(text.replace("servo_id = 1\n", "servo_id = 1\nmax_speed_deg_s = 400\n"))
+    with caplog.at_level("WARNING", logger="hilsim.rig"):
+        load_rig(path)
+    (msg,) = [r.getMessage() for r in caplog.records]
+    assert "joints[0].max_speed_deg_s (jaw) = 400 °/s" in msg
+    assert "XL430-W250's no-load speed, 342 °/s (57 rpm)" in msg
+
+
+def test_the_warning_reaches_the_command_line(tmp_path, capsys):
+    path = tmp_path / "rig.toml"
+    text = RIG.replace("PORT", "dxlsim://?ids=1-3&model=XL430-W250&rdt_us=0&latency_ms=1")
+    path.write_text(text.replace("servo_id = 2\n", "servo_id = 2\nmax_speed_deg_s = 500\n"))
+    assert main(["tracks", str(path), "--at", "0"]) == ExitCode.OK
+    err = capsys.readouterr().err
+    assert "hilsim tracks: " in err and "(pan) = 500 °/s is beyond the XL430-W250's" in err
