@@ -8,7 +8,7 @@ virtual clock the whole scan takes milliseconds.
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
 
 from drivers.clock import Clock
@@ -44,11 +44,14 @@ def scan(
     clock: Clock | None = None,
     latency_timer_ms: float | None = None,
     unicast_fallback: bool = True,
+    progress: Callable[[int, str, list[Found]], None] | None = None,
 ) -> list[Found]:
     """Every servo answering on ``port`` at each of ``bauds``, sorted by (baud, id).
 
     ``ids``: the IDs to report (and to unicast-ping in the fallback); default 0..252.
     ``unicast_fallback``: when a broadcast Ping finds nobody at a baud, ping each ID.
+    ``progress(baud, step, found)``: told ``"unicast"`` before a baud's unicast Pings (the
+    slow part: one timeout per silent ID) and ``"done"`` with what that baud found.
     Raises :class:`~drivers.dynamixel.errors.PortGone` if the adapter vanishes.
     """
     wanted = list(range(253)) if ids is None else sorted(set(ids))
@@ -61,12 +64,17 @@ def scan(
             link.set_baud(baud)
             answers = link.broadcast_ping()
             if not answers and unicast_fallback:
+                if progress is not None:
+                    progress(baud, "unicast", [])
                 answers = _unicast(link, wanted)
-            found += [
+            here = sorted(
                 Found(baud, sid, model, model_name(model), fw)
                 for sid, (model, fw) in answers.items()
                 if sid in wanted
-            ]
+            )
+            found += here
+            if progress is not None:
+                progress(baud, "done", here)
     finally:
         link.close()
     return sorted(found)

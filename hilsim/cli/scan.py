@@ -12,9 +12,14 @@ from __future__ import annotations
 
 import argparse
 import sys
+import time
+from typing import TYPE_CHECKING
 
 from hilsim.cli._args import add_baud, add_ids, add_port, parse_baud, parse_ids, usage_error
 from hilsim.exit_codes import ExitCode
+
+if TYPE_CHECKING:
+    from drivers.dynamixel.scan import Found
 
 HELP = "find servo IDs, models and firmware across baud rates"
 DEFAULT_BAUDS = (57_600, 115_200, 1_000_000, 2_000_000, 3_000_000, 4_000_000)
@@ -44,8 +49,24 @@ def run(args: argparse.Namespace) -> int:
     except ValueError as exc:
         return usage_error("scan", exc)
     print(f"hilsim scan: {args.port} at {', '.join(str(b) for b in bauds)} bit/s", file=sys.stderr)
+    n_ids = len(ids) if ids is not None else 253
+    t0 = time.monotonic()
+
+    def progress(baud: int, step: str, here: list[Found]) -> None:
+        took = f"{time.monotonic() - t0:.1f} s"
+        if step == "unicast":
+            print(
+                f"hilsim scan: {baud} bit/s: no answer to a broadcast Ping; pinging {n_ids} IDs "
+                "one by one (--no-unicast skips this)",
+                file=sys.stderr,
+                flush=True,
+            )
+        else:
+            who = f"IDs {', '.join(str(f.id) for f in here)}" if here else "none"
+            print(f"hilsim scan: {baud} bit/s: {who} ({took})", file=sys.stderr, flush=True)
+
     try:
-        found = scan(args.port, bauds, ids, unicast_fallback=not args.no_unicast)
+        found = scan(args.port, bauds, ids, unicast_fallback=not args.no_unicast, progress=progress)
     except ValueError as exc:  # a dxlsim:// URL that cannot be built: a usage error
         return usage_error("scan", exc)
     except DynamixelError as exc:

@@ -217,3 +217,12 @@ def test_the_warning_reaches_the_command_line(tmp_path, capsys):
     assert main(["tracks", str(path), "--at", "0"]) == ExitCode.OK
     err = capsys.readouterr().err
     assert "hilsim tracks: " in err and "(pan) = 500 °/s is beyond the XL430-W250's" in err
+
+
+def test_scan_says_each_baud_as_it_goes(capsys):
+    port = "dxlsim://?ids=1-3&baud=57600&latency_ms=1&clock=virtual"
+    assert main(["scan", "--port", port, "--ids", "0-9", "--baud", "57600", "--baud", "1M"]) == 0
+    err = capsys.readouterr().err
+    assert "57600 bit/s: IDs 1, 2, 3 (" in err
+    assert "1000000 bit/s: no answer to a broadcast Ping; pinging 10 IDs one by one" in err
+    assert "1000000 bit/s: none (" in err
