@@ -23,7 +23,7 @@ from hilsim.cli._args import add_port, usage_error
 from hilsim.exit_codes import ExitCode
 
 if TYPE_CHECKING:
-    from hilsim.show.servo_setup import ServoSetup
+    from hilsim.show.servo_setup import ServoSetup, SetupPlan
 
 HELP = "set the rig's servos up: IDs, baud, Return Delay, mode, limits (writes with --yes)"
 
@@ -107,6 +107,14 @@ def run(args: argparse.Namespace) -> int:
         link.close()
 
 
+def _missing_code(setup: ServoSetup, the_plan: SetupPlan) -> int:
+    """Exit 2 when a rig servo answered nowhere, unless ``--id`` renames servos connected one
+    at a time (then the others are expected to be absent) and one was found."""
+    if the_plan.missing and not (setup.renaming and the_plan.found):
+        return int(ExitCode.USAGE)
+    return int(ExitCode.OK)
+
+
 def _setup(setup: ServoSetup, yes: bool) -> int:
     from drivers.dynamixel.configure import Found
 
@@ -133,7 +141,7 @@ def _setup(setup: ServoSetup, yes: bool) -> int:
         )
     if not the_plan.changes:
         _say("every servo found is as the rig expects: nothing to write")
-        return int(ExitCode.USAGE if the_plan.missing else ExitCode.OK)
+        return _missing_code(setup, the_plan)
     rows = [("servo", "register", "now", "wanted")]
     for c in the_plan.changes:
         who = f"{c.servo} ({names.get(setup.targets[c.servo].id, '?')}) @ {c.baud}"
@@ -144,7 +152,7 @@ def _setup(setup: ServoSetup, yes: bool) -> int:
             f"nothing written: {len(the_plan.changes)} change(s); run again with --yes to write "
             "them (torque is turned off first: support the figure)"
         )
-        return int(ExitCode.USAGE if the_plan.missing else ExitCode.OK)
+        return _missing_code(setup, the_plan)
     problems, left, silent = setup.write(the_plan)
     for line in problems:
         _say(f"write failed: {line}")
@@ -164,4 +172,4 @@ def _setup(setup: ServoSetup, yes: bool) -> int:
     if silent or problems:
         return int(ExitCode.FAULT)
     _say(f"done: {len(the_plan.found)} servo(s) read back as the rig expects at {baud} bit/s")
-    return int(ExitCode.USAGE if the_plan.missing else ExitCode.OK)
+    return _missing_code(setup, the_plan)

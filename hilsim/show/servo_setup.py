@@ -31,12 +31,15 @@ def targets(rig: Rig, renames: Mapping[int, int] | None = None) -> dict[int, Tar
     ``{old: new}`` from ``--id OLD:NEW``; a rig ID not renamed is its own)."""
     jmap = JointMap.of(rig.joints)
     shutdown = Expectation(1).shutdown_bits
-    back = {new: old for old, new in (renames or {}).items()}
+    renames = dict(renames or {})
+    back = {new: old for old, new in renames.items()}
     out: dict[int, Target] = {}
     for i, j in enumerate(rig.joints):
         lo, hi = jmap.servo_range(i, j.min_rad, j.max_rad)
         ticks = np.rint(np.array([lo, hi]) * TICKS_PER_RAD) + CENTER_TICK
         now = back.get(j.servo_id, j.servo_id)
+        if j.servo_id not in back and j.servo_id in renames:
+            continue  # its ID is on a servo being renamed: this joint's servo is not connected
         out[now] = Target(
             id=j.servo_id,
             baud=rig.bus.baud,
@@ -69,6 +72,7 @@ class ServoSetup:
         family: Family = X_SERIES,
     ) -> None:
         self.rig, self.link, self.family = rig, link, family
+        self.renaming = bool(renames)
         self.targets = targets(rig, renames)
         self.names = {j.servo_id: j.name for j in rig.joints}
         self.models = {j.servo_id: j.model for j in rig.joints}

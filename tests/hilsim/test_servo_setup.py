@@ -226,3 +226,10 @@ def test_scan_says_each_baud_as_it_goes(capsys):
     assert "57600 bit/s: IDs 1, 2, 3 (" in err
     assert "1000000 bit/s: no answer to a broadcast Ping; pinging 10 IDs one by one" in err
     assert "1000000 bit/s: none (" in err
+
+
+def test_factory_servos_one_at_a_time_each_get_their_rig_id(factory, capsys):
+    bus, path = factory(ids=(1,))  # the second servo of the figure, fresh from the box
+    assert main(["setup", str(path), "--id", "1:2", "--yes"]) == ExitCode.OK
+    assert [s.id for s in bus.servos] == [2]
+    assert "not found at any baud: servo(s) 3 (tilt)" in capsys.readouterr().err
