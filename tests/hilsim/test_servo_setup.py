@@ -233,3 +233,21 @@ def test_factory_servos_one_at_a_time_each_get_their_rig_id(factory, capsys):
     assert main(["setup", str(path), "--id", "1:2", "--yes"]) == ExitCode.OK
     assert [s.id for s in bus.servos] == [2]
     assert "not found at any baud: servo(s) 3 (tilt)" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("level", [0, 1])
+def test_setup_fixes_mode_limits_shutdown_and_a_quiet_status_level(factory, tmp_path, level):
+    kw = dict(operating_mode=1, min_position_limit=1800, max_position_limit=2300, shutdown=0)
+    bus, path = factory(status_return_level=level, **kw)
+    assert main(["setup", str(path), "--yes"]) == ExitCode.OK
+    for s in bus.servos:
+        regs = s._regs
+        assert s.status_return_level == 2 and s.baud == 1_000_000
+        assert regs[11] == 3 and regs[63] & 0x34 == 0x34
+    pan = bus.servo(2)._regs
+    assert (pan[52], pan[48]) == (2048 - 683, 2048 + 683)  # widened to +-60 deg, no more
+    # wide enough already: kept, when it could be read (level 0 answers Ping only: the
+    # limits are then the joint's range)
+    assert bus.servo(1)._regs[52] == (2048 if level == 0 else 1800)
+    with hilsim.Show(path, out=tmp_path / "run", duration=0.2) as show:
+        assert show.run().exit_code == ExitCode.OK
