@@ -17,7 +17,6 @@ import hilsim
 from drivers.clock import VirtualClock
 from drivers.dxlsim import DxlBus, VirtualServo, register_bus, unregister_bus
 from drivers.dxlsim.protocol import Instruction, StreamParser
-from drivers.dynamixel.configure import X_SERIES, Found, Settings, Target, plan
 from hilsim.cli import main
 from hilsim.exit_codes import ExitCode
 
@@ -181,6 +180,8 @@ def test_bad_id_flag_is_one_line(factory, capsys):
 
 
 def test_plan_widens_limits_and_keeps_shutdown_bits():
+    from drivers.dynamixel.configure import X_SERIES, Found, Settings, Target, plan
+
     found = Found(1, 57_600, 1060, "XL430-W250", 46)
     now = {
         "return_delay": 0,
@@ -251,3 +252,11 @@ def test_setup_fixes_mode_limits_shutdown_and_a_quiet_status_level(factory, tmp_
     assert bus.servo(1)._regs[52] == (2048 if level == 0 else 1800)
     with hilsim.Show(path, out=tmp_path / "run", duration=0.2) as show:
         assert show.run().exit_code == ExitCode.OK
+
+
+def test_the_refusal_names_mode_and_shutdown_with_the_setup_command(factory, tmp_path):
+    _bus, path = factory(operating_mode=1, shutdown=0)
+    rows = _refusal(path, tmp_path).splitlines()
+    for item in ("Operating Mode", "Shutdown (torque cut on)", "Return Delay Time", "baud"):
+        hits = [r for r in rows if f"  {item}  " in r]
+        assert len(hits) == 3 and all("hilsim setup" in r and "--yes" in r for r in hits), rows
