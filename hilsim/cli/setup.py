@@ -137,7 +137,9 @@ def _setup(setup: ServoSetup, yes: bool) -> int:
             + ", ".join(
                 f"{sid} ({names.get(setup.targets[sid].id, '?')})" for sid in the_plan.missing
             )
-            + " (check power and wiring; --id OLD:NEW renames a servo found at another ID)"
+            + " (check power and wiring; --id OLD:NEW renames a servo found at another ID; "
+            "servos sharing an ID, as factory ones do, answer as noise: connect them one at a "
+            "time)"
         )
     if not the_plan.changes:
         _say("every servo found is as the rig expects: nothing to write")

@@ -56,7 +56,10 @@ def setup_return_delay_us(rig: Rig) -> float:
 
 def setup_command(rig: Rig) -> str:
     """The command that brings the servos to what ``rig`` expects."""
-    return f"hilsim setup {shlex.quote(str(rig.path))} --port {shlex.quote(rig.bus.port)} --yes"
+    bus = f" --bus {shlex.quote(rig.bus_name)}" if rig.bus_name else ""
+    return (
+        f"hilsim setup {shlex.quote(str(rig.path))}{bus} --port {shlex.quote(rig.bus.port)} --yes"
+    )
 
 
 def check_everything(
