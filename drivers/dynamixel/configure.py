@@ -62,6 +62,17 @@ class Family:
     lock: Item | None = None
     #: the span one read covers (from address 0): every register above, and torque
     read_size: int = 0
+    #: the rate servos leave the factory at
+    factory_baud: int = 57_600
+
+    def probe_order(self, first: int | None = None) -> list[int]:
+        """The family's bauds in the order worth trying: ``first`` (the rig's), the factory
+        rate, the rest ascending, the slowest last (a broadcast Ping there takes seconds)."""
+        rates = sorted(set(self.bauds.values()))
+        head = [b for b in (first, self.factory_baud) if b is not None]
+        head = list(dict.fromkeys(head))
+        rest = [b for b in rates[1:] if b not in head] + [b for b in rates[:1] if b not in head]
+        return head + rest
 
     def register(self, key: str) -> Register:
         return next(r for r in self.registers if r.key == key)

@@ -116,9 +116,8 @@ def _look_elsewhere(
 ) -> tuple[list[int], dict[int, int], list[Mismatch], list[ServoState]]:
     """Who answered at the bus's baud; at which other baud each silent servo answers, and
     its own check there. The link is back at the bus's baud afterwards."""
-    from drivers.dynamixel.configure import find
+    from drivers.dynamixel.configure import X_SERIES, find
     from drivers.dynamixel.errors import DynamixelError
-    from drivers.protocol2.control_table import BAUD_RATES
 
     link, home = bus.link, bus.link.baud
     try:
@@ -131,7 +130,7 @@ def _look_elsewhere(
     states: list[ServoState] = []
     by_id = {e.id: e for e in exps}
     try:
-        for baud in sorted(set(BAUD_RATES.values()) - {home}):
+        for baud in X_SERIES.probe_order(home)[1:]:
             left = [sid for sid in silent if sid not in elsewhere]
             if not left:
                 break

@@ -78,9 +78,9 @@ class ServoSetup:
         self.models = {j.servo_id: j.model for j in rig.joints}
 
     def bauds(self) -> list[int]:
-        """The family's baud table, the rig's rate first (most servos are already there)."""
-        rates = sorted(set(self.family.bauds.values()))
-        return [self.rig.bus.baud] + [b for b in rates if b != self.rig.bus.baud]
+        """The family's baud table, the rig's rate first (most servos are already there), then
+        the factory's."""
+        return self.family.probe_order(self.rig.bus.baud)
 
     def find(self, progress: Callable[[int, list[Found]], None] | None = None) -> list[Found]:
         """Every servo answering at any baud this port can set (``progress`` per baud)."""
