@@ -106,8 +106,10 @@ def check_bus(rig: Rig, bus: DynamixelBus, say: Callable[[str], None]) -> list[s
     """Make the servos ready and check them against the rig before anything moves.
 
     Clears Bus Watchdog trips a previous host left, checks every servo (model, limits, Return
-    Delay Time) and that the bus can carry the tick rate. Each note is passed to ``say`` as
-    it is found and returned (for ``events.jsonl``). Raises :class:`ShowRefusedError`.
+    Delay Time...; a silent one at the other bauds too) and that the bus can carry the tick
+    rate (:func:`hilsim.show.servo_check.check_everything`). Each note is passed to ``say``
+    as it is found and returned (for ``events.jsonl``). Raises :class:`ShowRefusedError`
+    with one table of every problem found.
     """
     from drivers.dynamixel.errors import DynamixelError
     from hilsim.show.servo_check import check_everything, render
