@@ -867,7 +867,7 @@ def test_row_17_configuration_differences_are_one_clear_table(emulated, capsys):
     err = capsys.readouterr().err
     for sid, item in ((1, "Operating Mode"), (2, "Status Return Level"), (3, "position range")):
         assert any(ln.lstrip().startswith(f"{sid} ") and item in ln for ln in err.splitlines())
-    assert "3 mismatch(es)" in err  # one table, every difference
+    assert "3 problem(s)" in err  # one table, every difference
     assert not Wire.of(emu.bus).instructions() & WRITING  # EEPROM never rewritten
     assert not emu.out.exists()
 
