@@ -22,7 +22,7 @@ from hilsim.telemetry.reader import read_run
 RIG = """
 name = "live"
 [bus]
-port = "dxlsim://?ids=1-2&rdt_us=0&latency_ms=1"
+port = "dxlsim://?ids=1-2&model=XM430-W210&rdt_us=0&latency_ms=1"
 [loop]
 rate_hz = 250
 [safety]
@@ -30,6 +30,7 @@ soft_start_s = 0.1
 [[joints]]
 name = "head_pan"
 servo_id = 1
+model = "XM430-W210"  # 462 °/s no-load: the speed limits below fit
 min_deg = -40
 max_deg = 40
 max_speed_deg_s = 400
@@ -39,6 +40,7 @@ target = { type = "hold", value_deg = 0 }
 [[joints]]
 name = "jaw"
 servo_id = 2
+model = "XM430-W210"
 min_deg = 0
 max_deg = 20
 max_speed_deg_s = 300
