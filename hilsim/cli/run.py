@@ -4,8 +4,8 @@ Exit codes (:mod:`hilsim.exit_codes`): 0 the show completed, exit policy confirm
 2 the rig file, a command-line value or the servos on the bus do not fit (nothing moved);
 3 a fault stopped the show (the servo, bus, host or telemetry cause printed); 4 the exit
 policy could not be confirmed on some servo; 5 stopped by a stop command of a show (``--show``,
-``--live``: OSC ``/hilsim/stop``, Bottango ``STOP``); 130/143 stopped by SIGINT/SIGTERM (exit
-policy applied); 1 an unexpected error outside the show.
+``--live``: OSC ``/hilsim/stop``, Bottango ``STOP``); 129/130/131/143 stopped by
+SIGHUP/SIGINT/SIGQUIT/SIGTERM (exit policy applied); 1 an unexpected error outside the show.
 
 A rig with several ``[buses.<name>]`` runs one child process per bus (``hilsim.show.group``:
 one start instant, one stop, each bus's record in ``RUN/<bus>/``); the exit code is the worst
@@ -30,6 +30,7 @@ from hilsim.cli._args import add_port
 from hilsim.cli._report import StatusLine, print_stats, verdict
 from hilsim.exit_codes import ExitCode, for_signal
 from hilsim.show.run_dir import RunDir, RunDirError, make_run_dir
+from hilsim.show.stop import STOP_SIGNALS
 
 if TYPE_CHECKING:
     from hilsim.rig import Rig
@@ -255,10 +256,7 @@ def _run_show(args: argparse.Namespace, show: Show, made: RunDir, shown: list[bo
 
     rig, run_dir = show.rig, made.path
     show.out = run_dir
-    previous = {
-        s: signal.signal(s, lambda signum, _f: show.stop(signum))
-        for s in (signal.SIGINT, signal.SIGTERM)
-    }
+    previous = {s: signal.signal(s, lambda signum, _f: show.stop(signum)) for s in STOP_SIGNALS}
     try:
         try:
             show.open()
@@ -305,7 +303,10 @@ def _run_show(args: argparse.Namespace, show: Show, made: RunDir, shown: list[bo
         if not args.shared_start:  # a group's child keeps them: the parent's stop is late
             for s, handler in previous.items():
                 signal.signal(s, handler)
-    return _report(args, rig, result, run_dir, virtual)
+    try:
+        return _report(args, rig, result, run_dir, virtual)
+    except OSError:  # stderr gone (a hung-up terminal: SIGHUP): the record says it all
+        return result.exit_code
 
 
 def _report(
