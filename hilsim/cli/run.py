@@ -61,6 +61,18 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         metavar="DIR",
         help="run directory, new or empty (default <out_dir>/<name>-<time>)",
     )
+    p.add_argument(
+        "--runs-dir",
+        metavar="DIR",
+        help="make each run's directory <name>-<time> in DIR (instead of the rig's "
+        "telemetry.out_dir, which is relative to the working directory)",
+    )
+    p.add_argument(
+        "--status-file",
+        metavar="PATH",
+        help="write the heartbeat (status.json, docs/service.md) here instead of in the run "
+        "directory, e.g. /run/hilsim/status.json",
+    )
     p.add_argument("--no-plots", action="store_true", help="do not draw plots after the run")
     p.add_argument(
         "--show",
@@ -123,6 +135,7 @@ def run(args: argparse.Namespace) -> int:
             show=args.show,
             live=args.live,
             on_note=_say,
+            status_file=args.status_file or True,
         )
     except (RigError, ValueError) as exc:
         _say(str(exc))
@@ -148,7 +161,7 @@ def run(args: argparse.Namespace) -> int:
     for line in _track_warnings(rig, checked, args.duration):
         _say(f"warning: {line}")
     try:
-        made = make_run_dir(args.out, rig.telemetry.out_dir, rig.name)
+        made = make_run_dir(args.out, args.runs_dir or rig.telemetry.out_dir, rig.name)
     except RunDirError as exc:
         _say(str(exc))
         return EXIT_USAGE
@@ -172,8 +185,14 @@ def _run_group(args: argparse.Namespace, rigs: tuple[Rig, ...]) -> int:
     if args.shared_start:  # a child runs one bus, never a group
         _say("--shared-start needs --bus")
         return EXIT_USAGE
+    if args.status_file:
+        _say(
+            "--status-file names one file: with several buses each bus writes its own, "
+            "RUN/<bus>/status.json; give --bus NAME for one bus's"
+        )
+        return EXIT_USAGE
     try:
-        made = make_run_dir(args.out, rig.telemetry.out_dir, rig.name)
+        made = make_run_dir(args.out, args.runs_dir or rig.telemetry.out_dir, rig.name)
     except RunDirError as exc:
         _say(str(exc))
         return EXIT_USAGE

@@ -1,0 +1,217 @@
+"""Unattended operation (docs/service.md): SIGHUP and SIGQUIT end a show as SIGTERM does, the
+heartbeat file, and the systemd unit ``hilsim service print`` writes."""
+
+from __future__ import annotations
+
+import errno
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+import hilsim
+from hilsim.show import heartbeat as hb
+from hilsim.telemetry.reader import read_run
+
+REPO = Path(__file__).resolve().parents[2]
+DEMO = REPO / "configs" / "demo.toml"
+
+
+def _status(path: Path) -> dict | None:
+    try:
+        return json.loads(path.read_text())
+    except (OSError, ValueError):
+        return None
+
+
+def _wait_running(proc: subprocess.Popen, status: Path) -> dict:
+    """status.json saying the show runs, past its first ticks (waiting, not timing)."""
+    deadline = time.monotonic() + 120.0
+    while time.monotonic() < deadline:
+        st = _status(status)
+        if st is not None and st["state"] == "running" and st["tick"] > 0:
+            return st
+        assert proc.poll() is None, proc.communicate()
+        time.sleep(0.05)
+    raise AssertionError(f"no running status in {status}: {_status(status)}")
+
+
+def _hilsim_run(out: Path, *extra: str) -> subprocess.Popen:
+    return subprocess.Popen(
+        [sys.executable, "-m", "hilsim", "run", str(DEMO), "--virtual-time", "--duration",
+         "3600", "--no-plots", "--out", str(out), *extra],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=REPO,
+    )  # fmt: skip
+
+
+@pytest.mark.parametrize(("signum", "code"), [(signal.SIGHUP, 129), (signal.SIGQUIT, 131)])
+def test_sighup_and_sigquit_mid_show_apply_the_exit_policy(tmp_path, signum, code):
+    out = tmp_path / "run"
+    proc = _hilsim_run(out)
+    try:
+        running = _wait_running(proc, out / "status.json")
+        assert running["servos"][0]["read"] == "ok" and running["pid"] == proc.pid
+        proc.send_signal(signum)
+        assert proc.wait(timeout=60) == code, proc.communicate()
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    err = proc.communicate()[1]
+    assert f"exit code {code}" in err
+    run = read_run(out)
+    assert run.summary["exit_code"] == code
+    assert run.summary["exit_policy_confirmed"] is True  # mid-show: the hold was read back
+    assert run.n_ticks >= running["tick"]
+    assert [e["kind"] for e in run.events].count("signal") == 1
+    policy = [e for e in run.events if e["kind"] == "exit_policy"]
+    assert "4 servo(s) confirmed" in policy[0]["message"]
+    ended = _status(out / "status.json")
+    assert ended is not None and ended["state"] == "ended"
+    assert ended["exit_code"] == code and ended["exit_policy_confirmed"] is True
+    assert signal.Signals(signum).name in ended["exit_reason"]
+
+
+def test_the_status_file_can_live_elsewhere(tmp_path):
+    out, status = tmp_path / "run", tmp_path / "run-hilsim" / "status.json"
+    proc = _hilsim_run(out, "--status-file", str(status))
+    try:
+        _wait_running(proc, status)
+        proc.send_signal(signal.SIGTERM)
+        assert proc.wait(timeout=60) == 143
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    proc.communicate()
+    assert not (out / "status.json").exists()
+    assert _status(status)["state"] == "ended"
+
+
+def test_a_library_show_writes_the_heartbeat_and_how_it_ended(tmp_path):
+    out = tmp_path / "run"
+    with hilsim.Show(DEMO, virtual_time=True, duration=1.0, out=out, status_file=True) as show:
+        result = show.run()
+    st = _status(out / "status.json")
+    assert st is not None and result.exit_code == 0
+    assert st["state"] == "ended" and st["exit_code"] == 0 and st["exit_reason"] == "end of show"
+    assert st["tick"] == result.ticks and st["summary_written"] is True
+    assert st["rig"] == "demo" and st["run_dir"] == str(out) and st["clock"] == "virtual time"
+    assert [s["joint"] for s in st["servos"]] == ["head_pan", "head_tilt", "jaw", "tail"]
+    assert not list(out.glob(".status.json*"))  # no temporary file left behind
+
+
+def test_without_the_option_a_library_show_writes_no_heartbeat(tmp_path):
+    out = tmp_path / "run"
+    with hilsim.Show(DEMO, virtual_time=True, duration=0.2, out=out) as show:
+        show.run()
+    assert not (out / "status.json").exists()
+
+
+def test_a_refused_show_says_so_in_a_status_file_elsewhere(tmp_path):
+    status = tmp_path / "status.json"
+    show = hilsim.Show(
+        DEMO, port="dxlsim://?ids=1-2&rdt_us=0&latency_ms=1", virtual_time=True,
+        out=tmp_path / "run", status_file=status,
+    )  # fmt: skip
+    with pytest.raises(hilsim.ShowRefusedError):
+        show.open()
+    st = _status(status)
+    assert st is not None and st["state"] == "refused" and st["exit_code"] == 2
+    assert not (tmp_path / "run").exists()  # nothing left of a run that never started
+
+
+def test_a_status_file_that_cannot_be_written_is_one_line_and_the_show_goes_on(tmp_path):
+    (tmp_path / "file").write_text("in the way")
+    notes: list[str] = []
+    with hilsim.Show(
+        DEMO, virtual_time=True, duration=1.0, out=tmp_path / "run",
+        status_file=tmp_path / "file" / "status.json", status_every_s=1e-6, on_note=notes.append,
+    ) as show:  # fmt: skip
+        result = show.run()
+    assert result.exit_code == 0 and result.summary["exit_policy_confirmed"] is True
+    failed = [n for n in notes if "status file" in n]
+    assert len(failed) == 1 and "not written" in failed[0] and "the show goes on" in failed[0]
+
+
+def _beat(tmp_path: Path, said: list[str]) -> hb.Heartbeat:
+    return hb.Heartbeat(
+        tmp_path / "status.json", fixed={"rig": "r"}, joints=[("a", 1), ("b", 2)],
+        every_s=1e-9, say=said.append,
+    )  # fmt: skip
+
+
+def _wait_for(beat: hb.Heartbeat, writes: int, failures: int = 0) -> None:
+    deadline = time.monotonic() + 10.0
+    while (beat.writes < writes or beat.failures < failures) and time.monotonic() < deadline:
+        time.sleep(0.01)
+
+
+def test_a_full_disk_is_said_once_and_again_when_it_writes(tmp_path, monkeypatch):
+    said: list[str] = []
+    beat = _beat(tmp_path, said)
+    real_replace, full = os.replace, [True]
+
+    def replace(src, dst):
+        if full[0]:
+            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+        real_replace(src, dst)
+
+    monkeypatch.setattr(hb.os, "replace", replace)
+    beat.start()
+    _wait_for(beat, 0, 1)
+    st = {"tick": 10, "t": 0.04, "read": [0, 1], "present_rad": [0.0, float("nan")], "limp": [1]}
+    for k in range(3):
+        beat.offer({**st, "tick": 10 + k})
+        _wait_for(beat, 0, 2 + k)
+    assert beat.failures >= 2 and not (tmp_path / "status.json").exists()
+    assert len(said) == 1 and "No space left on device" in said[0]
+    assert not list(tmp_path.glob(".status.json*"))  # the temporary file is removed
+    full[0] = False
+    beat.offer({**st, "tick": 20})
+    _wait_for(beat, 1)
+    beat.end({"exit_code": 0, "exit_reason": "end of show"})
+    assert said[1:] == [f"status file {tmp_path / 'status.json'} written again"]
+    st = _status(tmp_path / "status.json")
+    assert st["state"] == "ended" and st["tick"] == 20 and st["rig"] == "r"
+    assert st["servos"] == [
+        {"id": 1, "joint": "a", "read": "ok", "present_deg": 0.0, "limp": False},
+        {"id": 2, "joint": "b", "read": "stale", "present_deg": None, "limp": True},
+    ]
+
+
+def test_the_loop_never_waits_for_the_status_disk(tmp_path, monkeypatch):
+    """A write stuck on the disk: offers return at once, only the newest is kept."""
+    import threading
+
+    said: list[str] = []
+    beat = _beat(tmp_path, said)
+    stuck, release = threading.Event(), threading.Event()
+    real_replace = os.replace
+
+    def replace(src, dst):
+        stuck.set()
+        release.wait(120.0)
+        real_replace(src, dst)
+
+    monkeypatch.setattr(hb.os, "replace", replace)
+    beat.start()
+    assert stuck.wait(10.0)
+    done = threading.Event()
+
+    def offers() -> None:
+        for k in range(1000):
+            beat.offer({"tick": k, "t": k * 0.004})
+        done.set()
+
+    threading.Thread(target=offers, daemon=True).start()
+    assert done.wait(60.0)  # every offer handed over while the write is still stuck
+    assert not release.is_set() and beat.writes == 0
+    release.set()
+    beat.end({"exit_code": 0, "exit_reason": "end of show"})
+    st = _status(tmp_path / "status.json")
+    assert st["state"] == "ended" and st["tick"] == 999
+    assert beat.writes <= 3  # starting, (perhaps the newest offer), ended
