@@ -6,6 +6,8 @@ from __future__ import annotations
 import errno
 import json
 import os
+import shlex
+import shutil
 import signal
 import subprocess
 import sys
@@ -15,6 +17,8 @@ from pathlib import Path
 import pytest
 
 import hilsim
+from hilsim.cli import main
+from hilsim.rig import load_rigs
 from hilsim.show import heartbeat as hb
 from hilsim.telemetry.reader import read_run
 
@@ -215,3 +219,88 @@ def test_the_loop_never_waits_for_the_status_disk(tmp_path, monkeypatch):
     st = _status(tmp_path / "status.json")
     assert st["state"] == "ended" and st["tick"] == 999
     assert beat.writes <= 3  # starting, (perhaps the newest offer), ended
+
+
+# ------------------------------------------------------------------ the systemd unit
+SYSTEMD_ANALYZE = shutil.which("systemd-analyze")
+needs_systemd_analyze = pytest.mark.skipif(
+    SYSTEMD_ANALYZE is None, reason="systemd-analyze not installed (Debian: apt install systemd)"
+)
+
+
+def _unit(capsys, *argv: str) -> str:
+    assert main(["service", "print", *argv]) == 0, capsys.readouterr().err
+    return capsys.readouterr().out
+
+
+def _keys(unit: str) -> dict[str, str]:
+    return dict(
+        line.split("=", 1) for line in unit.splitlines() if "=" in line and line[0] not in "#;"
+    )
+
+
+def _verify(tmp_path: Path, unit: str, name: str = "hilsim-demo") -> None:
+    path = tmp_path / f"{name}.service"
+    path.write_text(unit)
+    done = subprocess.run(
+        [SYSTEMD_ANALYZE, "verify", str(path)], capture_output=True, text=True, timeout=120
+    )
+    assert done.returncode == 0, done.stderr
+    assert f"{name}.service" not in done.stderr, done.stderr  # (an unknown key: rc 0, a line)
+
+
+@needs_systemd_analyze
+@pytest.mark.parametrize(
+    "rig", ["demo.toml", "hardware_example.toml", "two_buses.toml"], ids=lambda r: r[:-5]
+)
+def test_the_generated_unit_passes_systemd_analyze_verify(tmp_path, capsys, monkeypatch, rig):
+    monkeypatch.chdir(tmp_path)
+    show = ["--show", str(REPO / "configs" / "shows" / "demo_show.toml")] * (rig == "demo.toml")
+    unit = _unit(capsys, str(REPO / "configs" / rig), *show, "--runs-dir", "/srv/fig ure/r%s")
+    _verify(tmp_path, unit, "hilsim-" + load_rigs(REPO / "configs" / rig)[0].name)
+    keys = _keys(unit)
+    assert keys["SuccessExitStatus"].split() == ["5", "129", "130", "131", "143"]
+    assert set(keys["RestartPreventExitStatus"].split()) == {
+        "2",
+        "4",
+        "5",
+        "129",
+        "130",
+        "131",
+        "143",
+    }
+    assert keys["Restart"] == "on-failure" and keys["WorkingDirectory"] == str(tmp_path)
+    assert keys["StandardError"] == "journal"
+    exec_start = shlex.split(keys["ExecStart"].replace("%%", "%"))
+    assert Path(exec_start[0]).is_absolute() and Path(exec_start[0]).exists()
+    assert exec_start[exec_start.index("--runs-dir") + 1] == "/srv/fig ure/r%s"
+    if rig == "hardware_example.toml":  # it asks for SCHED_FIFO: the unit grants it
+        assert keys["AmbientCapabilities"] == "CAP_SYS_NICE" and keys["LimitRTPRIO"] == "50"
+        assert keys["SupplementaryGroups"] == "dialout"
+    if rig == "two_buses.toml":  # each bus writes its own heartbeat in its run directory
+        assert "--status-file" not in exec_start and "RuntimeDirectory" not in keys
+
+
+def test_the_units_command_runs_a_show_and_its_heartbeat(tmp_path, capsys, monkeypatch):
+    """ExecStart as systemd would run it (the runtime directory moved into tmp_path), on the
+    virtual clock for a moment: a show, its run in --runs-dir, status.json ended."""
+    monkeypatch.chdir(tmp_path)
+    unit = _unit(capsys, str(DEMO), "--runs-dir", str(tmp_path / "runs"))
+    keys = _keys(unit)
+    status = tmp_path / "rt" / "status.json"
+    argv = shlex.split(keys["ExecStart"].replace("%%", "%"))
+    argv[argv.index("--status-file") + 1] = str(status)
+    done = subprocess.run(
+        [*argv, "--virtual-time", "--duration", "0.5"], capture_output=True, text=True,
+        cwd=keys["WorkingDirectory"], timeout=300,
+    )  # fmt: skip
+    assert done.returncode == 0, done.stderr
+    (run,) = (tmp_path / "runs").iterdir()
+    assert read_run(run).summary["exit_code"] == 0
+    assert _status(status)["state"] == "ended" and _status(status)["run_dir"] == str(run)
+
+
+def test_service_print_refuses_a_bad_rig_in_one_line(tmp_path, capsys):
+    assert main(["service", "print", str(tmp_path / "nope.toml")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "nope.toml" in err[0]
