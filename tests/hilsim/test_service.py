@@ -3,14 +3,19 @@ heartbeat file, and the systemd unit ``hilsim service print`` writes."""
 
 from __future__ import annotations
 
+import contextlib
 import errno
+import fcntl
 import json
 import os
+import pty
+import select
 import shlex
 import shutil
 import signal
 import subprocess
 import sys
+import termios
 import time
 from pathlib import Path
 
@@ -78,6 +83,42 @@ def test_sighup_and_sigquit_mid_show_apply_the_exit_policy(tmp_path, signum, cod
     assert ended is not None and ended["state"] == "ended"
     assert ended["exit_code"] == code and ended["exit_policy_confirmed"] is True
     assert signal.Signals(signum).name in ended["exit_reason"]
+
+
+@pytest.mark.skipif(not hasattr(termios, "TIOCSCTTY"), reason="needs a controlling terminal")
+def test_a_terminal_that_goes_away_stops_the_show_through_the_exit_policy(tmp_path):
+    """An SSH session dropped: ``hilsim run`` on a terminal (its controlling one) that then
+    closes gets SIGHUP from the kernel, and its stderr fails after it. Exit 129, as the
+    summary says, not a traceback's 1."""
+    out = tmp_path / "run"
+    master, slave = pty.openpty()
+
+    def own_terminal() -> None:
+        os.setsid()
+        fcntl.ioctl(0, termios.TIOCSCTTY, 0)
+
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "hilsim", "run", str(DEMO), "--duration", "600", "--no-plots",
+         "--out", str(out)],
+        stdin=slave, stdout=slave, stderr=slave, preexec_fn=own_terminal, cwd=REPO,
+    )  # fmt: skip
+    os.close(slave)
+    try:
+        seen = b""
+        deadline = time.monotonic() + 120.0
+        while (st := _status(out / "status.json")) is None or st["state"] != "running":
+            assert time.monotonic() < deadline and proc.poll() is None, seen
+            if select.select([master], [], [], 0.05)[0]:  # (a terminal nobody reads fills up)
+                with contextlib.suppress(OSError):
+                    seen += os.read(master, 65536)
+        os.close(master)  # the terminal goes away
+        assert proc.wait(timeout=60) == 129
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    run = read_run(out)
+    assert run.summary["exit_code"] == 129 and run.summary["exit_policy_confirmed"] is True
+    assert _status(out / "status.json")["state"] == "ended"
 
 
 def test_the_status_file_can_live_elsewhere(tmp_path):
