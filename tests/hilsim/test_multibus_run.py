@@ -152,6 +152,8 @@ def test_a_signal_to_the_parent_reaches_every_bus_on_the_real_clock(tmp_path, si
         run = read_run(out / bus)
         assert run.summary["exit_code"] == code, parent.text
         assert run.summary["clock"] == "real time"
+        beat = json.loads((out / bus / "status.json").read_text())  # each bus's heartbeat
+        assert beat["state"] == "ended" and beat["exit_code"] == code
         signals = [e for e in run.events if e["kind"] == "signal"]
         assert len(signals) == 1, parent.text
         if run.summary["exit_policy_confirmed"] is None:  # it landed before torque went on
