@@ -76,14 +76,17 @@ def _hilsim_command() -> list[str]:
 
 def run(args: argparse.Namespace) -> int:
     from hilsim.rig import RigError, load_rigs
+    from hilsim.show.api import Show
 
     try:
         rigs = load_rigs(args.config)
+        if args.show is not None and len(rigs) > 1:
+            _say("--show drives one bus for now: this rig has several buses")
+            return int(ExitCode.USAGE)
+        if args.show is not None:  # the rig and show as hilsim run reads them (nothing opened)
+            Show(rigs[0], show=args.show)
     except (RigError, ValueError) as exc:
         _say(str(exc))
-        return int(ExitCode.USAGE)
-    if args.show is not None and not Path(args.show).is_file():
-        _say(f"--show {args.show}: no such file")
         return int(ExitCode.USAGE)
     rig = rigs[0]
     workdir = Path(args.workdir or os.getcwd()).expanduser().absolute()

@@ -341,7 +341,16 @@ def test_the_units_command_runs_a_show_and_its_heartbeat(tmp_path, capsys, monke
     assert _status(status)["state"] == "ended" and _status(status)["run_dir"] == str(run)
 
 
-def test_service_print_refuses_a_bad_rig_in_one_line(tmp_path, capsys):
-    assert main(["service", "print", str(tmp_path / "nope.toml")]) == 2
-    err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and "nope.toml" in err[0]
+@pytest.mark.parametrize("bad", ["rig", "show", "show-of-two-buses"])
+def test_service_print_refuses_a_bad_rig_or_show_in_one_line(tmp_path, capsys, bad):
+    (tmp_path / "show.toml").write_text("[cues.scare]\nnot_a_key = 1\n")
+    argv = {
+        "rig": [str(tmp_path / "nope.toml")],
+        "show": [str(DEMO), "--show", str(tmp_path / "show.toml")],
+        "show-of-two-buses": [str(REPO / "configs" / "two_buses.toml"), "--show",
+                              str(REPO / "configs" / "shows" / "demo_show.toml")],
+    }[bad]  # fmt: skip
+    assert main(["service", "print", *argv]) == 2
+    out, err = capsys.readouterr()
+    assert out == "" and len(err.strip().splitlines()) == 1, err
+    assert {"rig": "nope.toml", "show": "show.toml", "show-of-two-buses": "one bus"}[bad] in err
