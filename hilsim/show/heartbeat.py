@@ -128,7 +128,7 @@ class Heartbeat:
 
     def refused(self, reason: str) -> None:
         """The show was refused before anything moved (exit 2): one write, at once."""
-        self._doc.update(state="refused", exit_code=2, exit_reason=reason)
+        self._doc.update(state="refused", exit_code=2, exit_reason=reason, run_dir=None)
         self._write(dict(self._doc), final=True)
 
     # ------------------------------------------------------------------ the writer's side

@@ -166,6 +166,7 @@ def test_a_refused_show_says_so_in_a_status_file_elsewhere(tmp_path):
         show.open()
     st = _status(status)
     assert st is not None and st["state"] == "refused" and st["exit_code"] == 2
+    assert "answers Ping" in st["exit_reason"] and st["run_dir"] is None
     assert not (tmp_path / "run").exists()  # nothing left of a run that never started
 
 
