@@ -8,10 +8,11 @@ loop has stopped; the exit policy comes next), ``ended`` (with the exit code and
 ``summary.json`` says them) or ``refused`` (nothing moved). Its last write says how the run
 ended. The layout and a staleness check are in ``docs/service.md``.
 
-The loop only hands a dict over (a lock held for an assignment); a thread of its own formats
-and writes, each time to a temporary file then ``os.replace``, so a reader never sees half a
-file and a slow or full disk never holds up a tick. A write that fails is one line (through
-``say``), then the show goes on; one more line when writing works again.
+The loop only hands its dict over (a lock held for an append); a thread of its own turns it
+into the file's fields and writes them, each time to a temporary file then ``os.replace``,
+so a reader never sees half a file and a slow or full disk never holds up a tick. A write
+that fails is one line (through ``say``), then the show goes on; one more line when writing
+works again.
 """
 
 from __future__ import annotations
@@ -81,7 +82,9 @@ class Heartbeat:
             "exit_reason": None,
         }
         self._cv = threading.Condition()
-        self._pending: JsonDict | None = None
+        #: changes for the writer, in order: (fields, the loop's raw figures or None); the
+        #: writer alone touches ``_doc`` once started
+        self._queue: list[tuple[JsonDict, JsonDict | None]] = []
         self._final = self._closed = False
         self._failing = False
         self._last: tuple[float, int] | None = None  # (perf_counter, tick) of the last offer
@@ -103,10 +106,10 @@ class Heartbeat:
         last = self._last
         if last is not None and now - last[0] < 0.9 * self.every_s:
             return
-        tick = int(st.get("tick", 0))
+        tick = st.get("tick", 0)
         rate = None if last is None or now <= last[0] else (tick - last[1]) / (now - last[0])
         self._last = (now, tick)
-        self._put({"state": "running", "rate_hz": rate, **self._figures(st)})
+        self._put({"state": "running", "rate_hz": rate}, raw=st)
 
     def stopping(self, code: int, reason: str) -> None:
         """The loop has stopped (``on_stop``): the exit policy is next."""
@@ -161,25 +164,34 @@ class Heartbeat:
             "servos": servos,
         }
 
-    def _put(self, change: JsonDict, *, final: bool = False) -> None:
+    def _put(self, change: JsonDict, *, raw: JsonDict | None = None, final: bool = False) -> None:
+        """Queue a change for the writer; a running offer replaces one still waiting (a
+        stalled disk: only the newest figures are kept)."""
         with self._cv:
             if self._final or self._closed:
                 return
-            self._doc.update(change)
-            self._pending = dict(self._doc)
+            queue = self._queue
+            if raw is not None and queue and queue[-1][1] is not None:
+                queue[-1] = (change, raw)
+            else:
+                queue.append((change, raw))
             self._final = final
             self._cv.notify()
 
     def _run(self) -> None:
         while True:
             with self._cv:
-                while self._pending is None and not self._closed:
+                while not self._queue and not self._closed:
                     self._cv.wait()
-                if self._closed or self._pending is None:
+                if self._closed:
                     return
-                doc, self._pending = self._pending, None
+                changes, self._queue = self._queue, []
                 final = self._final
-            self._write(doc, final=final)
+            for change, raw in changes:  # the loop's figures turned into fields here, not there
+                if raw is not None:
+                    self._doc.update(self._figures(raw))
+                self._doc.update(change)
+            self._write(dict(self._doc), final=final)
             if final:
                 return
 

@@ -355,3 +355,24 @@ def test_service_print_refuses_a_bad_rig_or_show_in_one_line(tmp_path, capsys, b
     out, err = capsys.readouterr()
     assert out == "" and len(err.strip().splitlines()) == 1, err
     assert {"rig": "nope.toml", "show": "show.toml", "show-of-two-buses": "one bus"}[bad] in err
+
+
+def test_the_loops_figures_become_fields_on_the_writers_thread(tmp_path, monkeypatch):
+    """The loop's side is a hand-over: turning its figures into fields (a loop over the
+    servos) happens on the heartbeat's thread, never in the tick's."""
+    import threading
+
+    beat = _beat(tmp_path, [])
+    threads: list[str] = []
+    figures = beat._figures
+
+    def spy(st):
+        threads.append(threading.current_thread().name)
+        return figures(st)
+
+    monkeypatch.setattr(beat, "_figures", spy)
+    beat.start()
+    beat.offer({"tick": 5, "t": 0.02, "read": [0, 0], "present_rad": [0.0, 0.0]})
+    beat.end({"exit_code": 0, "exit_reason": "end of show"})
+    assert threads == ["hilsim-heartbeat"]
+    assert _status(tmp_path / "status.json")["tick"] == 5
