@@ -35,6 +35,7 @@ from hilsim.show.stop import STOP_SIGNALS
 if TYPE_CHECKING:
     from hilsim.rig import Rig
     from hilsim.show import Show, ShowResult
+    from hilsim.show.group import GroupResult
     from hilsim.targets import TargetSet
 
 HELP = "run a rig: springs follow the animation, streamed to the servos (or the emulator)"
@@ -179,7 +180,7 @@ def run(args: argparse.Namespace) -> int:
 
 def _run_group(args: argparse.Namespace, rigs: tuple[Rig, ...]) -> int:
     """Several buses: one child process each (:mod:`hilsim.show.group`), a table at the end."""
-    from hilsim.show.group import format_rows, run_group
+    from hilsim.show.group import run_group
 
     rig = rigs[0]
     if args.shared_start:  # a child runs one bus, never a group
@@ -207,10 +208,20 @@ def _run_group(args: argparse.Namespace, rigs: tuple[Rig, ...]) -> int:
     lock = threading.Lock()
 
     def echo(line: str) -> None:
-        with lock:
-            print(line, file=sys.stderr, flush=True)
+        with lock, contextlib.suppress(OSError, ValueError):  # a hung-up terminal: drop it,
+            print(line, file=sys.stderr, flush=True)  # keep reading the child's pipe
 
     result = run_group(args.config, names, run_dir, extra, echo=echo)
+    with contextlib.suppress(OSError):  # stderr gone (a hung-up terminal): buses.json says it
+        _report_group(args, result, run_dir)
+    if not any(run_dir.iterdir()):
+        made.remove_if_empty()
+    return result.exit_code
+
+
+def _report_group(args: argparse.Namespace, result: GroupResult, run_dir: Path) -> None:
+    from hilsim.show.group import format_rows
+
     if result.stopped_by is not None and result.stop is not None:
         stopped = result.stop["buses_stopped"]
         when = (
@@ -230,10 +241,7 @@ def _run_group(args: argparse.Namespace, rigs: tuple[Rig, ...]) -> int:
     for row in result.rows:
         print(f"  {row['bus']}: {row['reason']}", file=sys.stderr)
     print(f"  telemetry: {run_dir}/<bus>/", file=sys.stderr)
-    if not any(run_dir.iterdir()):
-        made.remove_if_empty()
     _say(f"exit code {result.exit_code} (the worst bus's)")
-    return result.exit_code
 
 
 def _await_start(show: Show) -> float | None:

@@ -86,10 +86,11 @@ def test_sighup_and_sigquit_mid_show_apply_the_exit_policy(tmp_path, signum, cod
 
 
 @pytest.mark.skipif(not hasattr(termios, "TIOCSCTTY"), reason="needs a controlling terminal")
-def test_a_terminal_that_goes_away_stops_the_show_through_the_exit_policy(tmp_path):
+@pytest.mark.parametrize(("rig", "beat"), [("demo", "."), ("two_buses", "left")])
+def test_a_terminal_that_goes_away_stops_the_show_through_the_exit_policy(tmp_path, rig, beat):
     """An SSH session dropped: ``hilsim run`` on a terminal (its controlling one) that then
     closes gets SIGHUP from the kernel, and its stderr fails after it. Exit 129, as the
-    summary says, not a traceback's 1."""
+    summary says, not a traceback's 1. Several buses: the parent sends it on to each."""
     out = tmp_path / "run"
     master, slave = pty.openpty()
 
@@ -98,27 +99,32 @@ def test_a_terminal_that_goes_away_stops_the_show_through_the_exit_policy(tmp_pa
         fcntl.ioctl(0, termios.TIOCSCTTY, 0)
 
     proc = subprocess.Popen(
-        [sys.executable, "-m", "hilsim", "run", str(DEMO), "--duration", "600", "--no-plots",
-         "--out", str(out)],
+        [sys.executable, "-m", "hilsim", "run", str(REPO / "configs" / f"{rig}.toml"),
+         "--duration", "600", "--no-plots", "--out", str(out)],
         stdin=slave, stdout=slave, stderr=slave, preexec_fn=own_terminal, cwd=REPO,
     )  # fmt: skip
     os.close(slave)
     try:
         seen = b""
         deadline = time.monotonic() + 120.0
-        while (st := _status(out / "status.json")) is None or st["state"] != "running":
+        while (st := _status(out / beat / "status.json")) is None or st["state"] != "running":
             assert time.monotonic() < deadline and proc.poll() is None, seen
             if select.select([master], [], [], 0.05)[0]:  # (a terminal nobody reads fills up)
                 with contextlib.suppress(OSError):
                     seen += os.read(master, 65536)
         os.close(master)  # the terminal goes away
-        assert proc.wait(timeout=60) == 129
+        assert proc.wait(timeout=120) == 129
     finally:
         if proc.poll() is None:
             proc.kill()
-    run = read_run(out)
-    assert run.summary["exit_code"] == 129 and run.summary["exit_policy_confirmed"] is True
-    assert _status(out / "status.json")["state"] == "ended"
+    runs = [out] if beat == "." else [out / "left", out / "right"]
+    for run_dir in runs:
+        run = read_run(run_dir)
+        assert run.summary["exit_code"] == 129
+        assert run.summary["exit_policy_confirmed"] in (True, None)  # None: before torque-on
+        assert _status(run_dir / "status.json")["state"] == "ended"
+    if beat == ".":  # it was running: the hold was confirmed
+        assert read_run(out).summary["exit_policy_confirmed"] is True
 
 
 def test_the_status_file_can_live_elsewhere(tmp_path):
