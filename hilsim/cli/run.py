@@ -72,7 +72,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "--status-file",
         metavar="PATH",
         help="write the heartbeat (status.json, docs/service.md) here instead of in the run "
-        "directory, e.g. /run/hilsim/status.json",
+        "directory, e.g. /run/hilsim/status.json (several buses: status-<bus>.json each)",
     )
     p.add_argument("--no-plots", action="store_true", help="do not draw plots after the run")
     p.add_argument(
@@ -186,12 +186,6 @@ def _run_group(args: argparse.Namespace, rigs: tuple[Rig, ...]) -> int:
     if args.shared_start:  # a child runs one bus, never a group
         _say("--shared-start needs --bus")
         return EXIT_USAGE
-    if args.status_file:
-        _say(
-            "--status-file names one file: with several buses each bus writes its own, "
-            "RUN/<bus>/status.json; give --bus NAME for one bus's"
-        )
-        return EXIT_USAGE
     try:
         made = make_run_dir(args.out, args.runs_dir or rig.telemetry.out_dir, rig.name)
     except RunDirError as exc:
@@ -211,7 +205,8 @@ def _run_group(args: argparse.Namespace, rigs: tuple[Rig, ...]) -> int:
         with lock, contextlib.suppress(OSError, ValueError):  # a hung-up terminal: drop it,
             print(line, file=sys.stderr, flush=True)  # keep reading the child's pipe
 
-    result = run_group(args.config, names, run_dir, extra, echo=echo)
+    status = None if args.status_file is None else Path(args.status_file).expanduser()
+    result = run_group(args.config, names, run_dir, extra, echo=echo, status_file=status)
     with contextlib.suppress(OSError):  # stderr gone (a hung-up terminal): buses.json says it
         _report_group(args, result, run_dir)
     if not any(run_dir.iterdir()):

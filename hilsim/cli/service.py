@@ -129,10 +129,9 @@ def unit_text(
         command += ["--show", str(show_path)]
     command += ["--runs-dir", str(runs), "--no-plots"]
     status = f"/run/{name}/status.json"
-    if several_buses:
-        status = f"{runs}/<run>/<bus>/status.json"
-    else:
-        command += ["--status-file", status]
+    command += ["--status-file", status]
+    if several_buses:  # each bus writes its own
+        status = f"/run/{name}/status-<bus>.json"
     codes = " ".join(str(int(c)) for c in NORMAL_STOPS)
     no_restart = " ".join(str(int(c)) for c in NO_RESTART)
     lines = [
@@ -162,12 +161,11 @@ def unit_text(
         "StandardError=journal",
         f"SyslogIdentifier={name}",
     ]
-    if not several_buses:
-        lines += [
-            "# the heartbeat on a RAM disk (no SD-card wear), kept after a stop: how it ended",
-            f"RuntimeDirectory={name}",
-            "RuntimeDirectoryPreserve=yes",
-        ]
+    lines += [
+        "# the heartbeat on a RAM disk (no SD-card wear), kept after a stop: how it ended",
+        f"RuntimeDirectory={name}",
+        "RuntimeDirectoryPreserve=yes",
+    ]
     if realtime_priority is not None:
         lines += [
             f"# loop.realtime_priority = {realtime_priority}: SCHED_FIFO for the loop",

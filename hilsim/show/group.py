@@ -311,6 +311,11 @@ class _Child:
         self.send(None)
 
 
+def bus_status_file(path: Path, bus: str) -> Path:
+    """One bus's heartbeat when the figure's is ``path``: ``status-<bus>.json`` beside it."""
+    return path.with_name(f"{path.stem}-{bus}{path.suffix}")
+
+
 def child_argv(config: str, bus: str, run_dir: Path, extra: Sequence[str]) -> list[str]:
     """The command line of one bus's child: this Python's ``hilsim run`` on that bus."""
     return [
@@ -335,9 +340,11 @@ def run_group(  # noqa: C901, PLR0912 (the group's life: start, watch, stop, rec
     extra: Sequence[str],
     *,
     echo: Callable[[str], None],
+    status_file: Path | None = None,
 ) -> GroupResult:
     """Start one child per bus, start their shows at one instant, stop them together; returns
-    each bus's outcome (``RUN/buses.json`` holds them too)."""
+    each bus's outcome (``RUN/buses.json`` holds them too). ``status_file``: each bus's
+    heartbeat at :func:`bus_status_file` of it (None: in its run directory)."""
     pending: list[int] = []
     previous = {
         s: signal.signal(s, lambda signum, _f: pending.append(signum)) for s in STOP_SIGNALS
@@ -350,7 +357,10 @@ def run_group(  # noqa: C901, PLR0912 (the group's life: start, watch, stop, rec
     sent: list[_Child] = []  # the buses the parent stopped because another had stopped
     try:
         for name in buses:
-            children.append(_Child(name, child_argv(config, name, run_dir, extra), echo))
+            mine = [*extra]
+            if status_file is not None:
+                mine += ["--status-file", str(bus_status_file(status_file, name))]
+            children.append(_Child(name, child_argv(config, name, run_dir, mine), echo))
         called_off = False
         while any(c.proc.poll() is None for c in children):
             now = time.monotonic()

@@ -142,6 +142,22 @@ def test_the_status_file_can_live_elsewhere(tmp_path):
     assert _status(status)["state"] == "ended"
 
 
+def test_each_bus_of_a_figure_writes_its_heartbeat_beside_the_status_file(tmp_path):
+    out, status = tmp_path / "run", tmp_path / "rt" / "status.json"
+    done = subprocess.run(
+        [sys.executable, "-m", "hilsim", "run", str(REPO / "configs" / "two_buses.toml"),
+         "--virtual-time", "--duration", "0.5", "--no-plots", "--out", str(out),
+         "--status-file", str(status)],
+        capture_output=True, text=True, cwd=REPO, timeout=300,
+    )  # fmt: skip
+    assert done.returncode == 0, done.stderr
+    for bus in ("left", "right"):
+        st = _status(tmp_path / "rt" / f"status-{bus}.json")
+        assert st["state"] == "ended" and st["exit_code"] == 0 and st["bus"] == bus
+        assert st["run_dir"] == str(out / bus)
+    assert not status.exists()
+
+
 def test_a_library_show_writes_the_heartbeat_and_how_it_ended(tmp_path):
     out = tmp_path / "run"
     with hilsim.Show(DEMO, virtual_time=True, duration=1.0, out=out, status_file=True) as show:
@@ -325,8 +341,8 @@ def test_the_generated_unit_passes_systemd_analyze_verify(tmp_path, capsys, monk
     if rig == "hardware_example.toml":  # it asks for SCHED_FIFO: the unit grants it
         assert keys["AmbientCapabilities"] == "CAP_SYS_NICE" and keys["LimitRTPRIO"] == "50"
         assert keys["SupplementaryGroups"] == "dialout"
-    if rig == "two_buses.toml":  # each bus writes its own heartbeat in its run directory
-        assert "--status-file" not in exec_start and "RuntimeDirectory" not in keys
+    if rig == "two_buses.toml":  # each bus writes its own: status-<bus>.json
+        assert "status-<bus>.json" in unit
 
 
 def test_the_units_command_runs_a_show_and_its_heartbeat(tmp_path, capsys, monkeypatch):
