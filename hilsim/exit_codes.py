@@ -18,8 +18,10 @@ code   meaning
 5      stopped by a stop command from the show's control: OSC ``/hilsim/stop``, Bottango's
        ``STOP`` (``hilsim run --show``/``--live``); the exit policy was applied and confirmed
        (unconfirmed: 4)
+129    stopped by SIGHUP (the terminal or SSH session went away); exit policy applied
 130    stopped by SIGINT (Ctrl-C); exit policy applied (128 + the signal number)
-143    stopped by SIGTERM; exit policy applied
+131    stopped by SIGQUIT (Ctrl-\\); exit policy applied
+143    stopped by SIGTERM (``kill``, ``systemctl stop``); exit policy applied
 =====  ==================================================================================
 """
 
@@ -36,7 +38,9 @@ class ExitCode(IntEnum):
     FAULT = 3
     UNSAFE_EXIT = 4
     STOPPED = 5
+    SIGHUP = 129
     SIGINT = 130
+    SIGQUIT = 131
     SIGTERM = 143
 
 

@@ -34,6 +34,7 @@ SUBCOMMANDS: dict[str, str] = {
     "emulate": "hilsim.cli.emulate",
     "compare": "hilsim.cli.compare",
     "tracks": "hilsim.cli.tracks",
+    "service": "hilsim.cli.service",
 }
 
 

@@ -4,8 +4,8 @@ Exit codes (:mod:`hilsim.exit_codes`): 0 the show completed, exit policy confirm
 2 the rig file, a command-line value or the servos on the bus do not fit (nothing moved);
 3 a fault stopped the show (the servo, bus, host or telemetry cause printed); 4 the exit
 policy could not be confirmed on some servo; 5 stopped by a stop command of a show (``--show``,
-``--live``: OSC ``/hilsim/stop``, Bottango ``STOP``); 130/143 stopped by SIGINT/SIGTERM (exit
-policy applied); 1 an unexpected error outside the show.
+``--live``: OSC ``/hilsim/stop``, Bottango ``STOP``); 129/130/131/143 stopped by
+SIGHUP/SIGINT/SIGQUIT/SIGTERM (exit policy applied); 1 an unexpected error outside the show.
 
 A rig with several ``[buses.<name>]`` runs one child process per bus (``hilsim.show.group``:
 one start instant, one stop, each bus's record in ``RUN/<bus>/``); the exit code is the worst
@@ -30,10 +30,12 @@ from hilsim.cli._args import add_port
 from hilsim.cli._report import StatusLine, print_stats, verdict
 from hilsim.exit_codes import ExitCode, for_signal
 from hilsim.show.run_dir import RunDir, RunDirError, make_run_dir
+from hilsim.show.stop import STOP_SIGNALS
 
 if TYPE_CHECKING:
     from hilsim.rig import Rig
     from hilsim.show import Show, ShowResult
+    from hilsim.show.group import GroupResult
     from hilsim.targets import TargetSet
 
 HELP = "run a rig: springs follow the animation, streamed to the servos (or the emulator)"
@@ -59,6 +61,18 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "--out",
         metavar="DIR",
         help="run directory, new or empty (default <out_dir>/<name>-<time>)",
+    )
+    p.add_argument(
+        "--runs-dir",
+        metavar="DIR",
+        help="make each run's directory <name>-<time> in DIR (instead of the rig's "
+        "telemetry.out_dir, which is relative to the working directory)",
+    )
+    p.add_argument(
+        "--status-file",
+        metavar="PATH",
+        help="write the heartbeat (status.json, docs/service.md) here instead of in the run "
+        "directory, e.g. /run/hilsim/status.json (several buses: status-<bus>.json each)",
     )
     p.add_argument("--no-plots", action="store_true", help="do not draw plots after the run")
     p.add_argument(
@@ -122,6 +136,7 @@ def run(args: argparse.Namespace) -> int:
             show=args.show,
             live=args.live,
             on_note=_say,
+            status_file=args.status_file or True,
         )
     except (RigError, ValueError) as exc:
         _say(str(exc))
@@ -147,7 +162,7 @@ def run(args: argparse.Namespace) -> int:
     for line in _track_warnings(rig, checked, args.duration):
         _say(f"warning: {line}")
     try:
-        made = make_run_dir(args.out, rig.telemetry.out_dir, rig.name)
+        made = make_run_dir(args.out, args.runs_dir or rig.telemetry.out_dir, rig.name)
     except RunDirError as exc:
         _say(str(exc))
         return EXIT_USAGE
@@ -165,14 +180,14 @@ def run(args: argparse.Namespace) -> int:
 
 def _run_group(args: argparse.Namespace, rigs: tuple[Rig, ...]) -> int:
     """Several buses: one child process each (:mod:`hilsim.show.group`), a table at the end."""
-    from hilsim.show.group import format_rows, run_group
+    from hilsim.show.group import run_group
 
     rig = rigs[0]
     if args.shared_start:  # a child runs one bus, never a group
         _say("--shared-start needs --bus")
         return EXIT_USAGE
     try:
-        made = make_run_dir(args.out, rig.telemetry.out_dir, rig.name)
+        made = make_run_dir(args.out, args.runs_dir or rig.telemetry.out_dir, rig.name)
     except RunDirError as exc:
         _say(str(exc))
         return EXIT_USAGE
@@ -187,10 +202,21 @@ def _run_group(args: argparse.Namespace, rigs: tuple[Rig, ...]) -> int:
     lock = threading.Lock()
 
     def echo(line: str) -> None:
-        with lock:
-            print(line, file=sys.stderr, flush=True)
+        with lock, contextlib.suppress(OSError, ValueError):  # a hung-up terminal: drop it,
+            print(line, file=sys.stderr, flush=True)  # keep reading the child's pipe
 
-    result = run_group(args.config, names, run_dir, extra, echo=echo)
+    status = None if args.status_file is None else Path(args.status_file).expanduser()
+    result = run_group(args.config, names, run_dir, extra, echo=echo, status_file=status)
+    with contextlib.suppress(OSError):  # stderr gone (a hung-up terminal): buses.json says it
+        _report_group(args, result, run_dir)
+    if not any(run_dir.iterdir()):
+        made.remove_if_empty()
+    return result.exit_code
+
+
+def _report_group(args: argparse.Namespace, result: GroupResult, run_dir: Path) -> None:
+    from hilsim.show.group import format_rows
+
     if result.stopped_by is not None and result.stop is not None:
         stopped = result.stop["buses_stopped"]
         when = (
@@ -210,10 +236,7 @@ def _run_group(args: argparse.Namespace, rigs: tuple[Rig, ...]) -> int:
     for row in result.rows:
         print(f"  {row['bus']}: {row['reason']}", file=sys.stderr)
     print(f"  telemetry: {run_dir}/<bus>/", file=sys.stderr)
-    if not any(run_dir.iterdir()):
-        made.remove_if_empty()
     _say(f"exit code {result.exit_code} (the worst bus's)")
-    return result.exit_code
 
 
 def _await_start(show: Show) -> float | None:
@@ -255,10 +278,7 @@ def _run_show(args: argparse.Namespace, show: Show, made: RunDir, shown: list[bo
 
     rig, run_dir = show.rig, made.path
     show.out = run_dir
-    previous = {
-        s: signal.signal(s, lambda signum, _f: show.stop(signum))
-        for s in (signal.SIGINT, signal.SIGTERM)
-    }
+    previous = {s: signal.signal(s, lambda signum, _f: show.stop(signum)) for s in STOP_SIGNALS}
     try:
         try:
             show.open()
@@ -305,7 +325,10 @@ def _run_show(args: argparse.Namespace, show: Show, made: RunDir, shown: list[bo
         if not args.shared_start:  # a group's child keeps them: the parent's stop is late
             for s, handler in previous.items():
                 signal.signal(s, handler)
-    return _report(args, rig, result, run_dir, virtual)
+    try:
+        return _report(args, rig, result, run_dir, virtual)
+    except OSError:  # stderr gone (a hung-up terminal: SIGHUP): the record says it all
+        return result.exit_code
 
 
 def _report(

@@ -16,7 +16,8 @@ cannot be skipped: a mismatch raises :class:`ShowRefusedError` before anything m
 Leaving the ``with`` block stops a show still running and closes the bus.
 
 While it runs, other threads talk to it through :meth:`Show.stop`, :meth:`Show.cue` and
-:meth:`Show.set_joint`, and read :attr:`Show.status`.
+:meth:`Show.set_joint`. With ``status_file``, a heartbeat file says how it is doing, for a
+monitor (:mod:`hilsim.show.heartbeat`, ``docs/service.md``).
 """
 
 from __future__ import annotations
@@ -33,7 +34,8 @@ from typing import TYPE_CHECKING, Self
 from hilsim._types import JsonDict
 from hilsim.live.controls import Controls
 from hilsim.rig import Rig, load_rigs, select_bus
-from hilsim.show.end import ShowResult
+from hilsim.show.end import ShowResult, crashed
+from hilsim.show.heartbeat import STATUS_FILE, Heartbeat
 from hilsim.show.parts import Parts, build_parts, with_show
 from hilsim.show.run_dir import RunDir, RunDirError, make_run_dir
 from hilsim.show.session import (
@@ -86,6 +88,9 @@ class Show:
         show: a show file (clips, cues, live inputs); ``live``: OSC on 127.0.0.1.
         on_note: called with each thing the start-up found or changed (a line of text);
             default: logged on the ``hilsim.show`` logger.
+        status_file: a heartbeat (``docs/service.md``): True writes ``status.json`` in the
+            run directory, a path writes there (e.g. ``/run/hilsim/status.json``); about
+            every ``status_every_s`` seconds while the show runs, and how it ended.
 
     Raises RigError (the rig or show file) or ValueError (an option) at once.
     """
@@ -102,7 +107,11 @@ class Show:
         show: PathLike | None = None,
         live: bool = False,
         on_note: Callable[[str], None] | None = None,
+        status_file: PathLike | bool = False,
+        status_every_s: float = 1.0,
     ) -> None:
+        if not (math.isfinite(status_every_s) and status_every_s > 0):
+            raise ValueError(f"status_every_s must be a finite number > 0, got {status_every_s!r}")
         if duration is not None and not (math.isfinite(duration) and duration > 0):
             raise ValueError(f"duration must be a finite number of seconds > 0, got {duration!r}")
         if isinstance(rig, Rig):
@@ -122,6 +131,7 @@ class Show:
         self.duration = duration
         self.virtual_time = virtual_time
         self.out = out
+        self.status_file, self.status_every_s = status_file, status_every_s
         self._note = on_note or (lambda line: log.info("%s", line))
         #: what the start-up check found and changed, in order
         self.notes: list[str] = []
@@ -156,6 +166,14 @@ class Show:
                 raise ShowError("this show is closed; make a new Show")
             if self._bus is not None:
                 return self
+        try:
+            return self._open()
+        except ShowRefusedError as exc:  # a heartbeat elsewhere says so; in the run dir: none
+            if not isinstance(self.status_file, bool):
+                self._heartbeat(Path(os.fspath(self.status_file))).refused(str(exc))
+            raise
+
+    def _open(self) -> Self:
         rig = self.rig
         try:
             self._run_dir = make_run_dir(self.out, rig.telemetry.out_dir, rig.name, what="out")
@@ -244,17 +262,31 @@ class Show:
                 self._say(self.notes[-1])
             for note in self.notes:  # what the start-up found and changed, in the record too
                 telemetry.event("startup", note)
-            self._result = run_show(
-                self.parts,
-                self._bus,
-                telemetry,
-                duration_s=self.duration,
-                stop=self._stop,
-                on_status=on_status,
-                start_at=start_at,
-                on_stop=on_stop,
-            )
+            beat = None
+            if self.status_file is not False:
+                where = self.status_file
+                path = run_dir / STATUS_FILE if where is True else Path(os.fspath(where))
+                beat = self._heartbeat(path)
+                beat.start()
+                on_status, on_stop = _also(beat.offer, on_status), _also(beat.stopping, on_stop)
+            try:
+                self._result = run_show(
+                    self.parts,
+                    self._bus,
+                    telemetry,
+                    duration_s=self.duration,
+                    stop=self._stop,
+                    on_status=on_status,
+                    start_at=start_at,
+                    on_stop=on_stop,
+                )
+            except BaseException as exc:
+                if beat is not None:
+                    beat.end(crashed(exc))
+                raise
             self._result.run_dir = run_dir
+            if beat is not None:
+                beat.end(_outcome(self._result, self.rig.loop.period_s))
             return self._result
         finally:
             self._done.set()
@@ -319,3 +351,49 @@ class Show:
 
     def _say(self, line: str) -> None:
         self._note(line)
+
+    def _heartbeat(self, path: Path) -> Heartbeat:
+        rig = self.rig
+        fixed = {
+            "rig": rig.name,
+            "bus": rig.bus_name,
+            "port": rig.bus.port,
+            "run_dir": None if self.run_dir is None else str(self.run_dir),
+            "clock": "virtual time" if self.virtual_time else "real time",
+            "rate_target_hz": rig.loop.rate_hz,
+        }
+        director = self.parts.director
+        if director is not None and director.spec.path:
+            fixed["show_file"] = str(director.spec.path)
+        joints = [(j.name, j.servo_id) for j in rig.joints]
+        return Heartbeat(
+            path.expanduser(),
+            fixed=fixed,
+            joints=joints,
+            every_s=self.status_every_s,
+            say=self._say,
+        )
+
+
+def _also(first: Callable[..., None], then: Callable[..., None] | None) -> Callable[..., None]:
+    """``first``, then the caller's own hook (if any): the heartbeat beside the status line."""
+
+    def both(*args: object) -> None:
+        first(*args)
+        if then is not None:
+            then(*args)
+
+    return both
+
+
+def _outcome(result: ShowResult, period_s: float) -> JsonDict:
+    """How the show ended, for the heartbeat's last write (as summary.json says it)."""
+    return {
+        "exit_code": result.exit_code,
+        "exit_reason": result.reason,
+        "exit_policy": result.exit_policy,
+        "exit_policy_confirmed": result.summary.get("exit_policy_confirmed"),
+        "tick": result.ticks,
+        "show_time_s": max(result.ticks - 1, 0) * period_s,  # its last tick
+        "summary_written": result.summary_error is None,
+    }

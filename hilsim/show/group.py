@@ -14,13 +14,13 @@ reads. This module is the parent (``docs/buses.md``):
   (exit 2) calls the start off: the others are told (their stdin closes) and nothing moves.
   With ``--virtual-time`` each child keeps its own virtual clock (show time is k·period, so
   each bus's numbers are deterministic) and the instant is only the signal to go.
-* **One stop.** SIGINT/SIGTERM to the parent is sent on to every child whose show still runs;
-  each applies its exit policy. A child whose loop stops with a code other than 0 (a fault, a
-  signal of its own) says so on its stdout the moment it stops (:func:`stopping_line`: the
-  code, the instant on CLOCK_MONOTONIC, the reason), before its exit policy, record and plots;
-  the parent then stops every bus whose show still runs with SIGTERM: a figure half-running
-  is not a show. A child that ends without saying so (a crash, SIGKILL) stops them when it
-  ends. A child's stdin closing (the parent died) stops it too.
+* **One stop.** SIGINT, SIGTERM, SIGHUP or SIGQUIT to the parent is sent on to every child
+  whose show still runs; each applies its exit policy. A child whose loop stops with a code
+  other than 0 (a fault, a signal of its own) says so on its stdout the moment it stops
+  (:func:`stopping_line`: the code, the instant on CLOCK_MONOTONIC, the reason), before its
+  exit policy, record and plots; the parent then stops every bus whose show still runs with
+  SIGTERM: a figure half-running is not a show. A child that ends without saying so (a crash,
+  SIGKILL) stops them when it ends. A child's stdin closing (the parent died) stops it too.
 * **One verdict.** Each bus's lateness, overruns, comm errors and stalls side by side, which
   bus stopped the show and why (the earliest of the buses' own stops, by their instants, not
   by the order the processes ended: :func:`first_stop`), and the exit code of the worst child
@@ -43,6 +43,7 @@ from pathlib import Path
 from typing import Any
 
 from hilsim.exit_codes import ExitCode, for_signal
+from hilsim.show.stop import STOP_SIGNALS
 from hilsim.telemetry.stats import comm_errors
 
 #: from "every bus is ready" to the shared tick 0: each child opens its telemetry, reads where
@@ -58,6 +59,8 @@ SEVERITY = (
     int(ExitCode.FAULT),
     int(ExitCode.UNSAFE_EXIT),
     int(ExitCode.SIGTERM),
+    int(ExitCode.SIGQUIT),
+    int(ExitCode.SIGHUP),
     int(ExitCode.SIGINT),
     int(ExitCode.USAGE),
     int(ExitCode.OK),
@@ -159,7 +162,7 @@ def bus_outcome(name: str, returncode: int, ready: bool, run_dir: Path) -> BusOu
         note = f"{why} ({note})" if why else note
         return BusOutcome(name, int(summary["exit_code"]), note, summary)
     if not ready:
-        code = for_signal(signum) if signum in (signal.SIGINT, signal.SIGTERM) else ExitCode.USAGE
+        code = for_signal(signum) if signum in STOP_SIGNALS else ExitCode.USAGE
         return BusOutcome(name, int(code), f"killed by {sig} before its start: nothing moved")
     return BusOutcome(
         name,
@@ -308,6 +311,11 @@ class _Child:
         self.send(None)
 
 
+def bus_status_file(path: Path, bus: str) -> Path:
+    """One bus's heartbeat when the figure's is ``path``: ``status-<bus>.json`` beside it."""
+    return path.with_name(f"{path.stem}-{bus}{path.suffix}")
+
+
 def child_argv(config: str, bus: str, run_dir: Path, extra: Sequence[str]) -> list[str]:
     """The command line of one bus's child: this Python's ``hilsim run`` on that bus."""
     return [
@@ -332,13 +340,14 @@ def run_group(  # noqa: C901, PLR0912 (the group's life: start, watch, stop, rec
     extra: Sequence[str],
     *,
     echo: Callable[[str], None],
+    status_file: Path | None = None,
 ) -> GroupResult:
     """Start one child per bus, start their shows at one instant, stop them together; returns
-    each bus's outcome (``RUN/buses.json`` holds them too)."""
+    each bus's outcome (``RUN/buses.json`` holds them too). ``status_file``: each bus's
+    heartbeat at :func:`bus_status_file` of it (None: in its run directory)."""
     pending: list[int] = []
     previous = {
-        s: signal.signal(s, lambda signum, _f: pending.append(signum))
-        for s in (signal.SIGINT, signal.SIGTERM)
+        s: signal.signal(s, lambda signum, _f: pending.append(signum)) for s in STOP_SIGNALS
     }
     children: list[_Child] = []
     start_at: float | None = None
@@ -348,7 +357,10 @@ def run_group(  # noqa: C901, PLR0912 (the group's life: start, watch, stop, rec
     sent: list[_Child] = []  # the buses the parent stopped because another had stopped
     try:
         for name in buses:
-            children.append(_Child(name, child_argv(config, name, run_dir, extra), echo))
+            mine = [*extra]
+            if status_file is not None:
+                mine += ["--status-file", str(bus_status_file(status_file, name))]
+            children.append(_Child(name, child_argv(config, name, run_dir, mine), echo))
         called_off = False
         while any(c.proc.poll() is None for c in children):
             now = time.monotonic()

@@ -536,6 +536,9 @@ class HilLoop:
                     "host_stalls": self.stalls.count,
                     "lateness_p99_us": float(np.percentile(self._recent[: min(k, 512)], 99)),
                     "cue": None if self.director is None else self.director.now_playing,
+                    "read": self.reading.status.tolist(),  # each servo's last (ReadStatus)
+                    "present_rad": self.present.tolist(),
+                    "limp": list(self.watch.limp),
                 }
             )
         return k

@@ -45,7 +45,8 @@ def try_realtime(priority: int | None, cpu: int | None) -> str:
             warnings.warn(
                 f"SCHED_FIFO priority {priority} not permitted ({exc}); running as SCHED_OTHER. "
                 "Grant it with: sudo setcap cap_sys_nice+ep $(readlink -f $(which python3)) "
-                "or run under a user with an rtprio limit (/etc/security/limits.conf).",
+                "or run under a user with an rtprio limit (/etc/security/limits.conf); as a "
+                "service, the unit `hilsim service print` writes grants it.",
                 stacklevel=2,
             )
     return sched

@@ -3,6 +3,9 @@
 The loop looks at the flag once per tick (and during the start-up) and leaves through the
 exit policy. Setting it is one attribute store, safe from a signal handler or another
 thread; the first request wins.
+
+:data:`STOP_SIGNALS` are the signals ``hilsim run`` turns into that request: each ends the show
+as SIGTERM does (exit policy, ``summary.json``, a ``signal`` event), exit code 128 + its number.
 """
 
 from __future__ import annotations
@@ -10,7 +13,16 @@ from __future__ import annotations
 import signal
 from dataclasses import dataclass
 
-__all__ = ["StopFlag", "signal_name"]
+__all__ = ["STOP_SIGNALS", "StopFlag", "signal_name"]
+
+#: Ctrl-C; ``kill`` or ``systemctl stop``; a terminal or SSH session gone (SIGHUP); the
+#: quit key (SIGQUIT): each stops a show through its exit policy, never mid-tick
+STOP_SIGNALS: tuple[signal.Signals, ...] = (
+    signal.SIGINT,
+    signal.SIGTERM,
+    signal.SIGHUP,
+    signal.SIGQUIT,
+)
 
 
 @dataclass

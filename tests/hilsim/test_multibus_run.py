@@ -136,7 +136,10 @@ def test_each_bus_gets_a_normal_run_directory_with_its_own_joints(tmp_path, caps
     np.testing.assert_array_equal(read_run(alone).joint("cmd"), b.joint("cmd"))
 
 
-@pytest.mark.parametrize(("signum", "code"), [(signal.SIGINT, 130), (signal.SIGTERM, 143)])
+@pytest.mark.parametrize(
+    ("signum", "code"),
+    [(signal.SIGINT, 130), (signal.SIGTERM, 143), (signal.SIGHUP, 129), (signal.SIGQUIT, 131)],
+)
 def test_a_signal_to_the_parent_reaches_every_bus_on_the_real_clock(tmp_path, signum, code):
     out = tmp_path / "run"
     parent = Parent(str(rig(tmp_path)), "--duration", "600", "--no-plots", "--out", str(out))
@@ -149,6 +152,8 @@ def test_a_signal_to_the_parent_reaches_every_bus_on_the_real_clock(tmp_path, si
         run = read_run(out / bus)
         assert run.summary["exit_code"] == code, parent.text
         assert run.summary["clock"] == "real time"
+        beat = json.loads((out / bus / "status.json").read_text())  # each bus's heartbeat
+        assert beat["state"] == "ended" and beat["exit_code"] == code
         signals = [e for e in run.events if e["kind"] == "signal"]
         assert len(signals) == 1, parent.text
         if run.summary["exit_policy_confirmed"] is None:  # it landed before torque went on
