@@ -206,7 +206,12 @@ class Director:
         if sounds:
             from hilsim.live.audio_out import AudioOut, SilentBackend
 
-            self.audio = AudioOut(SilentBackend() if silent else None)
+            out = self.runtime.spec.sound_output if self.runtime is not None else None
+            self.audio = AudioOut(
+                SilentBackend() if silent else None,
+                device=None if out is None else out.device,
+                required=out is not None and out.required,
+            )
             try:
                 self.audio.preload(
                     [s.path for s in sounds.values()],
