@@ -536,6 +536,7 @@ class HilLoop:
                     "host_stalls": self.stalls.count,
                     "lateness_p99_us": float(np.percentile(self._recent[: min(k, 512)], 99)),
                     "cue": None if self.director is None else self.director.now_playing,
+                    "layers": None if self.director is None else self.director.layers,
                 }
             )
         return k

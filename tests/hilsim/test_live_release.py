@@ -319,3 +319,14 @@ def test_release_after_s_is_read_for_each_live_input(tmp_path):
 def load_rig_text(tmp_path: Path) -> hilsim.Rig:
     (tmp_path / "rig.toml").write_text(RIG)
     return load_rig(tmp_path / "rig.toml")
+
+
+def test_the_status_figures_name_each_joints_layer(tmp_path):
+    """On the real clock, Show.run's on_status figures carry what drives each joint."""
+    (tmp_path / "rig.toml").write_text(RIG)
+    seen: list[dict] = []
+    with hilsim.Show(tmp_path / "rig.toml", duration=1.2, live=True,
+                     out=tmp_path / "run") as show:  # fmt: skip
+        show.set_joint("jaw", 10.0)
+        show.run(on_status=seen.append)
+    assert seen and seen[-1]["layers"] == {"head_pan": "rig", "jaw": "live api"}
