@@ -461,7 +461,7 @@ class Director:
         """Stop the inputs; write the take (raw CSV and reduced keys) into ``run_dir``;
         return the summary's ``live`` section. Never raises: a full disk is said in it."""
         self.close_inputs()
-        out: JsonDict = {"show": self.spec.name, **self.counts}
+        out: JsonDict = {"show": self.spec.name, **self.counts, **self.layer.counts}
         if self.osc is not None:
             out["osc_drops"] = self.osc.guard.drops.snapshot()
         for name in ("midi", "chase", "bottango", "gamepad", "keyboard", "teach", "audio"):

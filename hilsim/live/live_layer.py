@@ -75,7 +75,8 @@ class LiveLayer:
         #: a standing value released: not taken again until it changes (gamepad, Bottango)
         self._released_at: dict[tuple[int, str], float] = {}
         self._next_expiry = math.inf
-        self.counts = {"takes": 0, "releases": 0}
+        self._ignored_said: dict[str | None, float] = {}  # joint -> when last said
+        self.counts = {"joints_taken": 0, "joints_released": 0, "releases_ignored": 0}
 
     # ------------------------------------------------------------------ taking
     def take(
@@ -103,7 +104,7 @@ class LiveLayer:
         if holder == source:
             return None
         self.holder[i] = source
-        self.counts["takes"] += 1
+        self.counts["joints_taken"] += 1
         name = self.names[i]
         was_below = self.below(i) if holder is None else f"live {holder}"
         return LiveEvent(t, "live_take", source, {
@@ -123,7 +124,8 @@ class LiveLayer:
     ) -> list[LiveEvent]:
         """Hand ``joint`` (None: every joint) back to the layers below at show time ``t``;
         ``reason`` says who asked. Raises KeyError for a joint the rig does not have. A joint
-        moved by hand (teach) is not released. Nothing held: one ``release_ignored`` event."""
+        moved by hand (teach) is not released. Nothing held: a ``release_ignored`` event, at
+        most one a second per joint (a button pressed again and again says it once)."""
         if joint is None:
             which = range(len(self.names))
         else:
@@ -132,6 +134,11 @@ class LiveLayer:
             which = range(self.names.index(joint), self.names.index(joint) + 1)
         out = [self._free(i, t, reason) for i in which if self.holder[i] not in (None, TEACH)]
         if not out:
+            self.counts["releases_ignored"] += 1
+            said = self._ignored_said.get(joint)
+            if said is not None and 0.0 <= t - said < 1.0:
+                return out
+            self._ignored_said[joint] = t
             what = "no joint is" if joint is None else f"{joint} is not"
             out.append(LiveEvent(t, "release_ignored", source, {
                 "joint": joint, "reason": reason,
@@ -169,7 +176,7 @@ class LiveLayer:
         self.tracks[i].live = None
         self.holder[i] = None
         self.lost[i] = False
-        self.counts["releases"] += 1
+        self.counts["joints_released"] += 1
         name, to = self.names[i], self.below(i)
         return LiveEvent(t, "live_release", holder, {
             "joint": name, "reason": reason, "to": to,

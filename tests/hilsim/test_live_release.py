@@ -330,3 +330,13 @@ def test_the_status_figures_name_each_joints_layer(tmp_path):
         show.set_joint("jaw", 10.0)
         show.run(on_status=seen.append)
     assert seen and seen[-1]["layers"] == {"head_pan": "rig", "jaw": "live api"}
+
+
+def test_a_release_pressed_again_and_again_is_said_once_a_second(tmp_path):
+    sends = {k: [message("/hilsim/release")] for k in range(10, 400, 10)}  # 39 presses
+    r = run(tmp_path, SHOW, 1.7, sends)
+    ignored = [e for e in r.run.events if e["kind"] == "release_ignored"]
+    assert [round(e["t"], 3) for e in ignored] == [0.04, 1.04]
+    live = r.result.summary["live"]
+    assert live["releases_ignored"] == 39
+    assert live["joints_taken"] == live["joints_released"] == 0
