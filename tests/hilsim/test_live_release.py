@@ -340,3 +340,44 @@ def test_a_release_pressed_again_and_again_is_said_once_a_second(tmp_path):
     live = r.result.summary["live"]
     assert live["releases_ignored"] == 39
     assert live["joints_taken"] == live["joints_released"] == 0
+
+
+def test_midi_release_after_s_counts_each_controller_message_as_fresh(tmp_path):
+    """MIDI CC with release_after_s = 0.5: a fader moved until 1.0 s keeps head_pan; the
+    joint goes back to the idle sway at the first tick past 1.5 s."""
+    mido = pytest.importorskip("mido")
+    text = (
+        SHOW.split("[inputs.osc]")[0]
+        + """
+[inputs.midi]
+release_after_s = 0.5
+[[inputs.midi.cc]]
+joint = "head_pan"
+channel = 1
+control = 7
+degrees = [-30, 30]
+"""
+    )
+    (tmp_path / "rig.toml").write_text(RIG)
+    (tmp_path / "show.toml").write_text(text)
+    rig = load_rig(tmp_path / "rig.toml")
+    parts = with_show(build_parts(rig), str(tmp_path / "show.toml"), False, virtual=True)
+    for i in range(11):  # 0.0 .. 1.0 s, values 100 .. 110
+        msg = mido.Message("control_change", channel=0, control=7, value=100 + i)
+        parts.director.midi.feed(msg, i / 10)
+    bus = open_bus(rig, port_for(rig, True))
+    try:
+        result = run_show(parts, bus, open_telemetry(rig, tmp_path / "run", True),
+                          duration_s=2.5, stop=StopFlag())  # fmt: skip
+    finally:
+        bus.close()
+    assert result.exit_code == 0
+    run_ = read_run(tmp_path / "run")
+    rel = [e for e in run_.events if e["kind"] == "live_release"]
+    assert len(rel) == 1 and rel[0]["source"] == "midi" and rel[0]["to"] == "idle sway"
+    assert 1.5 < rel[0]["t"] <= 1.5 + PERIOD + 1e-9
+    target = np.degrees(run_.joint("target")[:, 0])
+    k = round(rel[0]["t"] / PERIOD)
+    assert target[k - 1] == pytest.approx(-30 + 60 * 110 / 127)
+    t = np.arange(len(target)) * PERIOD
+    np.testing.assert_allclose(target[k:], idle_deg(t[k:]), atol=1e-9)
