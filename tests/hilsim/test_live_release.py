@@ -381,3 +381,35 @@ degrees = [-30, 30]
     assert target[k - 1] == pytest.approx(-30 + 60 * 110 / 127)
     t = np.arange(len(target)) * PERIOD
     np.testing.assert_allclose(target[k:], idle_deg(t[k:]), atol=1e-9)
+
+
+def test_python_osc_over_a_real_socket_takes_and_releases_a_joint():
+    """python-osc's SimpleUDPClient sends a value and a release to the receiver's real UDP
+    socket; the director's poll applies them in order (no wall-clock figure is asserted)."""
+    import threading
+
+    udp_client = pytest.importorskip("pythonosc.udp_client")
+    from hilsim.live.osc import OscInput, listen
+
+    fed = threading.Semaphore(0)
+
+    class Signalled(OscInput):
+        def feed(self, t, data, sender):
+            super().feed(t, data, sender)
+            fed.release()
+
+    inp = Signalled({"head_pan": (-50.0, 50.0)}, releasable=["head_pan", "jaw"])
+    rx = listen(inp, 0, clock=lambda: 2.0)
+    try:
+        client = udp_client.SimpleUDPClient(*rx.address)
+        client.send_message("/hilsim/joint/head_pan", 0.9)
+        assert fed.acquire(timeout=5.0), "the receiver did not feed the packet"
+        inp.poll(2.0)
+        assert inp.target("head_pan") == pytest.approx(40.0)
+        client.send_message("/hilsim/release/head_pan", [])
+        assert fed.acquire(timeout=5.0), "the receiver did not feed the packet"
+        (ev,) = inp.poll(2.004)
+        assert ev.kind == "release" and ev.detail["joint"] == "head_pan"
+        assert inp.target("head_pan") is None  # forgotten: nothing held, nothing to lose
+    finally:
+        rx.close()
