@@ -358,9 +358,13 @@ class Director:
             return
         rad = math.radians(deg)
         changed = self.tracks[i].live != rad
+        was = self.layer.holder[i]
         ev = self.layer.take(i, rad, source, t_msg, standing=standing)
-        if ev is not None and events is not None:
-            events.append(ev)
+        if ev is not None:
+            if was == "osc" and self.osc is not None:  # OSC no longer holds it: none to lose
+                self.osc.targets.forget(joint)
+            if events is not None:
+                events.append(ev)
         if not changed or self.tracks[i].live != rad:  # the same value, or not taken
             return
         self.counts["live_values"] += 1

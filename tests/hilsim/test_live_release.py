@@ -413,3 +413,18 @@ def test_python_osc_over_a_real_socket_takes_and_releases_a_joint():
         assert inp.target("head_pan") is None  # forgotten: nothing held, nothing to lose
     finally:
         rx.close()
+
+
+def test_a_joint_taken_from_osc_by_another_input_is_not_lost_by_osc(tmp_path):
+    """OSC sets head_pan, then Show.set_joint takes it: OSC going quiet is no input_lost for
+    head_pan (OSC no longer holds it, so it holds nothing there to lose)."""
+
+    def watch(k, d):
+        if k == 100:
+            d.api.set_joint("head_pan", 5.0)
+
+    r = run(tmp_path, SHOW, 3.0, {50: [message("/hilsim/joint/head_pan", 0.9)]}, watch=watch)
+    takes = [(e["source"], e["from"]) for e in r.run.events if e["kind"] == "live_take"]
+    assert takes == [("osc", "idle sway"), ("api", "live osc")]
+    assert not [e for e in r.run.events if e["kind"] == "input_lost"]
+    assert r.status[700].startswith("head_pan live api")
