@@ -19,6 +19,11 @@ for good, as a lost input always did.
 
 Each take and release is one event (``live_take``, ``live_release``, ``release_ignored``). No
 clock reads, no locks: the director calls it once per tick from the loop's thread.
+
+A new input joins through the director: ``Director._set(joint, deg, t, source, events,
+standing=...)`` for each value and ``Director.release(joint, t, reason, source)`` for a
+release; its ``release_after_s`` is read by ``hilsim.live.director.release_after``. A program
+or a panel calls ``Show.release`` (:class:`~hilsim.live.controls.Controls`).
 """
 
 from __future__ import annotations
