@@ -356,12 +356,12 @@ def test_a_required_device_that_fails_to_open_is_one_oserror_line(tmp_path) -> N
         out.start(lambda: 0.0)
 
 
-def test_the_device_is_handed_to_the_stream(tmp_path) -> None:
+def test_device_index_0_is_named_as_itself_not_as_the_default(tmp_path) -> None:
     sd = fake_sd()
-    out = AudioOut(SoundDeviceBackend(3, sd=sd))
+    out = AudioOut(SoundDeviceBackend(0, sd=sd))
     out.preload([write_wav(tmp_path / "a.wav", 100)])
-    assert out.start(lambda: 0.0).startswith("audio out: 3, 8000 Hz")
-    assert sd.streams[0].kw["device"] == 3
+    assert out.start(lambda: 0.0).startswith("audio out: 0, 8000 Hz")
+    assert sd.streams[0].kw["device"] == 0
 
 
 # -- faults mid-show: events, the show goes on -----------------------------------------------
