@@ -5,8 +5,9 @@ code   meaning
 =====  ==================================================================================
 0      the show completed; the exit policy was applied and confirmed on every servo
 1      an unexpected error outside the show (a bug: the traceback is printed); for
-       ``hilsim scan`` and ``hilsim plot``: nothing found (no servo answered; no tick in the
-       run or in the window asked for) (``NOTHING_FOUND``)
+       ``hilsim scan``, ``hilsim plot`` and ``hilsim sounds``: nothing found (no servo
+       answered; no tick in the run or in the window asked for; no sound output device)
+       (``NOTHING_FOUND``)
 2      usage or configuration error: the rig file, a command-line value, or servos that do
        not match the rig or refuse to start (before torque went on). Nothing moved.
 3      a fault stopped the show (a servo, the bus, the host, the telemetry disk, or an

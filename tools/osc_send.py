@@ -2,6 +2,7 @@
 
     python tools/osc_send.py /hilsim/cue/scare
     python tools/osc_send.py /hilsim/joint/jaw 0.5
+    python tools/osc_send.py /hilsim/release/jaw
     python tools/osc_send.py /hilsim/stop
     python tools/osc_send.py --host 127.0.0.1 --port 9000 /hilsim/joint/head_pan 0.25
 

@@ -35,6 +35,7 @@ SUBCOMMANDS: dict[str, str] = {
     "compare": "hilsim.cli.compare",
     "tracks": "hilsim.cli.tracks",
     "service": "hilsim.cli.service",
+    "sounds": "hilsim.cli.sounds",
 }
 
 

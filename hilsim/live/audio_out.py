@@ -1,9 +1,11 @@
 """Sound files played in sync with their clips: what is *heard* lines up with the motion.
 
-A show file's ``[sounds]`` names a file per clip (``offset_ms`` delays it). Needs
-``pip install 'hilsim[live]'`` (sounddevice, and the PortAudio library); FLAC, Ogg and the rest
-need soundfile (``pip install 'hilsim[audio]'``). Without them the show file is refused at load,
-in one line naming what to install.
+A show file's ``[sounds]`` names a file per clip (``offset_ms`` delays it) and the output
+``device``. Needs ``pip install 'hilsim[live]'`` (sounddevice, and the PortAudio library);
+FLAC, Ogg and the rest need soundfile (``pip install 'hilsim[audio]'``). Without sounddevice or
+PortAudio, or without an output device at the start, the show runs silent after one warning
+line (and one ``audio_error`` event) -- unless ``[sounds] required = true``: then it is refused
+in one line, before anything moves.
 
 * :meth:`AudioOut.preload` decodes every file at show load into float32 frames at one rate and
   one or two channels. During the show nothing is read or decoded.
@@ -13,9 +15,10 @@ in one line naming what to install.
 * One sound at a time: a new ``play`` replaces the one playing; :meth:`AudioOut.stop` silences it.
 * The audio callback only copies frames from memory: no locks, no waits, no allocation.
 
-Audio is not a safety matter: a device that fails mid-show is one ``audio_error`` event, and
-the show goes on in silence. :meth:`AudioOut.poll` reports underflows; :meth:`AudioOut.close`
-stops the stream. The timing rule and the clock drift: ``docs/live.md`` (Sounds).
+Audio is not a safety matter: a device missing at the start or failing mid-show is one
+``audio_error`` event, and the show goes on in silence. :meth:`AudioOut.poll` reports
+underflows; :meth:`AudioOut.close` stops the stream. The timing rule and the clock drift:
+``docs/live.md`` (Sounds).
 """
 
 from __future__ import annotations
@@ -37,6 +40,8 @@ from hilsim.live.midi import EXTRA_HINT, LiveExtraError
 PORTAUDIO_HINT = "apt install libportaudio2"
 #: most output channels (a file with more gives its first ones)
 MAX_CHANNELS = 2
+#: what a refusal adds when the show file asks for its sound
+REQUIRED = "[sounds] required = true: the show does not start without its sound"
 
 
 class AudioUnavailableError(LiveExtraError, ValueError):
@@ -193,15 +198,17 @@ class SoundDeviceBackend:
             )
             stream.start()
         except Exception as exc:  # PortAudioError, ValueError (no such device)
-            raise OSError(
-                f"cannot open the audio output {self.device or 'default'}: {exc}"
-            ) from None
+            raise OSError(f"cannot open the audio output {self._name}: {exc}") from None
         self._stream, self.rate_hz = stream, rate_hz
         self.latency_s = float(stream.latency)
         return (
-            f"audio out: {self.device or 'default device'}, {rate_hz} Hz, {channels} ch, "
+            f"audio out: {self._name}, {rate_hz} Hz, {channels} ch, "
             f"latency {self.latency_s * 1000:.0f} ms"
         )
+
+    @property
+    def _name(self) -> str:
+        return "default device" if self.device is None else str(self.device)
 
     def _callback(self, outdata: Any, frames: int, time: Any, status: Any) -> None:
         if getattr(status, "output_underflow", False):
@@ -249,13 +256,33 @@ class AudioOut:
     """Sounds played in sync with their clips (see the module docstring).
 
     Args:
-        backend: the output stream; ``None``: :class:`SoundDeviceBackend` (raises
-            AudioUnavailableError naming the extra when sounddevice/PortAudio is missing).
+        backend: the output stream; ``None``: :class:`SoundDeviceBackend` on ``device``.
         source: the events' ``source``.
+        device: the output (a name or index, as sounddevice takes it); None: the default.
+        required: no sounddevice/PortAudio (here) or no device (at :meth:`start`) raises,
+            naming what is missing; otherwise the show goes on silent, after one warning.
     """
 
-    def __init__(self, backend: Backend | None = None, *, source: str = "audio") -> None:
-        self.backend: Backend = backend if backend is not None else SoundDeviceBackend()
+    def __init__(
+        self,
+        backend: Backend | None = None,
+        *,
+        source: str = "audio",
+        device: str | int | None = None,
+        required: bool = False,
+    ) -> None:
+        self.required = required
+        #: why no sound can be played (sounddevice or PortAudio missing), said at start
+        self.unavailable: str | None = None
+        if backend is None:
+            try:
+                backend = SoundDeviceBackend(device)
+            except AudioUnavailableError as exc:
+                if required:
+                    raise AudioUnavailableError(f"{exc} ({REQUIRED})") from None
+                self.unavailable = str(exc)
+                backend = SilentBackend()
+        self.backend: Backend = backend
         self.source = source
         self.sounds: dict[str, Sound] = {}
         self.rate_hz: int | None = None
@@ -298,12 +325,24 @@ class AudioOut:
             self.sounds.setdefault(str(Path(path).resolve()), sound)
 
     def start(self, now: Any = None) -> str | None:
-        """Open the output stream (before the show; raises OSError with one line)."""
-        if self.opened or not self.sounds or self.rate_hz is None:
+        """Open the output stream (before the show); return a line to show the operator. No
+        output (no device, no PortAudio): a warning line, the show silent, an ``audio_error``
+        event at the first :meth:`poll`; with ``required``, OSError with one line instead."""
+        if self.opened or self.failed is not None or not self.sounds or self.rate_hz is None:
             return None
-        note = self.backend.open(self.rate_hz, self.channels)
-        self.opened = True
-        return note
+        why = self.unavailable
+        if why is None:
+            try:
+                note = self.backend.open(self.rate_hz, self.channels)
+            except OSError as exc:
+                if self.required:
+                    raise OSError(f"{exc} ({REQUIRED})") from None
+                why = str(exc)
+            else:
+                self.opened = True
+                return note
+        self._pending.append(self._fail(math.nan, why, "no audio output, the show goes on silent"))
+        return f"warning: no sound: {why}; the show runs silent (audio_error in events.jsonl)"
 
     # ------------------------------------------------------------------ the show
     def play(
@@ -403,13 +442,15 @@ class AudioOut:
         self.counts["skipped"] += 1
         return self._event(t, "sound_skipped", message, sound=name)
 
-    def _fail(self, t: float, why: str) -> LiveEvent:
+    def _fail(
+        self, t: float, why: str, what: str = "audio output failed, the show goes on"
+    ) -> LiveEvent:
         self.failed = why
         self.playing = None
         self.counts["errors"] += 1
         with contextlib.suppress(Exception):
             self.backend.stop()
-        return self._event(t, "audio_error", f"audio output failed, the show goes on: {why}")
+        return self._event(t, "audio_error", f"{what}: {why}")
 
 
 def _frames(chans: list[np.ndarray], rate: int, to_rate: int, channels: int) -> np.ndarray:

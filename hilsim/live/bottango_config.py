@@ -42,7 +42,7 @@ MAX_LINE = 512
 #: the widest signal an effector map may give (either end): PWM µs, steps, ...
 MAX_SIGNAL = 1e9
 _KEYS = ("transport", "link", "host", "port", "allow", "driver_version", "require_hash",
-         "max_line", "max_lines_per_s", "effectors")  # fmt: skip
+         "max_line", "max_lines_per_s", "release_after_s", "effectors")  # fmt: skip
 
 
 @dataclass(frozen=True)
@@ -78,6 +78,8 @@ class BottangoConfig:
     require_hash: bool | None = None  # None: pty True, tcp False
     max_line: int = MAX_LINE
     max_lines_per_s: float = 2000.0
+    #: an effector's value unchanged this long hands its joint back to the show (None: held)
+    release_after_s: float | None = None
 
 
 def _pair(v: Any, key: str, limit: float) -> tuple[float, float]:
@@ -167,12 +169,21 @@ def from_table(table: dict[str, Any], where: str, joint_names: Iterable[str]) ->
         if isinstance(v, bool) or not isinstance(v, int | float) or not 1 <= v <= 1e6:
             raise ValueError(f"{where}.max_lines_per_s: a number in 1..1e6, got {v!r}")
         kw["max_lines_per_s"] = float(v)
+    _release_after(table, where, kw)
     if transport == "tcp":
         _tcp(table, where, kw)
     elif any(k in table for k in ("host", "port", "allow")):
         k = next(k for k in ("host", "port", "allow") if k in table)
         raise ValueError(f'{where}.{k}: only with transport = "tcp"')
     return BottangoConfig(_effectors(table.get("effectors"), where, joint_names), **kw)
+
+
+def _release_after(table: dict[str, Any], where: str, kw: dict[str, Any]) -> None:
+    if "release_after_s" in table:
+        v = table["release_after_s"]
+        if isinstance(v, bool) or not isinstance(v, int | float) or not 0 < v <= 7 * 86400:
+            raise ValueError(f"{where}.release_after_s: seconds, > 0 (a week at most), got {v!r}")
+        kw["release_after_s"] = float(v)
 
 
 def _tcp(table: dict[str, Any], where: str, kw: dict[str, Any]) -> None:

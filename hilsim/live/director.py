@@ -11,9 +11,11 @@ tick, before the loop samples the targets (:meth:`Director.tick`)::
     events, takes, stop          events.jsonl; live samples kept for the take; a stop
                                  command (OSC /hilsim/stop, Bottango STOP) -> the exit policy
 
-Each joint's target is one :class:`DirectedTrack`: its live value once a live input has set
-one (held when the input is lost), else the show runtime's clip, else the rig's own target,
-sampled at the show time. Where two live inputs drive one joint, the latest value wins. All
+Each joint's target is one :class:`DirectedTrack`: its live value while a live input holds
+the joint (held when the input is lost, until it is released), else the show runtime's clip,
+else the rig's own target, sampled at the show time. Where two live inputs drive one joint,
+the latest value wins. Who holds each joint, takes and releases (OSC ``/hilsim/release``,
+``Show.release``, ``release_after_s``): :class:`~hilsim.live.live_layer.LiveLayer`. All
 of it reaches the servos only through the springs and the safety filter: a cut, a timecode
 jump or a fader slammed to the end is a step in the *target*, never in the command.
 
@@ -34,6 +36,7 @@ from drivers.clock import Clock
 from hilsim._types import JsonDict
 from hilsim.live.controls import Controls
 from hilsim.live.inbox import MAX_LIVE_DEG, LiveEvent
+from hilsim.live.live_layer import LiveLayer
 from hilsim.live.showfile import ShowSpec
 from hilsim.targets.tracks import TargetSet, Track
 
@@ -117,7 +120,14 @@ class Director:
 
             self.take = Take(spec.record.joints)
         self.counts = {"events": 0, "cues": 0, "stops": 0, "live_values": 0, "values_refused": 0}
-        self.lost: set[str] = set()
+        runtime = self.runtime
+        #: who holds each joint; every take and release goes through it
+        self.layer = LiveLayer(
+            self.names,
+            self.tracks,
+            release_after(spec),
+            (lambda i: "rig") if runtime is None else (lambda i: runtime.layers[i]),
+        )
 
     @staticmethod
     def _live_inputs(spec: ShowSpec) -> bool:
@@ -161,6 +171,7 @@ class Director:
                 guard=spec.osc.guard,
                 lost_after_s=spec.osc.lost_after_s,
                 triggers=[a for a in osc_keys if not a.startswith("/hilsim/cue/")],
+                releasable=self.names,
             )
         if spec.midi is not None:
             from hilsim.live.midi import MidiCcInput, MidiTriggerInput
@@ -195,7 +206,12 @@ class Director:
         if sounds:
             from hilsim.live.audio_out import AudioOut, SilentBackend
 
-            self.audio = AudioOut(SilentBackend() if silent else None)
+            out = self.runtime.spec.sound_output if self.runtime is not None else None
+            self.audio = AudioOut(
+                SilentBackend() if silent else None,
+                device=None if out is None else out.device,
+                required=out is not None and out.required,
+            )
             try:
                 self.audio.preload(
                     [s.path for s in sounds.values()],
@@ -227,7 +243,7 @@ class Director:
                 self._closers.append(rx.close)
                 say(f"OSC on {spec.osc.guard.bind_address}:{spec.osc.port}: "
                     f"/hilsim/joint/<{'|'.join(self.osc.ranges)}> 0..1, /hilsim/cue/<name>, "
-                    "/hilsim/stop")  # fmt: skip
+                    "/hilsim/release[/<joint>], /hilsim/stop")  # fmt: skip
             sinks = [s for s in (self.midi, self.midi_triggers, self.chase) if s is not None]
             if sinks:
                 from hilsim.live.midi import open_midi_input
@@ -276,20 +292,22 @@ class Director:
                 if ev.kind == "cue":
                     triggers.append("osc:" + ev.detail["address"])
                     events.append(ev)
+                elif ev.kind == "release":
+                    events += self.release(ev.detail["joint"], ev.t, ev.detail["message"], "osc")
                 elif ev.kind == "stop":
                     self._stop_command(ev.detail.get("message", "OSC /hilsim/stop"), ev, events)
                 else:
                     events.append(ev)
             for joint in osc.updated:  # only what arrived: a held value is set already
                 cur = osc.targets.get(joint)
-                assert cur is not None  # set by this poll; a target is never removed
-                self._set(joint, cur.deg, cur.t)
+                assert cur is not None  # set by this poll; only a release before it forgets
+                self._set(joint, cur.deg, cur.t, "osc", events)
         midi = self.midi
         if midi is not None:
             mp = midi.poll(t)
             events += mp.events
             for tm, joint, deg in mp.samples:
-                self._set(joint, deg, tm)
+                self._set(joint, deg, tm, "midi", events)
         if self.midi_triggers is not None:
             triggers += [key for _, key in self.midi_triggers.poll(t)]
         for part in (self.gamepad, self.bottango, self.api):
@@ -302,7 +320,8 @@ class Director:
             present_deg = [math.degrees(x) for x in present_rad]
             teach.record(t, present_deg)
             for joint, deg in teach.targets_deg(present_deg).items():
-                self.tracks[self.index[joint]].live = math.radians(deg)
+                self.layer.teach(self.index[joint], math.radians(deg))
+        events += self._released(self.layer.expire(t))  # after this tick's fresh values
         runtime = self.runtime
         if runtime is not None:
             for key in triggers:
@@ -319,8 +338,18 @@ class Director:
         for ev in events:
             self._event(k, ev)
 
-    def _set(self, joint: str, deg: float, t_msg: float) -> None:
-        """A live value (degrees) for ``joint``; kept for the take when it changed."""
+    def _set(
+        self,
+        joint: str,
+        deg: float,
+        t_msg: float,
+        source: str = "api",
+        events: list[LiveEvent] | None = None,
+        *,
+        standing: bool = False,
+    ) -> None:
+        """A live value (degrees) for ``joint`` from ``source``: it takes the joint (see
+        :meth:`LiveLayer.take`); kept for the take when it changed."""
         i = self.index.get(joint)
         if i is None:
             return
@@ -328,13 +357,34 @@ class Director:
             self.counts["values_refused"] += 1
             return
         rad = math.radians(deg)
-        track = self.tracks[i]
-        if track.live == rad:
+        changed = self.tracks[i].live != rad
+        was = self.layer.holder[i]
+        ev = self.layer.take(i, rad, source, t_msg, standing=standing)
+        if ev is not None:
+            if was == "osc" and self.osc is not None:  # OSC no longer holds it: none to lose
+                self.osc.targets.forget(joint)
+            if events is not None:
+                events.append(ev)
+        if not changed or self.tracks[i].live != rad:  # the same value, or not taken
             return
-        track.live = rad
         self.counts["live_values"] += 1
         if self.take is not None:
             self.take.record(t_msg + self.offset, joint, deg)
+
+    def release(
+        self, joint: str | None, t: float, reason: str, source: str = "show"
+    ) -> list[LiveEvent]:
+        """Hand ``joint`` (None: all) back to the show's layers at show time ``t``: the one
+        way a live input, a control or a panel releases a joint. Returns the events."""
+        return self._released(self.layer.release(joint, t, reason, source=source))
+
+    def _released(self, events: list[LiveEvent]) -> list[LiveEvent]:
+        """Joints OSC held are forgotten there: no value held, none to lose."""
+        if self.osc is not None:
+            for ev in events:
+                if ev.kind == "live_release" and ev.source == "osc":
+                    self.osc.targets.forget(ev.detail["joint"])
+        return events
 
     def _poll_part(
         self,
@@ -343,13 +393,18 @@ class Director:
         events: list[LiveEvent],
         triggers: list[str],
     ) -> None:
-        """A gamepad or the Bottango live driver: values, triggers, events, a stop."""
+        """A gamepad, the Bottango live driver or the program's controls: releases, values,
+        triggers, events, a stop. The gamepad and Bottango report a standing value every
+        tick; the controls only what was set."""
         p = part.poll(t)
         events += getattr(p, "events", ())
         triggers += getattr(p, "triggers", ())
+        source = "api" if part is self.api else getattr(part, "source", "bottango")
+        for joint in getattr(p, "releases", ()):
+            events += self.release(joint, t, "Show.release()", source)
         for joint, deg in (getattr(p, "values", None) or {}).items():
             if deg is not None:
-                self._set(joint, deg, t)
+                self._set(joint, deg, t, source, events, standing=part is not self.api)
         if getattr(p, "stop", False):  # the part's own events say it (one line)
             what = getattr(p, "stop_reason", None) or f"{type(part).__name__} stop"
             self.counts["stops"] += 1
@@ -377,35 +432,40 @@ class Director:
         self.counts["events"] += 1
         if ev.kind == "cue_start":
             self.counts["cues"] += 1
-        if ev.kind == "input_lost":
-            self.lost.add(str(ev.detail.get("joint", ev.source)))
-        elif ev.kind in ("input_returned", "input_resumed"):
-            self.lost.discard(str(ev.detail.get("joint", ev.source)))
+        if ev.kind in ("input_lost", "input_returned", "input_resumed"):
+            joint = ev.detail.get("joint")
+            joints = [joint] if joint is not None else ev.detail.get("joints")
+            self.layer.mark_lost(ev.source, joints, ev.kind == "input_lost")
         fields = {key: v for key, v in ev.detail.items() if key not in _RESERVED}
         self._log(ev.kind, str(ev.detail.get("message", ev.kind)), tick=k, t=ev.t,
                   source=ev.source, **fields)  # fmt: skip
 
     # ------------------------------------------------------------------ the status line
     @property
+    def layers(self) -> dict[str, str]:
+        """What drives each joint now: ``"live osc"``, ``"LOST osc"`` (a lost input still
+        holds it), ``"teach"``, ``"cue scare"``, ``"hold scare"``, ``"timeline song"``,
+        ``"idle breathe"`` or ``"rig"``."""
+        return {name: self.layer.label(i) for i, name in enumerate(self.names)}
+
+    @property
     def now_playing(self) -> str:
-        parts = []
-        if self.runtime is not None:
-            parts.append(str(self.runtime.now_playing))
-        live = [n for n, tr in zip(self.names, self.tracks, strict=True) if tr.live is not None]
-        if live:
-            parts.append("live " + ",".join(live))
-        if self.lost:
-            parts.append("LOST " + ",".join(sorted(self.lost)))
+        """The status line's show part: each joint and what drives it, then a cue's
+        progress and the timecode chase's state."""
+        parts = [", ".join(f"{n} {label}" for n, label in self.layers.items())]
+        playing = "" if self.runtime is None else str(self.runtime.now_playing)
+        if playing.startswith("cue "):
+            parts.append(playing)
         if self.chase is not None:
             parts.append(f"MTC {self.chase.state}")
-        return "; ".join(parts) or "waiting for input"
+        return "; ".join(parts)
 
     # ------------------------------------------------------------------ the end
     def close(self, run_dir: Path | None) -> JsonDict:
         """Stop the inputs; write the take (raw CSV and reduced keys) into ``run_dir``;
         return the summary's ``live`` section. Never raises: a full disk is said in it."""
         self.close_inputs()
-        out: JsonDict = {"show": self.spec.name, **self.counts}
+        out: JsonDict = {"show": self.spec.name, **self.counts, **self.layer.counts}
         if self.osc is not None:
             out["osc_drops"] = self.osc.guard.drops.snapshot()
         for name in ("midi", "chase", "bottango", "gamepad", "keyboard", "teach", "audio"):
@@ -435,6 +495,14 @@ class Director:
         except Exception as exc:  # a full disk: the show is over; say what was lost
             written["error"] = f"the take could not be written: {exc}"
         return written
+
+
+def release_after(spec: ShowSpec) -> dict[str, float | None]:
+    """Each live input's ``release_after_s`` (None: its joints are held until released)."""
+    out: dict[str, float | None] = {}
+    for source in ("osc", "midi", "gamepad", "bottango"):
+        out[source] = getattr(getattr(spec, source), "release_after_s", None)
+    return out
 
 
 def build_director(

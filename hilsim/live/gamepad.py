@@ -77,6 +77,8 @@ class GamepadConfig:
     index: int = 0
     deadzone: float = 0.05
     lost_after_s: float = 0.5
+    #: an axis not moved this long hands its joint back to the show (None: held)
+    release_after_s: float | None = None
 
     @classmethod
     def from_table(
@@ -86,7 +88,7 @@ class GamepadConfig:
         ``"<where>.<key>: ..."`` (one line)."""
         if not isinstance(table, Mapping):
             raise ValueError(f"{where}: must be a table, got {type(table).__name__}")
-        allowed = ("index", "deadzone", "lost_after_s", "axis", "button")
+        allowed = ("index", "deadzone", "lost_after_s", "release_after_s", "axis", "button")
         for key in table:
             if key not in allowed:
                 raise ValueError(f"{where}.{key}: unknown key; allowed: {', '.join(allowed)}")
@@ -97,6 +99,11 @@ class GamepadConfig:
         lost = table.get("lost_after_s", 0.5)
         if not (_num(lost) and lost > 0):
             raise ValueError(f"{where}.lost_after_s: must be a number of seconds > 0, got {lost!r}")
+        release = table.get("release_after_s")
+        if release is not None and not (_num(release) and release > 0):
+            raise ValueError(
+                f"{where}.release_after_s: must be a number of seconds > 0, got {release!r}"
+            )
         axes = tuple(_axis(t, f"{where}.axis[{i}]", names) for i, t in _items(table, "axis", where))
         seen: set[str] = set()
         for i, a in enumerate(axes):
@@ -110,7 +117,10 @@ class GamepadConfig:
             raise ValueError(
                 f"{where}: maps nothing: add [[inputs.gamepad.axis]] or [[inputs.gamepad.button]]"
             )
-        return cls(axes, buttons, index, float(dz), float(lost))
+        return cls(
+            axes, buttons, index, float(dz), float(lost),
+            None if release is None else float(release),
+        )  # fmt: skip
 
 
 def _num(x: object) -> bool:

@@ -6,7 +6,9 @@ Addresses (OSC 1.0 messages, alone or in bundles):
   degrees;
 - ``/hilsim/cue/<name>`` (or any address in ``triggers``): a ``cue`` event, unless the first
   argument is the number 0 (a button's release);
-- ``/hilsim/stop``: a ``stop`` event.
+- ``/hilsim/stop``: a ``stop`` event;
+- ``/hilsim/release/<name>`` (``/hilsim/release``: every joint): a ``release`` event, the joint
+  handed back to the show (unless the first argument is the number 0, a button's release).
 
 :func:`decode_packet` is our own strict OSC 1.0 decoder; it raises only :class:`OscDecodeError`.
 Each datagram passes :class:`~hilsim.live.netguard.NetGuard` first. Values that are NaN, ±inf or
@@ -37,6 +39,7 @@ from hilsim.live.netguard import Address, DropLine, DropLog, GuardConfig, NetGua
 JOINT_PREFIX = "/hilsim/joint/"
 CUE_PREFIX = "/hilsim/cue/"
 STOP_ADDRESS = "/hilsim/stop"
+RELEASE_ADDRESS = "/hilsim/release"  # + "/<joint>": one joint; alone: all
 MAX_DEPTH = 8  # bundles inside bundles
 MAX_MESSAGES = 64  # messages in one packet
 MAX_NAME = 64  # characters of a joint or cue name
@@ -57,6 +60,7 @@ OscArg = int | float | str | bytes | bool | None
 _Action = (
     tuple[Literal["joint"], str, float]
     | tuple[Literal["cue", "trigger"], str]
+    | tuple[Literal["release"], str | None]
     | tuple[Literal["stop"]]
 )
 
@@ -175,6 +179,13 @@ class LiveTargets:
     def items(self) -> ItemsView[str, LiveTarget]:
         return self._targets.items()
 
+    def forget(self, joint: str | None) -> None:
+        """The joint (None: all) was handed back: no value held, so none to lose."""
+        if joint is None:
+            self._targets.clear()
+        else:
+            self._targets.pop(joint, None)
+
     def set(self, joint: str, deg: float, t: float, events: list[LiveEvent]) -> None:
         self._next_loss = min(self._next_loss, t + self.lost_after_s)
         cur = self._targets.get(joint)
@@ -245,6 +256,7 @@ class OscInput:
         cues: Collection[str] | None = None,
         triggers: Collection[str] = (),
         queue_size: int = 64,
+        releasable: Collection[str] | None = None,
     ) -> None:
         self.ranges: dict[str, tuple[float, float]] = {}
         for name, (lo, hi) in joints.items():
@@ -257,6 +269,8 @@ class OscInput:
         self.guard = NetGuard(guard)
         self.targets = LiveTargets("osc", lost_after_s)
         self.cues = None if cues is None else frozenset(cues)
+        #: the joints ``/hilsim/release/<name>`` may name (default: the ones OSC drives)
+        self.releasable = frozenset(self.ranges if releasable is None else releasable)
         #: other addresses a show's cues are triggered by (e.g. QLab's "/trigger/pir")
         self.trigger_addresses = frozenset(triggers)
         self._lock = threading.Lock()
@@ -320,6 +334,14 @@ class OscInput:
             return ("cue", name)
         if address == STOP_ADDRESS:
             return ("stop",)
+        if address == RELEASE_ADDRESS or address.startswith(RELEASE_ADDRESS + "/"):
+            joint = address[len(RELEASE_ADDRESS) + 1 :] or None
+            if joint is not None and joint not in self.releasable:
+                drops.count("unknown")
+                return None
+            if args and _is_number(args[0]) and args[0] == 0:
+                return None  # a button's release: not a press
+            return ("release", joint)
         if address in self.trigger_addresses:
             if args and _is_number(args[0]) and args[0] == 0:
                 return None  # a button's release
@@ -333,6 +355,23 @@ class OscInput:
             for action in actions:
                 if action[0] == "joint":
                     self._latest[action[1]] = (action[2], t)
+                elif action[0] == "release":
+                    joint = action[1]
+                    if joint is None:
+                        self._latest.clear()  # values before the release go with it
+                    else:
+                        self._latest.pop(joint, None)
+                    if len(self._events) == self._events.maxlen:
+                        self.guard.drops.count("queue_full")
+                    address = RELEASE_ADDRESS + ("" if joint is None else "/" + joint)
+                    self._events.append(
+                        LiveEvent(
+                            t,
+                            "release",
+                            "osc",
+                            {"joint": joint, "address": address, "message": f"OSC {address}"},
+                        )
+                    )
                 elif action[0] in ("cue", "trigger"):
                     if len(self._events) == self._events.maxlen:
                         self.guard.drops.count("queue_full")
@@ -366,6 +405,9 @@ class OscInput:
                 self._events.clear()
                 stop, self._stop = self._stop, None
                 self._fresh = False
+            for ev in events:  # a release came before every value still in ``latest``
+                if ev.kind == "release":
+                    self.targets.forget(ev.detail["joint"])
             for joint, (deg, t_msg) in latest.items():
                 self.targets.set(joint, deg, t_msg, out)
             self.updated = tuple(latest)

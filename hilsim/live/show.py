@@ -144,6 +144,9 @@ class ShowRuntime:
         self._t_last: float | None = None
         self._front: str | None = None
         self._events: list[LiveEvent] = []
+        #: what drives each joint after the last tick: "cue scare", "hold scare",
+        #: "timeline song", "idle breathe" or "rig" (the status line's per-joint layer)
+        self.layers: list[str] = ["rig"] * len(names)
 
     # ------------------------------------------------------------------ what the director reads
     @property
@@ -415,15 +418,23 @@ class ShowRuntime:
             dur = self.spec.clips[entry.clip].duration
             tl_period = dur if entry.loop and dur else 0.0
         idle_tr = self._per_joint[self._idle[self._idle_i].name] if self._idle_i >= 0 else None
+        layers = self.layers
+        cue_label = "" if cue is None else f"{'hold' if self._cue_held else 'cue'} {cue.name}"
+        tl_label = f"timeline {self._tl[self._tl_i].clip}" if self._tl_active else ""
+        idle_label = f"idle {self._idle[self._idle_i].name}" if self._idle_i >= 0 else ""
         for j, st in enumerate(self.tracks):
             if cue_tr is not None and (tr := cue_tr[j]) is not None:
                 held = None
                 if self._cue_held:
                     held = (tr.sample(cue_dur or 0.0)[0], 0.0)
                 st._set(tr, self._cue_start, 0.0, held)
+                layers[j] = cue_label
             elif tl_tr is not None and (tr := tl_tr[j]) is not None:
                 st._set(tr, tl_start, tl_period, None)
+                layers[j] = tl_label
             elif idle_tr is not None and (tr := idle_tr[j]) is not None:
                 st._set(tr, self._idle_start, 0.0, None)
+                layers[j] = idle_label
             else:
                 st._set(st.base, 0.0, 0.0, None)
+                layers[j] = "rig"

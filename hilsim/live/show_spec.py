@@ -4,7 +4,9 @@ The sections read here (paths relative to the show file):
 
 - ``[clips.<name>]``: a rig target table per joint; a joint a clip does not name keeps what is
   under it (the idle clip, else the rig's own target);
-- ``[sounds]``: a file per clip, or ``{ file, offset_ms }``;
+- ``[sounds]``: a file per clip, or ``{ file, offset_ms }``; and the output's settings
+  ``device`` (a name or an index, as sounddevice takes it) and ``required`` (no output at the
+  start of a real-time show: refused, instead of a warning and a silent show);
 - ``[idle]`` (or ``idle = [...]``): clips, ``order`` (``"sequence"`` or ``"random"``), ``seed``;
 - ``[cues.<name>]``: ``trigger``, ``clip``, ``then``, ``lockout_s``, ``window``;
 - ``[[timeline]]``: ``at_s``, ``clip``, ``loop``.
@@ -68,6 +70,18 @@ class Sound:
     offset_s: float = 0.0
 
 
+#: the keys of ``[sounds]`` that set up the output, never a clip's name
+SOUND_SETTINGS = ("device", "required")
+
+
+@dataclass(frozen=True)
+class SoundOutput:
+    """``[sounds]`` ``device`` (None: the default output) and ``required``."""
+
+    device: str | int | None = None
+    required: bool = False
+
+
 @dataclass(frozen=True)
 class IdleSpec:
     """The idle layer: ``clips`` in order, ``order`` "sequence" | "random", ``seed`` (None:
@@ -106,6 +120,7 @@ class RuntimeSpec:
 
     clips: dict[str, Clip] = field(default_factory=dict)
     sounds: dict[str, Sound] = field(default_factory=dict)
+    sound_output: SoundOutput = field(default_factory=SoundOutput)
     idle: IdleSpec | None = None
     cues: dict[str, CueSpec] = field(default_factory=dict)
     timeline: tuple[TimelineEntry, ...] = ()
@@ -199,12 +214,15 @@ def read_runtime(
     """
     s = _Section(where)
     clips = _clips(s, doc.get("clips", {}), tuple(joint_names), make_track)
-    sounds = _sounds(s, doc.get("sounds", {}), Path(base_dir), clips)
+    raw_sounds = s.table("sounds", doc.get("sounds", {}))
+    sounds = _sounds(s, raw_sounds, Path(base_dir), clips)
+    output = _sound_output(s, raw_sounds)
     idle = _idle(s, doc["idle"], clips) if "idle" in doc else None
     cues = _cues(s, doc.get("cues", {}), clips)
     timeline = _timeline(s, doc.get("timeline", []), clips)
     _short_cycles(s, cues, clips)
-    return RuntimeSpec(clips=clips, sounds=sounds, idle=idle, cues=cues, timeline=timeline)
+    return RuntimeSpec(clips=clips, sounds=sounds, sound_output=output, idle=idle, cues=cues,
+                       timeline=timeline)  # fmt: skip
 
 
 def _clips(
@@ -232,6 +250,8 @@ def _clips(
 def _sounds(s: _Section, raw: Any, base_dir: Path, clips: dict[str, Clip]) -> dict[str, Sound]:
     sounds: dict[str, Sound] = {}
     for clip, value in s.table("sounds", raw).items():
+        if clip in SOUND_SETTINGS:
+            continue
         key = f"sounds.{clip}"
         s.clip_ref(key, clip, clips)
         offset_ms: Any = 0
@@ -251,6 +271,22 @@ def _sounds(s: _Section, raw: Any, base_dir: Path, clips: dict[str, Clip]) -> di
         offset = s.number(f"{key}.offset_ms", offset_ms, lo=-10_000.0, hi=10_000.0)
         sounds[clip] = Sound(path, offset / 1000.0)
     return sounds
+
+
+def _sound_output(s: _Section, raw: dict[str, Any]) -> SoundOutput:
+    device = raw.get("device")
+    ok = device is None or (isinstance(device, str) and device.strip()) or (
+        isinstance(device, int) and not isinstance(device, bool) and device >= 0
+    )  # fmt: skip
+    if not ok:
+        raise s.fail(
+            "sounds.device",
+            f"an output device's name or index (hilsim sounds lists them), got {device!r}",
+        )
+    required = raw.get("required", False)
+    if not isinstance(required, bool):
+        raise s.fail("sounds.required", f"true or false, got {required!r}")
+    return SoundOutput(device, required)
 
 
 def _idle(s: _Section, raw: Any, clips: dict[str, Clip]) -> IdleSpec:

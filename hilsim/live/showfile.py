@@ -48,6 +48,9 @@ class OscConfig:
     #: no value for a joint this long: it holds, one input_lost event (a fader app sends only
     #: when it moves, so this is "the sender went away", not "the hand is still")
     lost_after_s: float = 2.0
+    #: no fresh value for a joint this long: it is handed back to the show (None: held until
+    #: released, so a performer holding a fader still keeps the joint)
+    release_after_s: float | None = None
     max_rx_per_s: float = 2000.0
     #: joint -> (degrees at 0, degrees at 1); default: every joint over its limits
     joints: dict[str, tuple[float, float]] = field(default_factory=dict)
@@ -57,6 +60,7 @@ class OscConfig:
 class MidiConfig:
     port: str | None = None
     lost_after_s: float | None = None
+    release_after_s: float | None = None
     cc: tuple[CcMapping, ...] = ()
 
 
@@ -213,6 +217,7 @@ def _osc(r: Reader, rig: Rig) -> OscConfig:
         port=port,
         guard=guard,
         lost_after_s=r.number("lost_after_s", 2.0, positive=True),
+        release_after_s=_release_after(r),
         max_rx_per_s=r.number("max_rx_per_s", 2000.0, positive=True, at_most=1e6),
         joints=joints or ranges,
     )
@@ -240,6 +245,7 @@ def _pair(r: Reader, key: str, value: Any) -> tuple[float, float]:
 def _midi(r: Reader, names: tuple[str, ...]) -> MidiConfig:
     port = r.get("port", str, None)
     lost = r.number("lost_after_s", None, positive=True)
+    release = _release_after(r)
     maps = []
     entries = r.get("cc", list, [])
     for i, entry in enumerate(entries):
@@ -273,7 +279,12 @@ def _midi(r: Reader, names: tuple[str, ...]) -> MidiConfig:
         MidiCcInput(maps, lost_after_s=lost)  # the mappings' own checks (a joint twice ...)
     except ValueError as exc:
         raise RigError(f"{r.path}: {r.where}: {exc}") from None
-    return MidiConfig(port=port, lost_after_s=lost, cc=tuple(maps))
+    return MidiConfig(port=port, lost_after_s=lost, release_after_s=release, cc=tuple(maps))
+
+
+def _release_after(r: Reader) -> float | None:
+    """``release_after_s``: a live value not refreshed this long hands its joint back."""
+    return r.number("release_after_s", None, positive=True, at_most=7 * 86400.0)
 
 
 def _mtc(r: Reader) -> MtcConfig:

@@ -15,9 +15,10 @@ cannot be skipped: a mismatch raises :class:`ShowRefusedError` before anything m
 :meth:`Show.run` runs the show once; every way out of it applies the rig's exit policy.
 Leaving the ``with`` block stops a show still running and closes the bus.
 
-While it runs, other threads talk to it through :meth:`Show.stop`, :meth:`Show.cue` and
-:meth:`Show.set_joint`. With ``status_file``, a heartbeat file says how it is doing, for a
-monitor (:mod:`hilsim.show.heartbeat`, ``docs/service.md``).
+While it runs, other threads talk to it through :meth:`Show.stop`, :meth:`Show.cue`,
+:meth:`Show.set_joint` and :meth:`Show.release`, and read :attr:`Show.status`. With
+``status_file``, a heartbeat file says how it is doing, for a monitor
+(:mod:`hilsim.show.heartbeat`, ``docs/service.md``).
 """
 
 from __future__ import annotations
@@ -323,6 +324,15 @@ class Show:
         file or ``live=True``, KeyError for an unknown joint, ValueError for a value that is
         not finite."""
         self._controls().set_joint(joint, deg)
+
+    def release(self, joint: str | None = None) -> None:
+        """Hand ``joint`` (None: every joint) back from its live value to the show's cues,
+        clips and idle (``docs/live.md``, who drives a joint) at the next tick: the joint
+        goes there through its spring and the safety filter, never a jump. Whatever live
+        input held it (``set_joint``, OSC, MIDI ...). Thread-safe. A ``live_release`` event
+        says it (``release_ignored`` when no live input held it). Raises ShowError without a
+        show file or ``live=True``, KeyError for an unknown joint."""
+        self._controls().release(joint)
 
     def _controls(self) -> Controls:
         director = self.parts.director

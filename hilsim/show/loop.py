@@ -539,6 +539,7 @@ class HilLoop:
                     "read": self.reading.status.tolist(),  # each servo's last (ReadStatus)
                     "present_rad": self.present.tolist(),
                     "limp": list(self.watch.limp),
+                    "layers": None if self.director is None else self.director.layers,
                 }
             )
         return k

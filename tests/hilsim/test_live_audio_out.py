@@ -329,12 +329,39 @@ def test_fill_without_a_voice_is_silence_and_a_far_start_waits() -> None:
     assert not buf.any() and not voice.started
 
 
-def test_opening_a_device_that_fails_is_one_oserror_line(tmp_path) -> None:
+def test_a_device_that_fails_to_open_is_one_warning_and_a_silent_show(tmp_path) -> None:
+    """Sound is not a safety matter: no device at the start is a warning line, one
+    audio_error event at the first poll, and plays skipped; the show goes on."""
     path = write_wav(tmp_path / "a.wav", 100)
     out = AudioOut(SoundDeviceBackend("USB Audio", sd=fake_sd(ValueError("No such device"))))
     out.preload([path])
-    with pytest.raises(OSError, match="cannot open the audio output USB Audio: No such device"):
+    note = out.start(lambda: 0.0)
+    assert note == (
+        "warning: no sound: cannot open the audio output USB Audio: No such device; the show "
+        "runs silent (audio_error in events.jsonl)"
+    )
+    (ev,) = out.poll(0.0)
+    assert ev.kind == "audio_error" and ev.t == 0.0
+    assert ev.detail["message"].startswith("no audio output, the show goes on silent: ")
+    assert out.poll(0.004) == [] and out.play(path, 0.0, 1.0, 1.0) == []
+    assert out.summary()["error"] == "cannot open the audio output USB Audio: No such device"
+
+
+def test_a_required_device_that_fails_to_open_is_one_oserror_line(tmp_path) -> None:
+    path = write_wav(tmp_path / "a.wav", 100)
+    backend = SoundDeviceBackend("USB Audio", sd=fake_sd(ValueError("No such device")))
+    out = AudioOut(backend, required=True)
+    out.preload([path])
+    with pytest.raises(OSError, match=r"USB Audio: No such device \(\[sounds\] required = true"):
         out.start(lambda: 0.0)
+
+
+def test_device_index_0_is_named_as_itself_not_as_the_default(tmp_path) -> None:
+    sd = fake_sd()
+    out = AudioOut(SoundDeviceBackend(0, sd=sd))
+    out.preload([write_wav(tmp_path / "a.wav", 100)])
+    assert out.start(lambda: 0.0).startswith("audio out: 0, 8000 Hz")
+    assert sd.streams[0].kw["device"] == 0
 
 
 # -- faults mid-show: events, the show goes on -----------------------------------------------
@@ -378,11 +405,22 @@ def test_the_real_backend_notices_its_stream_finished_and_counts_underflows(tmp_
 # -- the optional extra ----------------------------------------------------------------------
 
 
-def test_without_sounddevice_the_show_is_refused_with_the_extra(monkeypatch) -> None:
+def test_without_sounddevice_a_show_runs_silent_after_one_warning(monkeypatch, tmp_path):
+    monkeypatch.setitem(sys.modules, "sounddevice", None)
+    out = AudioOut()
+    out.preload([write_wav(tmp_path / "a.wav", 100)])
+    assert out.start(lambda: 0.0).startswith(
+        "warning: no sound: sounds need the optional package sounddevice: pip install"
+    )
+    assert [e.kind for e in out.poll(0.0)] == ["audio_error"]
+
+
+def test_without_sounddevice_a_show_that_requires_sound_is_refused(monkeypatch) -> None:
     monkeypatch.setitem(sys.modules, "sounddevice", None)
     with pytest.raises(AudioUnavailableError, match=r"pip install 'hilsim\[live\]'") as err:
-        AudioOut()
+        AudioOut(required=True)
     assert isinstance(err.value, ValueError)  # a show loader's one line
+    assert "required = true" in str(err.value)
 
 
 class _NoPortAudio(importlib.abc.MetaPathFinder, importlib.abc.Loader):
