@@ -14,6 +14,7 @@ import tomllib
 from pathlib import Path
 from typing import Any
 
+from drivers.p1bus.table import Protocol, family_of, protocol_of
 from drivers.protocol2.control_table import model_number, series
 from hilsim.dynamics.integrators import INTEGRATORS
 from hilsim.dynamics.springs import Spring
@@ -46,6 +47,22 @@ from hilsim.rig.model import (
     TelemetryConfig,
 )
 from hilsim.rig.reader import Reader, build, finish, read_key, read_table
+
+
+def _one_protocol_per_bus(path: Path, joints: list[JointConfig], named: bool) -> None:
+    """Every servo on one bus speaks one protocol: a servo of another never answers right."""
+    first: dict[str | None, tuple[int, Protocol]] = {}
+    for i, j in enumerate(joints):
+        proto = protocol_of(j.model)
+        assert proto is not None  # (the joint's reader checked the model)
+        k, seen = first.setdefault(j.bus, (i, proto))
+        if seen is not proto:
+            where = f"buses.{j.bus}" if named else "bus"
+            raise RigError(
+                f"{path}: joints[{i}].model: one protocol per bus: {j.name} is a {j.model} "
+                f"({proto}) but {joints[k].name} on the same {where} is a {joints[k].model} "
+                f"({seen}); put them on separate [buses.<name>] tables"
+            )
 
 
 # ------------------------------------------------------------------------------------ the springs
@@ -123,14 +140,20 @@ def _joint(path: Path, table: dict[str, Any], index: int) -> JointConfig:
         raise r.fail("servo_id", f"must be {id_lo}..{id_hi}, got {servo_id}")
     key("bus")  # which of the rig's buses: checked against them in _on_buses
     model = key("model")
-    try:
-        model_number(model)
-    except ValueError:
+    if protocol_of(model) is None:
         raise r.fail(
             "model",
             f"unknown servo model {model!r}; known: {', '.join(KNOWN_MODELS)} "
             "(a -T or -R suffix is fine)",
-        ) from None
+        )
+    if family_of(model) is None:
+        try:
+            model_number(model)
+        except ValueError:
+            raise r.fail(
+                "model",
+                f"{model} (Dynamixel Protocol 2.0) is not run by hilsim yet; the X series is",
+            ) from None
     home = key("home_rad")
     direction = key("direction")
     if direction not in (1, -1):
@@ -249,6 +272,7 @@ def _on_buses(
                 f"{path}: joints[{i}].servo_id: servo_id {j.servo_id!r} is already used by "
                 f"joints[{first}]{on}"
             )
+    _one_protocol_per_bus(path, out, bool(buses))
     for name in names:
         if not any(j.bus == name for j in out):
             raise RigError(
