@@ -84,6 +84,12 @@ class P1StubBus:
         self._tx_free = 0.0
         self.gone = False
         self.sent: list[tuple[float, bytes]] = []  # every packet the host wrote
+        self._plan: list[tuple[float, object]] = []  # (bus time, callable) run at the next write
+        self.hook = None  # called with each packet before it is handled (may raise)
+
+    def at(self, t: float, fn) -> None:
+        """Run ``fn()`` at the first write at or after bus time ``t`` (a fault plan)."""
+        self._plan.append((t, fn))
 
     # -- what the dxlsim serial port calls -----------------------------------------
     def unplugged(self) -> bool:
@@ -122,6 +128,11 @@ class P1StubBus:
 
     def write(self, data: bytes) -> None:
         now = self.clock.now()
+        for item in [p for p in self._plan if p[0] <= now]:
+            self._plan.remove(item)
+            item[1]()  # type: ignore[operator]
+        if self.hook is not None:
+            self.hook(bytes(data))
         self.sent.append((now, bytes(data)))
         t = now + len(data) * BYTE_S
         self._tx_free = t
@@ -188,9 +199,9 @@ class P1StubBus:
         return self._reply(s, data, t)
 
     # -- what the tests look at ----------------------------------------------------
-    def instructions(self, since: float = -1.0) -> list[packet.Packet]:
+    def instructions(self, start: int = 0) -> list[packet.Packet]:
+        """The packets the host wrote, from its ``start``-th write on (``len(self.sent)``)."""
         out = []
-        for t, b in self.sent:
-            if t > since:
-                out += [p for p in packet.StreamParser().feed(b) if p is not None]
+        for _, b in self.sent[start:]:
+            out += [p for p in packet.StreamParser().feed(b) if p is not None]
         return out

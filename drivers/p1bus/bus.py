@@ -57,14 +57,14 @@ class P1Bus(ServoBus):
     def __init__(
         self, link: P1Link, ids: Sequence[int], models: Sequence[str], retries: int
     ) -> None:
-        super().__init__(ids, link.clock)
         fams = [family_of(m) for m in models]
         unknown = [m for m, f in zip(models, fams, strict=True) if f is None]
-        if unknown or len(models) != len(self.ids):
+        if unknown or len(models) != len(ids):
             raise ValueError(f"not Protocol 1.0 models: {unknown or models}")
         self.fams: list[Family] = [f for f in fams if f is not None]
         if len({f.protocol for f in self.fams}) > 1:
             raise ValueError("one protocol per bus: Feetech and Dynamixel servos mixed")
+        super().__init__(ids, link.clock)
         self.by_id = dict(zip(self.ids, self.fams, strict=True))
         self.link, self.retries = link, int(retries)
         self.method = bus_read_method(set(self.fams))
