@@ -388,27 +388,30 @@ class P1Servo:
         return float(goal + self._offset())
 
     def _advance(self, t: float) -> None:
+        """Move the horn from ``_now`` to ``t``: time-optimal towards the goal under the speed
+        and acceleration limits (accelerate, cruise, brake), planned piece by piece exactly."""
         if self.raw("Torque Enable") != 1:
             self._vel = 0.0
             self._now = t
             return
         goal, vmax, amax = self._goal(), self._vmax(), self._amax()
-        pos, vel, now = self._pos, self._vel, self._now
-        while now < t:
+        pos, vel, left = self._pos, self._vel, t - self._now
+        for _ in range(8):  # at most: stop, turn, accelerate, cruise, brake
             d = goal - pos
-            if vel == 0.0 and abs(d) < 1e-9:
+            if left <= 0.0 or (vel == 0.0 and abs(d) < 1e-9):
                 break
-            h = min(STEP_S, t - now)
-            want = math.copysign(min(vmax, math.sqrt(2.0 * amax * abs(d))), d)
-            dv = want - vel
-            step = amax * h
-            vel = want if abs(dv) <= step else vel + math.copysign(step, dv)
-            new = pos + vel * h
-            if (goal - new) * d <= 0.0:  # reached or passed the goal: stop there
-                pos, vel = goal, 0.0
+            sgn = 1.0 if d > 0 or (d == 0 and vel < 0) else -1.0
+            dist, v = abs(d), vel * sgn  # in the goal's direction
+            dur, acc, last = _segment(dist, v, vmax, amax)
+            h = min(dur, left)
+            if math.isinf(amax):
+                pos, vel = pos + sgn * vmax * h, sgn * vmax
             else:
-                pos = new
-            now += h
+                pos += sgn * (v * h + 0.5 * acc * h * h)
+                vel = sgn * (v + acc * h)
+            left -= h
+            if last and h >= dur:
+                pos, vel = goal, 0.0
         self._pos, self._vel, self._now = pos, vel, t
 
     def _refresh(self) -> None:
@@ -430,3 +433,24 @@ class P1Servo:
         return (
             f"P1Servo({self.table.model!r}, id={self.id}, t={self._now:.6f}, pos={self._pos:.1f})"
         )
+
+
+def _segment(dist: float, v: float, vmax: float, a: float) -> tuple[float, float, bool]:
+    """The next piece of a time-optimal move ``dist`` (>= 0) ahead at speed ``v`` (signed,
+    towards the goal): ``(duration, acceleration, ends_at_the_goal)``."""
+    eps = 1e-9
+    if math.isinf(a):
+        return dist / vmax, 0.0, True
+    if v < -eps:  # moving away: stop first
+        return -v / a, a, False
+    if v * v / (2.0 * a) > dist + eps:  # cannot stop in time: brake through the goal
+        return v / a, -a, False
+    if v > vmax + eps:  # faster than this move allows: slow down to it
+        return (v - vmax) / a, -a, False
+    peak = min(vmax, math.sqrt(a * dist + v * v / 2.0))
+    if v < peak - eps:
+        return (peak - v) / a, a, False
+    cruise = dist - v * v / (2.0 * a)
+    if cruise > eps and v > eps:
+        return cruise / v, 0.0, False
+    return (v / a if v > eps else 0.0), -a, True
