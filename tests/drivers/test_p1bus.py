@@ -1,256 +1,270 @@
-"""P1Bus, the host side of Feetech STS/SCS and Dynamixel AX/MX (Protocol 1.0), on the
-P1 stub bus (tests/p1_stub.py) and the virtual clock: the tick's packets, each reply checked
-on its own, the rotation's rate, the start-up table, the exit policy, EEPROM writes."""
+"""dxlsim's Protocol 1.0-framed bus, byte for byte and in time: AX/MX (P1) and Feetech STS/SCS.
+
+In process on the virtual clock: every packet is built with :mod:`drivers.protocol1.packet`
+and every reply split with it; times are exact sums of the wire model.
+"""
 
 from __future__ import annotations
 
-import itertools
 import math
 
-import numpy as np
 import pytest
 
-from drivers.dxlsim import register_bus, unregister_bus
-from drivers.dynamixel.errors import ExitNotConfirmed, StartupMismatch
-from drivers.p1bus import table
-from drivers.p1bus.bus import P1Bus
-from drivers.p1bus.health import write_eeprom
-from drivers.p1bus.startup import P1Expectation
-from drivers.protocol1 import packet
-from drivers.protocol1.control_table import TABLES
-from drivers.servo_bus import PresentReading, ReadStatus
-from tests.p1_stub import P1StubBus
+from drivers.clock import VirtualClock
+from drivers.dxlsim.p1bus import P1Bus
+from drivers.dxlsim.p1servo import P1Servo
+from drivers.dxlsim.url import DxlsimUrl
+from drivers.protocol1 import packet as p1
+from drivers.protocol1.control_table import DxlP1Error
+from drivers.protocol1.wire_time import (
+    cycle_time_s,
+    status_bytes,
+    sync_read_time_s,
+    sync_write_bytes,
+    wire_time_s,
+)
 
-OK, STALE, ERROR, ALERT, UNREAD = (int(s) for s in ReadStatus)
-_names = itertools.count()
-
-
-@pytest.fixture
-def p1():
-    """``p1(models={id: model})`` -> (P1Bus, P1StubBus), checked against the servos."""
-    opened: list[tuple[P1Bus, str]] = []
-
-    def make(models: dict[int, str], *, check: bool = True, period_s: float = 0.004):
-        stub = P1StubBus(models)
-        name = f"p1-{next(_names)}"
-        bus = P1Bus.open(
-            register_bus(name, stub), baud=1_000_000, ids=list(models), models=list(models.values())
-        )
-        opened.append((bus, name))
-        bus.plan(period_s)
-        if check:
-            bus.check(expect(models))
-        return bus, stub
-
-    yield make
-    for bus, name in opened:
-        bus.close()
-        unregister_bus(name)
+BAUD = 1_000_000
+TURN = 20e-6
 
 
-def expect(models: dict[int, str], **kw) -> list[P1Expectation]:
-    kw.setdefault("position_range_rad", (-1.0, 1.0))
-    kw.setdefault("return_delay_us_max", 100.0)
-    return [P1Expectation(sid, m, **kw) for sid, m in models.items()]
+def make(model: str, ids: range | list[int], *, rdt_us: float = 0.0, **kw: object) -> P1Bus:
+    clock = VirtualClock()
+    servos = [P1Servo(model, i, return_delay_us=rdt_us, t=clock.now()) for i in ids]
+    return P1Bus(servos, baud=BAUD, clock=clock, **kw)
 
 
-STS6 = {i: "STS3215" for i in range(1, 7)}
+def txrx(bus: P1Bus, packet: bytes, wait: float = 0.01) -> bytes:
+    bus.write(packet)
+    bus.clock.advance(wait)  # type: ignore[attr-defined]
+    return bus.read(100_000)
 
 
-def test_the_host_table_agrees_with_the_shared_control_tables():
-    """Every register the host uses is the shared table's item: address, size, sign bit, order."""
-    fields = [
-        f for f in table.Family.__dataclass_fields__ if isinstance(getattr(table.STS, f), table.Reg)
+def test_status_packets_byte_for_byte() -> None:
+    bus = make("STS3215", [1])
+    assert txrx(bus, p1.ping(1)) == bytes.fromhex("FF FF 01 02 00 FC")
+    # Model Number 777 = 0x0309, little endian at address 3
+    assert txrx(bus, p1.read(1, 3, 2)) == bytes.fromhex("FF FF 01 04 00 09 03 EE")
+    ax = make("AX-12A", [1])
+    assert txrx(ax, p1.read(1, 0, 2)) == p1.encode_status(1, 0, b"\x0c\x00")  # model 12
+    scs = make("SCS0009", [1])
+    assert txrx(scs, p1.read(1, 3, 2)) == p1.encode_status(1, 0, b"\x05\x04")  # 1284, big end
+
+
+def test_sts_sync_read_of_12_takes_the_wire_model_time() -> None:
+    bus = make("STS3215", range(1, 13))
+    t0 = bus.clock.now()
+    bus.write(p1.sync_read(56, 2, range(1, 13)))
+    last = bus.visible_at(12 * status_bytes(2))
+    assert last is not None
+    assert last - t0 == pytest.approx(sync_read_time_s(12, BAUD, turnaround_s=TURN), abs=1e-12)
+    assert bus.visible_at(12 * status_bytes(2) + 1) is None  # nothing more comes
+    bus.clock.advance(0.01)
+    replies = p1.split_status_stream(bus.read(1000))
+    assert [r.id for r in replies] == list(range(1, 13))  # one packet each, in the packet's order
+    assert all(r.code == 0 and r.params == (2048).to_bytes(2, "little") for r in replies)
+
+
+def test_sts_cycle_is_the_wire_model() -> None:
+    """Sync Write of goals then Sync Read: 1.60 ms of bytes at 1 Mbit/s + 12 turnarounds."""
+    bus = make("STS3215", range(1, 13))
+    t0 = bus.clock.now()
+    end_write = bus.write(p1.sync_write(42, 2, {i: b"\x00\x08" for i in range(1, 13)}))
+    assert end_write - t0 == pytest.approx(wire_time_s(sync_write_bytes(12), BAUD))
+    bus.write(p1.sync_read(56, 2, range(1, 13)))
+    last = bus.visible_at(12 * 8)
+    assert last is not None
+    model = cycle_time_s(12, BAUD, "sync_read", turnaround_s=TURN)
+    assert last - t0 == pytest.approx(model, abs=1e-12)
+    assert model == pytest.approx(1.60e-3 + 12 * TURN)
+
+
+def test_mx_bulk_read_chain_and_timing() -> None:
+    bus = make("MX-28", [1, 2, 3])
+    t0 = bus.clock.now()
+    bus.write(p1.bulk_read([(3, 36, 2), (1, 43, 1), (2, 0, 2)]))
+    last = bus.visible_at(8 + 7 + 8)
+    assert last is not None
+    assert last - t0 == pytest.approx(wire_time_s(7 + 9 + 23, BAUD) + 3 * TURN)
+    bus.clock.advance(0.01)
+    replies = p1.split_status_stream(bus.read(1000))
+    assert [(r.id, r.params) for r in replies] == [
+        (3, (2048).to_bytes(2, "little")),
+        (1, bytes((30,))),
+        (2, (29).to_bytes(2, "little")),
     ]
-    for model, tab in TABLES.items():
-        fam = table.family_of(model)
-        assert fam is not None and fam.models[model] == tab.model_number
-        assert fam.big_endian == tab.family.big_endian
-        assert (fam.read is table.ReadMethod.SYNC) == tab.family.sync_read
-        assert (fam.read is table.ReadMethod.BULK) == tab.family.bulk_read
-        assert fam.status_return_all == tab.family.srl_all
-        assert fam.baud_codes == tab.family.baud_rates
-        assert fam.ticks_per_turn == pytest.approx(tab.resolution * 360 / tab.range_deg)
-        for f in fields:
-            reg = getattr(fam, f)
-            if reg is None:
-                continue
-            (item,) = [i for i in tab.items if i.addr == reg.addr]
-            assert (item.size, item.sign_bit) == (reg.size, reg.sign_bit), (model, f)
+    ax = make("AX-12A", [1, 2])  # AX answers no Bulk Read; STS no Bulk Read either
+    assert txrx(ax, p1.bulk_read([(1, 36, 2)])) == b""
+    assert txrx(make("STS3215", [1]), p1.bulk_read([(1, 56, 2)])) == b""
+    assert txrx(make("SCS0009", [1]), p1.sync_read(56, 2, [1])) == b""  # SCS: no Sync Read
 
 
-def test_sync_read_is_one_request_and_each_reply_is_checked_on_its_own(p1):
-    bus, stub = p1(STS6)
-    stub.servos[2].set("Present Position", 2048 + 100)
-    stub.servos[3].corrupt = 1
-    stub.servos[5].silent = True
-    since = len(stub.sent)
-    r = bus.read_present()
-    assert r.status.tolist() == [OK, OK, STALE, OK, STALE, OK]
-    assert math.isnan(r.positions[2]) and math.isnan(r.positions[4])
-    assert r.positions[1] == pytest.approx(100 * 2 * math.pi / 4096)
-    assert r.positions[0] == 0.0
-    (req,) = stub.instructions(since)
-    assert req.encode() == packet.sync_read(56, 2, range(1, 7))
-    assert bus.corrupt_sample is not None
-    stub.servos[5].silent = False
-    assert bus.read_present(r).status.tolist() == [OK] * 6  # the next tick reads all again
+def test_return_delay_in_2us_units() -> None:
+    bus = make("AX-12A", [1], rdt_us=500)
+    t0 = bus.clock.now()
+    bus.write(p1.ping(1))
+    first = bus.visible_at(1)
+    assert first == pytest.approx(t0 + wire_time_s(6, BAUD) + 500e-6 + TURN + wire_time_s(1, BAUD))
+    bus.clock.advance(0.01)
+    bus.read(100)
+    assert txrx(bus, p1.write(1, 5, b"\x00"))  # Return Delay Time := 0 (answered)
+    t1 = bus.clock.now()
+    bus.write(p1.ping(1))
+    assert bus.visible_at(6) == pytest.approx(t1 + wire_time_s(12, BAUD) + TURN)
 
 
-def test_sync_read_request_is_the_reference_vector(p1):
-    bus, stub = p1({1: "STS3215", 2: "STS3215"})
-    since = len(stub.sent)
-    bus.read_present()
-    assert len(stub.sent) == since + 1
-    assert stub.sent[-1][1] == bytes.fromhex("FF FF FE 06 82 38 02 01 02 3C")
+def test_status_return_level_per_family() -> None:
+    ax = make("AX-12A", [1])
+    txrx(ax, p1.write(1, 16, b"\x01"))  # level 1: PING and READ only
+    assert txrx(ax, p1.write(1, 25, b"\x01")) == b""
+    assert txrx(ax, p1.read(1, 25, 1)) == p1.encode_status(1, 0, b"\x01")
+    txrx(ax, p1.write(1, 16, b"\x00"))  # level 0: PING only
+    assert txrx(ax, p1.read(1, 25, 1)) == b""
+    assert txrx(ax, p1.ping(1)) == p1.encode_status(1, 0)
+    sts = make("STS3215", [1])
+    txrx(sts, p1.write(1, 8, b"\x00"))  # Feetech level 0: READ and PING only
+    assert txrx(sts, p1.write(1, 40, b"\x01")) == b""
+    assert txrx(sts, p1.read(1, 40, 1)) == p1.encode_status(1, 0, b"\x01")
 
 
-def test_goals_are_one_sync_write_in_each_familys_encoding(p1):
-    bus, stub = p1({1: "STS3215", 2: "STS3215"})
-    bus.set_torque(True)
-    since = len(stub.sent)
-    bus.write_goals(np.array([0.5, -0.25]))
-    (sw,) = stub.instructions(since)
-    addr, data = packet.parse_sync_write(sw.params)
-    assert sw.code == packet.Inst.SYNC_WRITE and addr == 42
-    t1, t2 = round(0.5 * 4096 / (2 * math.pi)) + 2048, round(-0.25 * 4096 / (2 * math.pi)) + 2048
-    assert data == {1: t1.to_bytes(2, "little"), 2: t2.to_bytes(2, "little")}
-    scs, sstub = p1({4: "SCS0009"})
-    scs.set_torque(True)
-    since = len(sstub.sent)
-    scs.write_goals(np.array([0.1]))
-    (sw,) = sstub.instructions(since)
-    tick = round(0.1 * 1024 * 360 / 300 / (2 * math.pi)) + 512
-    assert packet.parse_sync_write(sw.params)[1] == {4: tick.to_bytes(2, "big")}  # big-endian
-    sstub.servos[4].set("Present Position", 700)
-    assert scs.read_present().positions[0] == pytest.approx(188 / (1024 * 360 / 300) * 2 * math.pi)
+def test_dynamixel_range_and_angle_limit_errors() -> None:
+    ax = make("AX-12A", [1])
+    reply = p1.decode(txrx(ax, p1.write(1, 30, (1024).to_bytes(2, "little"))))
+    assert reply.code == DxlP1Error.RANGE
+    assert p1.decode(txrx(ax, p1.write(1, 36, b"\x00\x00"))).code == DxlP1Error.RANGE  # R only
+    txrx(ax, p1.write(1, 6, (100).to_bytes(2, "little")))  # CW Angle Limit 100
+    reply = p1.decode(txrx(ax, p1.write(1, 30, (50).to_bytes(2, "little"))))
+    assert reply.code == DxlP1Error.ANGLE_LIMIT
+    assert p1.decode(txrx(ax, p1.encode_instruction(1, 0x7F))).code == DxlP1Error.INSTRUCTION
+    sts = make("STS3215", [1])
+    assert txrx(sts, p1.encode_instruction(1, 0x7F)) == b""  # Feetech: silent
 
 
-def test_a_goal_beyond_the_angle_limits_is_refused_before_the_wire(p1):
-    bus, stub = p1({1: "AX-12A"}, period_s=0.01)
-    stub.sent.clear()
-    with pytest.raises(ValueError, match=r"servo 1: tick .* not in 0\.\.1023"):
-        bus.write_goals(np.array([math.radians(160)]))  # AX: 300 degrees, +-150
-    assert stub.sent == []
+def test_checksum_errors_per_family() -> None:
+    bad = bytearray(p1.write(1, 25, b"\x01"))
+    bad[-1] ^= 0x55
+    ax = make("AX-12A", [1])
+    assert p1.decode(txrx(ax, bytes(bad))).code == DxlP1Error.CHECKSUM
+    assert ax.servo(1).raw("LED") == 0  # never executed
+    sts = make("STS3215", [1])
+    assert txrx(sts, bytes(bad)) == b""
 
 
-def test_error_bits_a_hardware_bit_is_alert_with_its_reading_an_instruction_bit_error(p1):
-    bus, stub = p1({1: "STS3215", 2: "STS3215"})
-    stub.servos[1].err = 0x04  # overheating: the reading is still the servo's position
-    r = bus.read_present()
-    assert r.status.tolist() == [ALERT, OK] and r.positions[0] == 0.0 and r.errors[0] == 4
-    ax, astub = p1({1: "AX-12A"}, period_s=0.01)
-    astub.servos[1].err = 0x40  # instruction error: the data is no answer
-    r = ax.read_present()
-    assert r.status.tolist() == [ERROR] and math.isnan(r.positions[0])
+def test_feetech_lock_keeps_eeprom_writes_only_when_unlocked() -> None:
+    bus = make("STS3215", [1])
+    s = bus.servo(1)
+    assert s.raw("Lock") == 1  # power-up
+    txrx(bus, p1.write(1, 9, (100).to_bytes(2, "little")))  # Min Position Limit, locked
+    assert s.raw("Min Position Limit") == 100  # in effect...
+    s.brownout(bus.clock.now())
+    assert s.raw("Min Position Limit") == 0  # ...but not kept over a power cycle
+    txrx(bus, p1.write(1, 55, b"\x00"))  # unlock
+    txrx(bus, p1.write(1, 9, (100).to_bytes(2, "little")))
+    s.brownout(bus.clock.now())
+    assert s.raw("Min Position Limit") == 100 and s.raw("Lock") == 1
 
 
-def test_mx_reads_by_one_bulk_read(p1):
-    models = {i: "MX-28" for i in (3, 4, 7)}
-    bus, stub = p1(models)
-    assert bus.read_mode is table.ReadMethod.BULK
-    since = len(stub.sent)
-    assert bus.read_present().status.tolist() == [OK] * 3
-    (req,) = stub.instructions(since)
-    assert req.encode() == packet.bulk_read([(i, 36, 2) for i in (3, 4, 7)])
+def test_dynamixel_lock_refuses_eeprom_until_power_off() -> None:
+    bus = make("AX-12A", [1])
+    s = bus.servo(1)
+    txrx(bus, p1.write(1, 47, b"\x01"))
+    txrx(bus, p1.write(1, 6, (10).to_bytes(2, "little")))
+    assert s.raw("CW Angle Limit") == 0
+    txrx(bus, p1.write(1, 47, b"\x00"))  # only a power cycle clears it
+    assert s.raw("Lock") == 1
+    s.brownout(bus.clock.now())
+    assert s.raw("Lock") == 0
+    txrx(bus, p1.write(1, 6, (10).to_bytes(2, "little")))
+    assert s.raw("CW Angle Limit") == 10
 
 
-def test_ax_reads_in_rotation_each_servo_at_the_rate_it_states(p1):
-    models = {i: "AX-12A" for i in range(1, 13)}
-    bus, _ = p1(models, period_s=0.01)
-    assert bus.read_mode is table.ReadMethod.ROTATION
-    k = bus.per_tick
-    assert 1 <= k < 12
-    reads = np.zeros(12)
-    reading = PresentReading.empty(bus.ids)
-    ticks = 12 * 10
-    for _ in range(ticks):
-        bus.read_present(reading)
-        reads += reading.status == OK
-        assert set(reading.status.tolist()) <= {OK, UNREAD}
-        assert (reading.status == OK).sum() == k
-        assert np.isnan(reading.positions[reading.status == UNREAD]).all()
-    rate = bus.read_rate_hz(100.0)
-    assert reads / (ticks / 100.0) == pytest.approx(np.full(12, rate), rel=0.1)
-    assert bus.stats.consecutive_bad.tolist() == [0] * 12  # not asked is no failure
+def test_reg_write_action_and_broadcast_ping() -> None:
+    bus = make("STS3215", [1, 2])
+    txrx(bus, p1.encode_instruction(1, p1.Inst.REG_WRITE, bytes((40, 1))))
+    assert bus.servo(1).raw("Torque Enable") == 0
+    assert txrx(bus, p1.encode_instruction(p1.BROADCAST_ID, p1.Inst.ACTION)) == b""
+    assert bus.servo(1).raw("Torque Enable") == 1
+    pings = p1.split_status_stream(txrx(bus, p1.ping(p1.BROADCAST_ID)))
+    assert [r.id for r in pings] == [1, 2]
+    assert txrx(make("AX-12A", [1]), p1.ping(p1.BROADCAST_ID)) == b""  # P1: no broadcast ping
 
 
-def test_startup_check_names_every_difference_in_one_table(p1):
-    models = {1: "STS3215", 2: "STS3215", 3: "STS3215", 4: "STS3215"}
-    bus, stub = p1(models, check=False)
-    stub.servos[1].set("Return Delay Time", 250)
-    stub.servos[1].set("Response Status Level", 0)
-    stub.servos[2].set("Phase", 0x1C)
-    stub.servos[3].set("Model Number", 1284)
-    stub.servos[4].silent = True
-    with pytest.raises(StartupMismatch) as info:
-        bus.check(expect(models))
-    rows = {(r.servo_id, r.item) for r in info.value.rows}
-    assert rows == {
-        (1, "Return Delay Time"),
-        (1, "Response Status Level"),
-        (2, "Phase"),
-        (3, "model"),
-        (4, "answers Ping"),
-    }
-    text = str(info.value)
-    assert "SCS0009 (Feetech SCS)" in text and "Lock, addr 55 := 0" in text
-    assert not [p for p in stub.instructions() if p.code in (packet.Inst.WRITE, 0x83)]  # read-only
+def test_ax_moving_speed_sets_the_move_time() -> None:
+    bus = make("AX-12A", [1])
+    s = bus.servo(1)
+    txrx(bus, p1.write(1, 32, (300).to_bytes(2, "little")))  # 300 x 0.111 rpm = 33.3 rpm
+    txrx(bus, p1.write(1, 24, b"\x01"))
+    t0 = bus.clock.now()
+    bus.write(p1.write(1, 30, (512 + 409).to_bytes(2, "little")))  # 409 steps ~ 120 deg
+    steps_per_s = 300 * 0.111 / 60 * 1024 * 360 / 300
+    expect = 409 / steps_per_s
+    bus.clock.advance(expect * 0.9)
+    s.touch(bus.clock.now())
+    assert s.raw("Moving") == 1 and s.raw("Present Position") < 921
+    bus.clock.advance(expect * 0.1 + 0.01)
+    s.touch(bus.clock.now())
+    assert s.raw("Present Position") == 921 and s.raw("Moving") == 0
+    assert bus.clock.now() - t0 == pytest.approx(expect + 0.01, abs=2e-3)
 
 
-def test_startup_check_says_there_is_no_bus_watchdog(p1):
-    bus, _ = p1(STS6, check=False)
-    report = bus.check(expect(STS6))
-    assert bus.has_watchdog is False
-    assert any("no Bus Watchdog" in n for n in report.notes)
+def test_sts_acceleration_and_goal_speed() -> None:
+    """A 1000-step move at 2400 step/s with Acceleration 50 (5000 step/s²): the triangle
+    never reaches 2400 (it would need 576 steps each way): 2·sqrt(1000/5000) = 0.894 s."""
+    bus = make("STS3215", [1])
+    s = bus.servo(1)
+    txrx(bus, p1.write(1, 41, bytes((50,))))
+    txrx(bus, p1.write(1, 46, (2400).to_bytes(2, "little")))
+    bus.write(p1.write(1, 42, (3048).to_bytes(2, "little")))  # a goal turns torque on
+    t_move = 2 * math.sqrt(1000 / 5000)
+    bus.clock.advance(t_move - 0.02)
+    s.touch(bus.clock.now())
+    assert 3000 < s.raw("Present Position") < 3048 and s.raw("Torque Enable") == 1
+    speed = s.value("Present Speed")
+    assert 0 < speed < 2400
+    bus.clock.advance(0.04)
+    s.touch(bus.clock.now())
+    assert s.raw("Present Position") == 3048 and s.value("Present Speed") == 0
 
 
-def test_arming_a_watchdog_writes_nothing(p1):
-    bus, stub = p1(STS6)
-    stub.sent.clear()
-    bus.arm_watchdog(0.1)
-    assert stub.sent == []
+def test_sign_magnitude_on_the_wire() -> None:
+    bus = make("STS3215", [1])
+    txrx(bus, p1.write(1, 55, b"\x00"))
+    txrx(bus, p1.write(1, 31, (0x0800 | 48).to_bytes(2, "little")))  # Homing Offset -48
+    reply = p1.decode(txrx(bus, p1.read(1, 56, 2)))
+    assert int.from_bytes(reply.params, "little") == 2048 + 48
+    txrx(bus, p1.write(1, 31, (100).to_bytes(2, "little")))  # +100: reads 1948
+    txrx(bus, p1.write(1, 40, b"\x01"))
+    # a move towards lower positions reads a negative Present Speed: bit 15 set
+    txrx(bus, p1.write(1, 42, (948).to_bytes(2, "little")), 0.05)
+    raw = int.from_bytes(p1.decode(txrx(bus, p1.read(1, 58, 2), 0.001)).params, "little")
+    assert raw & 0x8000 and 0 < raw & 0x7FFF <= 3072
 
 
-def test_exit_policy_hold_and_relax_are_read_back(p1):
-    bus, stub = p1(STS6)
-    bus.set_torque(True)
-    stub.servos[2].set("Present Position", 2100)
-    report = bus.apply_exit_policy("hold")
-    assert report.ok and report.confirmed == tuple(range(1, 7))
-    assert any("no Bus Watchdog" in n for n in report.notes)
-    assert stub.servos[2].get("Goal Position") == 2100
-    assert bus.apply_exit_policy("relax").ok
-    assert all(s.get("Torque Enable") == 0 for s in stub.servos.values())
+def test_faults_on_a_feetech_bus() -> None:
+    bus = make("STS3215", range(1, 5), faults="drop:id=2,count=1;corrupt:id=3,count=1")
+    data = txrx(bus, p1.sync_read(56, 2, range(1, 5)))
+    assert [r.id for r in p1.split_status_stream(data)] == [1]  # a silent servo stops the chain
+    data = txrx(bus, p1.sync_read(56, 2, range(1, 5)))
+    parser = p1.StreamParser()
+    assert [None if f is None else f.id for f in parser.feed(data)] == [1, 2, None, 4]
+    bus = make("STS3215", [1, 2], faults="torque_off:id=2,at=0.5;hardware_error:id=1,at=0.5,bits=4")
+    txrx(bus, p1.write(1, 40, b"\x01"))
+    txrx(bus, p1.write(2, 40, b"\x01"))
+    bus.clock.advance(1.0)  # type: ignore[attr-defined]
+    assert p1.decode(txrx(bus, p1.read(2, 40, 1))).params == b"\x00"
+    reply = p1.decode(txrx(bus, p1.read(1, 63, 1)))
+    assert reply.code & 4 and reply.params[0] > 70  # overheating: status bit, temperature
 
 
-def test_exit_policy_that_cannot_be_confirmed_names_the_servos(p1):
-    bus, stub = p1(STS6)
-    bus.set_torque(True)
-    stub.servos[3].silent = True
-    stub.servos[5].torque_sticks_off = True
-    stub.servos[5].set("Torque Enable", 0)
-    with pytest.raises(ExitNotConfirmed) as info:
-        bus.apply_exit_policy("hold", retries=1)
-    why = dict(info.value.report.unconfirmed)
-    assert set(why) == {3, 5}
-    assert "no reply" in why[3] and "torque is off" in why[5]
-
-
-def test_eeprom_writes_unlock_then_relock_a_feetech_servo(p1):
-    bus, stub = p1({1: "STS3215"})
-    since = len(stub.sent)
-    write_eeprom(bus.link, bus.fams[0], 1, bus.fams[0].return_delay, 0)
-    writes = [(p.params[0], p.params[1:]) for p in stub.instructions(since) if p.code == 3]
-    assert writes == [(55, b"\x00"), (7, b"\x00"), (55, b"\x01")]
-    assert stub.servos[1].get("Lock") == 1 and stub.servos[1].get("Return Delay Time") == 0
-
-
-def test_one_protocol_per_bus():
+def test_one_protocol_per_bus_and_no_watchdog() -> None:
     with pytest.raises(ValueError, match="one protocol per bus"):
-        P1Bus(None, [1, 2], ["STS3215", "AX-12A"], 0)  # type: ignore[arg-type]
-    assert table.protocol_of("MX-28") is table.Protocol.DXL1
-    assert table.protocol_of("MX-28-P2") is table.Protocol.DXL2
-    assert table.protocol_of("xm430-w350-t") is table.Protocol.DXL2
-    assert table.protocol_of("sts3215") is table.Protocol.FEETECH
-    assert table.protocol_of("HS-485HB") is None
+        DxlsimUrl.parse("dxlsim://?ids=1-2&model=STS3215,2:AX-12A")
+    with pytest.raises(ValueError, match="one protocol per bus"):
+        DxlsimUrl.parse("dxlsim://?ids=1-2&model=XM430-W350,2:AX-12A")
+    with pytest.raises(ValueError, match="no Bus Watchdog"):
+        DxlsimUrl.parse("dxlsim://?ids=1&model=STS3215&faults=watchdog_trip:id=1,at=1").build_bus()
+    bus = DxlsimUrl.parse("dxlsim://?ids=1-6&model=sts3215&clock=virtual").build_bus()
+    assert isinstance(bus, P1Bus) and [s.id for s in bus.servos] == [1, 2, 3, 4, 5, 6]
+    assert str(DxlsimUrl.parse("dxlsim://?ids=1-3&model=ax-12a,3:AX-18A")) == (
+        "dxlsim://?ids=1-3&model=AX-12A,3:AX-18A"
+    )
