@@ -5,7 +5,7 @@ Each tick: one Sync Write (0x83) of Goal Position to every servo, then the best 
 family has (:class:`~drivers.p1bus.table.ReadMethod`): Feetech STS one Sync Read (0x82) and
 Dynamixel MX one Bulk Read (0x92), each answered by a status packet per servo, each checked
 on its own; AX and SCS servos have neither, so a few single Reads per tick, in rotation
-(:meth:`P1Bus.plan` fits them to the tick; the servos not asked this tick read
+(:meth:`P1ServoBus.plan` fits them to the tick; the servos not asked this tick read
 :attr:`~drivers.servo_bus.ReadStatus.UNREAD`). A missing, cut or damaged reply is STALE
 (NaN), an instruction/range/checksum error bit ERROR (NaN), a hardware bit (voltage,
 overheating, overload ...) ALERT with its position. After a failed chain the next request
@@ -48,7 +48,7 @@ _POS_BYTES = 2
 ROTATION_SHARE_OF_TICK = 0.6
 
 
-class P1Bus(ServoBus):
+class P1ServoBus(ServoBus):
     """Servos of the Protocol 1.0-framed families on one port. Build with :meth:`open`;
     positions are rad in the servo frame (the family's centre tick is 0 rad)."""
 
@@ -99,7 +99,7 @@ class P1Bus(ServoBus):
         latency_timer_ms: float | None = None,
         clock: Clock | None = None,
         retries: int = 2,
-    ) -> P1Bus:
+    ) -> P1ServoBus:
         """Open ``port`` for servos ``ids`` of ``models`` (one per ID); nothing is written."""
         if retries < 0:
             raise ValueError(f"retries must be >= 0, got {retries}")
@@ -112,7 +112,7 @@ class P1Bus(ServoBus):
             raise
 
     def __repr__(self) -> str:
-        return f"P1Bus({self.link.name!r}, baud={self.link.baud}, ids={self.ids})"
+        return f"P1ServoBus({self.link.name!r}, baud={self.link.baud}, ids={self.ids})"
 
     @property
     def read_mode(self) -> ReadMethod:

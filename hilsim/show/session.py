@@ -91,7 +91,7 @@ def p1_models(rig: Rig) -> list[str] | None:
 
 def open_bus(rig: Rig, port: str) -> DynamixelBus:
     """Open the bus the rig names (``port`` from :func:`port_for`): the X-series backend, or
-    :class:`~drivers.p1bus.bus.P1Bus` for Feetech and Dynamixel Protocol 1.0 servos. Hardware
+    :class:`~drivers.p1bus.bus.P1ServoBus` for Feetech and Dynamixel Protocol 1.0 servos. Hardware
     gets a monotonic clock with the rig's spin window; the emulator brings its own clock."""
     from drivers.dynamixel.bus import DynamixelBus
     from drivers.dynamixel.errors import DynamixelError
@@ -100,9 +100,9 @@ def open_bus(rig: Rig, port: str) -> DynamixelBus:
     models = p1_models(rig)
     try:
         if models is not None:
-            from drivers.p1bus.bus import P1Bus
+            from drivers.p1bus.bus import P1ServoBus
 
-            return P1Bus.open(  # type: ignore[return-value]  # the loop needs a ServoBus
+            return P1ServoBus.open(  # type: ignore[return-value]  # the loop needs a ServoBus
                 port,
                 baud=rig.bus.baud,
                 ids=rig.servo_ids,
@@ -168,9 +168,9 @@ def check_p1_bus(rig: Rig, bus: DynamixelBus, say: Callable[[str], None]) -> lis
     """:func:`check_bus` for the Protocol 1.0-framed families (no Bus Watchdog): the reads
     fitted to the tick, the start-up check in the family's terms, the bus's capacity."""
     from drivers.dynamixel.errors import DynamixelError, StartupMismatch
-    from drivers.p1bus.bus import P1Bus
+    from drivers.p1bus.bus import P1ServoBus
 
-    assert isinstance(bus, P1Bus)
+    assert isinstance(bus, P1ServoBus)
     bus.plan(rig.loop.period_s)
     try:
         report = bus.check(p1_expectations(rig, bus))
@@ -201,11 +201,11 @@ def check_p1_bus(rig: Rig, bus: DynamixelBus, say: Callable[[str], None]) -> lis
 def p1_cycle_s(bus: object) -> float:
     """The wire model's time of one tick on a Protocol 1.0-framed bus: the Sync Write and the
     tick's reads, each servo's Return Delay Time, the adapter latency per read transaction."""
-    from drivers.p1bus.bus import P1Bus
+    from drivers.p1bus.bus import P1ServoBus
     from drivers.p1bus.table import ReadMethod
     from drivers.protocol1 import wire_time as w1
 
-    assert isinstance(bus, P1Bus)
+    assert isinstance(bus, P1ServoBus)
     method = {
         ReadMethod.SYNC: w1.ReadMethod.SYNC_READ,
         ReadMethod.BULK: w1.ReadMethod.BULK_READ,
@@ -259,9 +259,9 @@ def return_delay_budget_us(rig: Rig, latency_timer_ms: float = 0.0) -> float:
 def p1_return_delay_budget_us(rig: Rig, bus: object) -> float:
     """The largest Return Delay Time a Protocol 1.0-framed bus's tick leaves room for: what
     is left of the tick's bus share after the cycle at Return Delay 0, over the replies."""
-    from drivers.p1bus.bus import P1Bus
+    from drivers.p1bus.bus import P1ServoBus
 
-    assert isinstance(bus, P1Bus)
+    assert isinstance(bus, P1ServoBus)
     saved, bus._rdt_s = bus._rdt_s, [0.0] * bus.n
     try:
         base = p1_cycle_s(bus)

@@ -1,4 +1,4 @@
-"""P1Bus, the host side of Feetech STS/SCS and Dynamixel AX/MX (Protocol 1.0), on the
+"""P1ServoBus, the host side of Feetech STS/SCS and Dynamixel AX/MX (Protocol 1.0), on the
 P1 stub bus (tests/p1_stub.py) and the virtual clock: the tick's packets, each reply checked
 on its own, the rotation's rate, the start-up table, the exit policy, EEPROM writes."""
 
@@ -13,7 +13,7 @@ import pytest
 from drivers.dxlsim import register_bus, unregister_bus
 from drivers.dynamixel.errors import ExitNotConfirmed, StartupMismatch
 from drivers.p1bus import table
-from drivers.p1bus.bus import P1Bus
+from drivers.p1bus.bus import P1ServoBus
 from drivers.p1bus.health import write_eeprom
 from drivers.p1bus.startup import P1Expectation
 from drivers.protocol1 import packet
@@ -27,13 +27,13 @@ _names = itertools.count()
 
 @pytest.fixture
 def p1():
-    """``p1(models={id: model})`` -> (P1Bus, P1StubBus), checked against the servos."""
-    opened: list[tuple[P1Bus, str]] = []
+    """``p1(models={id: model})`` -> (P1ServoBus, P1StubBus), checked against the servos."""
+    opened: list[tuple[P1ServoBus, str]] = []
 
     def make(models: dict[int, str], *, check: bool = True, period_s: float = 0.004):
         stub = P1StubBus(models)
         name = f"p1-{next(_names)}"
-        bus = P1Bus.open(
+        bus = P1ServoBus.open(
             register_bus(name, stub), baud=1_000_000, ids=list(models), models=list(models.values())
         )
         opened.append((bus, name))
@@ -248,7 +248,7 @@ def test_eeprom_writes_unlock_then_relock_a_feetech_servo(p1):
 
 def test_one_protocol_per_bus():
     with pytest.raises(ValueError, match="one protocol per bus"):
-        P1Bus(None, [1, 2], ["STS3215", "AX-12A"], 0)  # type: ignore[arg-type]
+        P1ServoBus(None, [1, 2], ["STS3215", "AX-12A"], 0)  # type: ignore[arg-type]
     assert table.protocol_of("MX-28") is table.Protocol.DXL1
     assert table.protocol_of("MX-28-P2") is table.Protocol.DXL2
     assert table.protocol_of("xm430-w350-t") is table.Protocol.DXL2
