@@ -181,6 +181,8 @@ def test_the_cycle_finder_finds_a_circle() -> None:
         ("drivers.protocol2", "drivers.dxlsim"),
         ("drivers.protocol1", "drivers.dynamixel"),  # both sides' facts, for either side
         ("drivers.protocol1", "drivers.dxlsim"),
+        ("drivers.p1bus", "drivers.dxlsim"),  # the host side stands without the emulator
+        ("drivers.dxlsim", "drivers.p1bus"),
         ("drivers", "hilsim"),
     ],
 )

@@ -254,3 +254,40 @@ def test_one_protocol_per_bus():
     assert table.protocol_of("xm430-w350-t") is table.Protocol.DXL2
     assert table.protocol_of("sts3215") is table.Protocol.FEETECH
     assert table.protocol_of("HS-485HB") is None
+
+
+def test_scan_pings_each_id_and_names_model_and_family():
+    from drivers.p1bus.scan import scan1
+
+    stub = P1StubBus({1: "STS3215", 2: "STS3215", 5: "SCS0009"})
+    name = f"p1-{next(_names)}"
+    try:
+        found = scan1(register_bus(name, stub), [1_000_000], range(8), table.Protocol.FEETECH)
+    finally:
+        unregister_bus(name)
+    assert [(f.id, f.model_name, f.family, f.model_number) for f in found] == [
+        (1, "STS3215", "Feetech STS", 777),
+        (2, "STS3215", "Feetech STS", 777),
+        (5, "SCS0009", "Feetech SCS", 1284),  # its big-endian Model Number read right
+    ]
+    pings = [p.id for p in stub.instructions() if p.code == packet.Inst.PING]
+    assert pings == list(range(8))  # one Ping per ID: no broadcast Ping is relied on
+
+
+def test_scan_cli_finds_an_ax_figure_on_protocol_1(capsys):
+    from hilsim.cli import main
+
+    stub = P1StubBus({1: "AX-12A", 7: "MX-64"})
+    name = f"p1-{next(_names)}"
+    try:
+        url = register_bus(name, stub)
+        assert (
+            main(["scan", "--port", url, "--protocol", "1.0", "--ids", "0-9", "--baud", "1M"]) == 0
+        )
+        out = capsys.readouterr().out
+        assert "ID   1 @ 1000000 bit/s: AX-12A (Dynamixel AX; model 12" in out
+        assert "ID   7 @ 1000000 bit/s: MX-64 (Dynamixel MX (Protocol 1.0); model 310" in out
+        assert main(["scan", "--port", url, "--ids", "0-3", "--baud", "1M"]) == 1  # X series
+        assert "--protocol feetech or --protocol 1.0" in capsys.readouterr().err
+    finally:
+        unregister_bus(name)
