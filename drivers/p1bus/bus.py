@@ -30,7 +30,7 @@ from drivers.p1bus import health
 from drivers.p1bus.link import P1Link, decode, encode
 from drivers.p1bus.startup import P1Expectation, P1ServoState, P1StartupReport, check_servo
 from drivers.p1bus.table import Family, ReadMethod, bus_read_method, family_of
-from drivers.protocol1 import packet
+from drivers.protocol1 import packet, wire_time
 from drivers.servo_bus import (
     ExitPolicy,
     ExitReport,
@@ -143,6 +143,24 @@ class P1ServoBus(ServoBus):
             room = ROTATION_SHARE_OF_TICK * period_s - self.write_s()
             self.per_tick = max(1, min(self.n, int(room / self.read_s())))
         return self.per_tick
+
+    def model_cycle_s(self, return_delay_s: float | None = None) -> float:
+        """The wire model's time of one tick (:mod:`drivers.protocol1.wire_time`): the Sync
+        Write, this tick's reads, each reply's Return Delay Time (the longest on the bus, or
+        ``return_delay_s``) and turnaround, the adapter latency once per read transaction."""
+        method = {
+            ReadMethod.SYNC: wire_time.ReadMethod.SYNC_READ,
+            ReadMethod.BULK: wire_time.ReadMethod.BULK_READ,
+            ReadMethod.ROTATION: wire_time.ReadMethod.SINGLE,
+        }[self.method]
+        return wire_time.cycle_time_s(
+            self.n,
+            self.link.baud,
+            method,
+            return_delay_s=max(self._rdt_s) if return_delay_s is None else return_delay_s,
+            latency_s=self.link.latency_timer_ms * 1e-3,
+            reads=self.per_tick,
+        )
 
     def read_rate_hz(self, tick_hz: float) -> float:
         """How often each servo's position is read at ``tick_hz`` ticks a second."""

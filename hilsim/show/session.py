@@ -185,7 +185,7 @@ def check_p1_bus(rig: Rig, bus: DynamixelBus, say: Callable[[str], None]) -> lis
     notes.append(f"each servo's position is read {rate:.4g} times a second ({bus.read_mode})")
     for note in notes:
         say(f"note: {note}")
-    cycle = p1_cycle_s(bus)
+    cycle = bus.model_cycle_s()
     budget = BUS_SHARE_OF_TICK * rig.loop.period_s
     if cycle > budget:
         raise ShowRefusedError(
@@ -196,29 +196,6 @@ def check_p1_bus(rig: Rig, bus: DynamixelBus, say: Callable[[str], None]) -> lis
             "Return Delay Time 0, a 1 ms latency timer (`hilsim bench` shows each)."
         )
     return notes
-
-
-def p1_cycle_s(bus: object) -> float:
-    """The wire model's time of one tick on a Protocol 1.0-framed bus: the Sync Write and the
-    tick's reads, each servo's Return Delay Time, the adapter latency per read transaction."""
-    from drivers.p1bus.bus import P1ServoBus
-    from drivers.p1bus.table import ReadMethod
-    from drivers.protocol1 import wire_time as w1
-
-    assert isinstance(bus, P1ServoBus)
-    method = {
-        ReadMethod.SYNC: w1.ReadMethod.SYNC_READ,
-        ReadMethod.BULK: w1.ReadMethod.BULK_READ,
-        ReadMethod.ROTATION: w1.ReadMethod.SINGLE,
-    }[bus.read_mode]
-    return w1.cycle_time_s(
-        bus.n,
-        bus.link.baud,
-        method,
-        return_delay_s=max(bus._rdt_s),
-        latency_s=bus.link.latency_timer_ms * 1e-3,
-        reads=bus.per_tick,
-    )
 
 
 def check_teach(rig: Rig, bus: DynamixelBus, director: Director | None) -> None:
@@ -262,12 +239,7 @@ def p1_return_delay_budget_us(rig: Rig, bus: object) -> float:
     from drivers.p1bus.bus import P1ServoBus
 
     assert isinstance(bus, P1ServoBus)
-    saved, bus._rdt_s = bus._rdt_s, [0.0] * bus.n
-    try:
-        base = p1_cycle_s(bus)
-    finally:
-        bus._rdt_s = saved
-    spare = BUS_SHARE_OF_TICK * rig.loop.period_s - base
+    spare = BUS_SHARE_OF_TICK * rig.loop.period_s - bus.model_cycle_s(return_delay_s=0.0)
     return max(0.0, spare / bus.per_tick * 1e6)
 
 

@@ -303,3 +303,28 @@ def test_rows_25_26_a_signal_mid_show_applies_the_exit_policy(emulated, signum, 
     assert len(sync_writes(after)) == 0  # no goal after the signal's tick ...
     held = [p for p in after if p.code == packet.Inst.WRITE and p.params[0] == 42]
     assert {p.id for p in held} == {1, 2, 3}  # ... but the hold: goal := present, read back
+
+
+def test_bench_measures_the_feetech_bus_against_its_wire_model(tmp_path, capsys):
+    """`hilsim bench RIG` on the virtual clock: the tick's bus calls take exactly the wire
+    model (12 STS3215, Sync Write + Sync Read, Return Delay 0, no latency: 1.84 ms)."""
+    rig = RIG.split("[[joints]]")[0].replace(
+        "dxlsim://unused", "dxlsim://?ids=1-12&model=STS3215&rdt_us=0&latency_ms=0"
+    )
+    for i in range(1, 13):
+        rig += (
+            f'[[joints]]\nname = "j{i}"\nservo_id = {i}\nmodel = "STS3215"\nmin_deg = -50\n'
+            "max_deg = 50\nspring = { frequency_hz = 2.0, damping_ratio = 0.8 }\n"
+            'target = { type = "hold", value_deg = 0 }\n'
+        )
+    path = tmp_path / "sts12.toml"
+    path.write_text(rig)
+    argv = ["bench", str(path), "--clock", "virtual", "--quick", "--out", str(tmp_path / "b")]
+    assert main(argv) == 0
+    import json
+
+    got = json.loads((tmp_path / "b" / "bench.json").read_text())["p1_bus"]
+    assert got["model_s"] == pytest.approx(1.84e-3, abs=1e-9)
+    assert got["achieved_s"] == pytest.approx(got["model_s"], rel=1e-6)
+    assert got["failed_reads"] == 0 and got["read_hz_per_servo"] == 250.0
+    assert "1.840 ms a tick" in capsys.readouterr().out
