@@ -328,3 +328,18 @@ def test_bench_measures_the_feetech_bus_against_its_wire_model(tmp_path, capsys)
     assert got["achieved_s"] == pytest.approx(got["model_s"], rel=1e-6)
     assert got["failed_reads"] == 0 and got["read_hz_per_servo"] == 250.0
     assert "1.840 ms a tick" in capsys.readouterr().out
+
+
+def test_the_joint_plot_draws_a_rotation_buses_present_line_through_its_unread_ticks(emulated):
+    rig = RIG.replace('"STS3215"', '"AX-12A"')  # at 250 Hz fewer than three reads fit a tick
+    emu = emulated(rig, {1: "AX-12A", 2: "AX-12A", 3: "AX-12A"})
+    assert emu.run(duration=1.0) == ExitCode.OK
+    from hilsim.telemetry.joint_plots import joints_figure
+
+    run = emu.read()
+    fig = joints_figure(run)
+    for j, ax in zip(("pan", "tilt", "jaw"), fig.axes, strict=False):
+        (line,) = [ln for ln in ax.lines if ln.get_label() == "present (read back)"]
+        asked = np.count_nonzero(run.columns[f"status_{j}"] != 4)
+        assert 0 < asked < run.n_ticks and len(line.get_xdata()) == asked
+        assert np.isfinite(line.get_ydata()).all()  # one line, not dots between NaNs
