@@ -428,6 +428,8 @@ class P1Servo:
             self.raw("Torque Enable") == 1 and abs(self._goal() - self._pos) >= 0.5
         )
         self._put(self._mem, "Moving", int(moving))
+        if self.table.has("Status"):  # Feetech: the latched error bits
+            self._put(self._mem, "Status", self._alarm)
 
     def __repr__(self) -> str:
         return (
