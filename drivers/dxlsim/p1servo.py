@@ -22,6 +22,7 @@ and voltage are constant unless a fault says otherwise. What is not modelled: ``
 from __future__ import annotations
 
 import math
+from typing import Literal
 
 from drivers.protocol1.control_table import ControlTable, DxlP1Error, Item, table_for
 from drivers.protocol1.encoding import decode_word, encode_word, from_sign_magnitude
@@ -53,7 +54,7 @@ class P1Servo:
         self.dxl = self.family.protocol == "dynamixel-p1"
         self._items = self.table.by_name
         # name -> (addr, end, byte order): the registers' hot path without Item lookups
-        self._slots = {
+        self._slots: dict[str, tuple[int, int, Literal["little", "big"]]] = {
             i.name: (i.addr, i.end, "big" if i.big_endian else "little") for i in self.table.items
         }
         # goal (actual frame), vmax, amax, Homing Offset: cached until a write
