@@ -136,6 +136,9 @@ class P1Servo:
 
     def _baud_code(self, baud: int) -> int:
         if self.dxl:
+            for code, rate in self.family.baud_rates.items():
+                if rate == baud:
+                    return code
             code = round(2_000_000 / baud) - 1
             if code < 0 or code > 254 or abs(2_000_000 / (code + 1) - baud) > 0.03 * baud:
                 raise ValueError(f"{self.table.model}: no Baud Rate value gives {baud} bps")
@@ -147,8 +150,8 @@ class P1Servo:
             raise ValueError(f"{self.table.model}: {baud} bps is not one of {rates}") from None
 
     def _code_baud(self, code: int) -> int:
-        if self.dxl:
-            return round(2_000_000 / (code + 1))
+        if self.dxl:  # the standard rate the value stands for, else 2 000 000 / (value + 1)
+            return self.family.baud_rates.get(code) or round(2_000_000 / (code + 1))
         return self.family.baud_rates.get(code, 0)
 
     def _power_up(self) -> None:

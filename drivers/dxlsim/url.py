@@ -348,10 +348,7 @@ def _p1_baud(table: ControlTable, host_baud: int) -> int:
     try:
         P1Servo(table, 1, baud=host_baud)
     except ValueError:
-        default = table.item("Baud Rate").default or 0
-        if table.family.protocol == "dynamixel-p1":
-            return round(2_000_000 / (default + 1))
-        return table.family.baud_rates[default]
+        return table.family.baud_rates[table.item("Baud Rate").default or 0]
     return host_baud
 
 

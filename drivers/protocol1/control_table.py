@@ -114,8 +114,13 @@ class Family:
 
 
 def _dxl_bauds() -> dict[int, int]:
-    """Baud = 2 000 000 / (value + 1) (e-Manual); the codes people use."""
-    return {v: round(2_000_000 / (v + 1)) for v in (1, 3, 4, 7, 9, 16, 34, 103, 207)}
+    """Baud Rate value -> the rate it stands for. The servo runs at 2 000 000 / (value + 1)
+    (e-Manual); the e-Manual's table names the standard rate each value is meant for (34:
+    57 142.9 bps for 57 600, 16: 117 647.1 for 115 200), and a host at that rate is heard."""
+    return {
+        1: 1_000_000, 3: 500_000, 4: 400_000, 7: 250_000, 9: 200_000,
+        16: 115_200, 34: 57_600, 103: 19_200, 207: 9_600,
+    }  # fmt: skip
 
 
 _FEETECH_BAUDS = {  # LeRobot STS_SMS_SERIES_BAUDRATE_TABLE / SCS_SERIES_BAUDRATE_TABLE

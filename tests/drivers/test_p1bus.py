@@ -318,3 +318,19 @@ def test_feetech_status_register_reports_latched_errors() -> None:
     bus.clock.advance(0.01)  # type: ignore[attr-defined]
     reply = p1.decode(txrx(bus, p1.read(1, 65, 1)))
     assert reply.code == 32 and reply.params == bytes((32,))
+
+
+def test_baud_rate_values_and_the_hosts_rate() -> None:
+    """Dynamixel Baud Rate 34 runs at 57 142.9 bps, the e-Manual's value for 57 600: a host at
+    57 600 is heard. Feetech value 4 is 115 200. A URL without baud takes the host's rate, or
+    the factory rate when the model has no value for it."""
+    bus = make("MX-28", [1])
+    txrx(bus, p1.write(1, 4, bytes((34,))))
+    bus.baud = 57_600
+    assert txrx(bus, p1.ping(1)) == p1.encode_status(1, 0)
+    sts = make("STS3215", [1])
+    txrx(sts, p1.write(1, 6, bytes((4,))))
+    assert sts.servo(1).baud == 115_200
+    url = DxlsimUrl.parse("dxlsim://?ids=1&model=STS3215")
+    assert url.build_bus(9600).servos[0].baud == 1_000_000  # no Feetech value for 9600
+    assert url.build_bus(500_000).servos[0].baud == 500_000
