@@ -105,6 +105,15 @@ class Family:
     lock_persist: bool
     bus_watchdog: bool = False
 
+    @property
+    def read_method(self) -> str:
+        """How a host reads every servo each tick: ``"sync_read"`` (Feetech STS),
+        ``"bulk_read"`` (Dynamixel MX) or ``"single"`` (one READ per servo: AX, SCS); the
+        values of :class:`drivers.protocol1.wire_time.ReadMethod`."""
+        if self.sync_read:
+            return "sync_read"
+        return "bulk_read" if self.bulk_read else "single"
+
     def baud_code(self, baud: int) -> int:
         """The register value for ``baud`` bit/s; ValueError if the family has none."""
         for code, rate in self.baud_rates.items():
@@ -181,6 +190,16 @@ class ControlTable:
     @property
     def last_address(self) -> int:
         return max(i.end for i in self.items) - 1
+
+    @property
+    def deg_per_step(self) -> float:
+        """Degrees of one position step: 300/1024 (AX, SCS0009), 360/4096 (MX, STS3215)."""
+        return self.range_deg / self.resolution
+
+    @property
+    def steps_per_rev(self) -> float:
+        """Position steps in one turn of the horn."""
+        return self.resolution * 360.0 / self.range_deg
 
 
 def _items(big: bool, rows: list[Row]) -> tuple[Item, ...]:
@@ -423,6 +442,15 @@ def table_for(model: str) -> ControlTable:
         if name.upper() == key:
             return table
     raise ValueError(f"unknown Protocol 1.0 servo model {model!r}; known: {', '.join(TABLES)}")
+
+
+def table_for_number(model_number: int) -> ControlTable | None:
+    """The table whose Model Number is ``model_number`` (what a PING/READ of address 0 or 3
+    returns), or None."""
+    for table in TABLES.values():
+        if table.model_number == model_number:
+            return table
+    return None
 
 
 def is_protocol1_model(model: str) -> bool:
