@@ -238,7 +238,7 @@ _DXL_RAM_HEAD = [
 ]
 _DXL_RAM_TAIL = [
     ("Goal Position", 30, 2, "RW", R, None, 0, 1023),
-    ("Moving Speed", 32, 2, "RW", R, 0, 0, 1023),
+    ("Moving Speed", 32, 2, "RW", R, 0, 0, 2047),  # bit 10: wheel-mode direction
     ("Torque Limit", 34, 2, "RW", R, None, 0, 1023),  # power-up: Max Torque
     ("Present Position", 36, 2, "R", R, None, 0, 1023),
     ("Present Speed", 38, 2, "R", R, 0, 0, 2047, 10),
