@@ -22,6 +22,7 @@ and voltage are constant unless a fault says otherwise. What is not modelled: ``
 from __future__ import annotations
 
 import math
+from typing import Literal
 
 from drivers.protocol1.control_table import ControlTable, DxlP1Error, Item, table_for
 from drivers.protocol1.encoding import decode_word, encode_word, from_sign_magnitude
@@ -52,6 +53,28 @@ class P1Servo:
         self.family = self.table.family
         self.dxl = self.family.protocol == "dynamixel-p1"
         self._items = self.table.by_name
+        # name -> (addr, end, byte order): the registers' hot path without Item lookups
+        self._slots: dict[str, tuple[int, int, Literal["little", "big"]]] = {
+            i.name: (i.addr, i.end, "big" if i.big_endian else "little") for i in self.table.items
+        }
+        # goal (actual frame), vmax, amax, Homing Offset: cached until a write
+        self._plan: tuple[float, float, float, int] | None = None
+        pp, ps = self._items["Present Position"], self._items["Present Speed"]
+        self._present_pos = (pp.addr, pp.end, self._slots[pp.name][2], pp.sign_bit or 0)
+        self._present_speed = (ps.addr, ps.end, self._slots[ps.name][2], ps.sign_bit or 0)
+        self._torque_addr = self._items["Torque Enable"].addr
+        self._id_addr = self._items["ID"].addr
+        self._rdt_addr = self._items["Return Delay Time"].addr
+        self._srl_addr = self._items[
+            "Status Return Level" if self.dxl else "Response Status Level"
+        ].addr
+        self._moving_addr = self._items["Moving"].addr
+        self._status_addr = self._items["Status"].addr if self.table.has("Status") else None
+        self._rpm_per_step_s = (
+            60.0
+            / (self.table.resolution * 360.0 / self.table.range_deg)
+            / self.table.speed_unit_rpm
+        )
         self._size = self.table.last_address + 1
         self._owner: list[Item | None] = [None] * self._size
         for item in self.table.items:
@@ -96,8 +119,8 @@ class P1Servo:
 
     def raw(self, name: str) -> int:
         """The unsigned register value of item ``name``."""
-        item = self._items[name]
-        return decode_word(self._mem[item.addr : item.end], item.big_endian)
+        a, e, order = self._slots[name]
+        return int.from_bytes(self._mem[a:e], order)
 
     def value(self, name: str) -> int:
         """Item ``name`` as a number (sign-magnitude items signed)."""
@@ -109,9 +132,13 @@ class P1Servo:
         """Set item ``name`` directly (a test's or a fault's hand, not the wire)."""
         item = self._items[name]
         self._mem[item.addr : item.end] = item.encode(value)
+        self._plan = None
 
     def _baud_code(self, baud: int) -> int:
         if self.dxl:
+            for code, rate in self.family.baud_rates.items():
+                if rate == baud:
+                    return code
             code = round(2_000_000 / baud) - 1
             if code < 0 or code > 254 or abs(2_000_000 / (code + 1) - baud) > 0.03 * baud:
                 raise ValueError(f"{self.table.model}: no Baud Rate value gives {baud} bps")
@@ -123,12 +150,13 @@ class P1Servo:
             raise ValueError(f"{self.table.model}: {baud} bps is not one of {rates}") from None
 
     def _code_baud(self, code: int) -> int:
-        if self.dxl:
-            return round(2_000_000 / (code + 1))
+        if self.dxl:  # the standard rate the value stands for, else 2 000 000 / (value + 1)
+            return self.family.baud_rates.get(code) or round(2_000_000 / (code + 1))
         return self.family.baud_rates.get(code, 0)
 
     def _power_up(self) -> None:
         """Power on: EEPROM from flash, RAM at its initial values, goal where the horn is."""
+        self._plan = None
         self._mem[:] = self._flash
         self._defaults(self._mem, eeprom=False)
         if self.table.has("Torque Limit"):  # its power-up value is the EEPROM maximum
@@ -145,7 +173,7 @@ class P1Servo:
     # --- what the bus needs ---------------------------------------------------------------
     @property
     def id(self) -> int:
-        return self.raw("ID")
+        return self._mem[self._id_addr]
 
     @property
     def model_name(self) -> str:
@@ -161,11 +189,11 @@ class P1Servo:
 
     @property
     def return_delay_s(self) -> float:
-        return self.raw("Return Delay Time") * 2e-6
+        return self._mem[self._rdt_addr] * 2e-6
 
     @property
     def status_return_level(self) -> int:
-        return self.raw("Status Return Level" if self.dxl else "Response Status Level")
+        return self._mem[self._srl_addr]
 
     @property
     def torque_enabled(self) -> bool:
@@ -191,9 +219,15 @@ class P1Servo:
 
     def touch(self, t: float) -> None:
         """Bring the horn and the present registers to ``t``."""
-        if t > self._now:
-            self._advance(t)
-            self._refresh()
+        if t <= self._now:
+            return
+        if self._vel == 0.0:  # at rest: nothing changes unless a goal is still ahead
+            plan = self._plan if self._plan is not None else self._make_plan()
+            if plan[0] == self._pos or self._mem[self._torque_addr] != 1:
+                self._now = t
+                return
+        self._advance(t)
+        self._refresh()
 
     def ping(self, t: float) -> tuple[int, bytes]:
         self.touch(t)
@@ -260,6 +294,7 @@ class P1Servo:
         return err
 
     def _after_write(self, old: bytes, span: range) -> None:
+        self._plan = None
         names = {item.name for a in span if a < self._size and (item := self._owner[a])}
         if "Baud Rate" in names:
             self._baud = self._code_baud(self.raw("Baud Rate"))
@@ -376,6 +411,12 @@ class P1Servo:
             return raw * MX_ACCEL_UNIT_DEG * self._steps_per_rev() / 360.0 if raw else math.inf
         return math.inf
 
+    def _make_plan(self) -> tuple[float, float, float, int]:
+        """The move's goal (actual frame), top speed, acceleration and the Homing Offset,
+        cached until a write."""
+        self._plan = (self._goal(), self._vmax(), self._amax(), self._offset())
+        return self._plan
+
     def _goal(self) -> float:
         """The goal in the actual frame, clamped to the position limits."""
         goal = self.value("Goal Position")
@@ -394,7 +435,7 @@ class P1Servo:
             self._vel = 0.0
             self._now = t
             return
-        goal, vmax, amax = self._goal(), self._vmax(), self._amax()
+        goal, vmax, amax, _ = self._plan if self._plan is not None else self._make_plan()
         pos, vel, left = self._pos, self._vel, t - self._now
         for _ in range(8):  # at most: stop, turn, accelerate, cruise, brake
             d = goal - pos
@@ -415,19 +456,27 @@ class P1Servo:
         self._pos, self._vel, self._now = pos, vel, t
 
     def _refresh(self) -> None:
-        """Present Position/Speed/Moving from the horn."""
-        present = round(self._pos) - self._offset()
-        self.set_value("Present Position", present)
-        if self.dxl:
-            rpm = abs(self._vel) / self._steps_per_rev() * 60.0
-            raw = min(1023, round(rpm / self.table.speed_unit_rpm))
-            self._put(self._mem, "Present Speed", raw | (1024 if self._vel < 0 and raw else 0))
-        else:
-            self.set_value("Present Speed", round(self._vel))
-        moving = self._vel != 0.0 or (
-            self.raw("Torque Enable") == 1 and abs(self._goal() - self._pos) >= 0.5
+        """Present Position/Speed, Moving (and Feetech's Status) from the horn. Bytes are put
+        straight into the image: this runs for every servo a packet reaches."""
+        goal, _, _, offset = self._plan if self._plan is not None else self._make_plan()
+        mem, pos, vel = self._mem, self._pos, self._vel
+        a, e, order, sign = self._present_pos
+        present = round(pos) - offset
+        mem[a:e] = (-present | 1 << sign if present < 0 and sign else present & 0xFFFF).to_bytes(
+            e - a, order
         )
-        self._put(self._mem, "Moving", int(moving))
+        a, e, order, sign = self._present_speed
+        if self.dxl:
+            raw = min(1023, round(abs(vel) * self._rpm_per_step_s))
+            raw |= 1024 if vel < 0 and raw else 0
+        else:
+            raw = round(vel)
+            raw = (-raw | 1 << sign) if raw < 0 else raw
+        mem[a:e] = raw.to_bytes(e - a, order)
+        moving = vel != 0.0 or (mem[self._torque_addr] == 1 and abs(goal - pos) >= 0.5)
+        mem[self._moving_addr] = moving
+        if self._status_addr is not None:  # Feetech: the latched error bits
+            mem[self._status_addr] = self._alarm
 
     def __repr__(self) -> str:
         return (

@@ -37,6 +37,7 @@ from drivers.dxlsim.p1_models import bus_protocol, format_tables, tables_by_id
 from drivers.dxlsim.p1bus import P1Bus
 from drivers.dxlsim.p1servo import P1Servo
 from drivers.dxlsim.servo import VirtualServo
+from drivers.protocol1.control_table import ControlTable
 from drivers.protocol2.ids import format_ids, parse_ids
 from drivers.protocol2.wire_time import DEFAULT_TURNAROUND_S
 
@@ -317,7 +318,7 @@ class DxlsimUrl:
                 P1Servo(
                     tables[i],
                     i,
-                    baud=servo_baud,
+                    baud=servo_baud if self.baud is not None else _p1_baud(tables[i], servo_baud),
                     return_delay_us=self.rdt_us,
                     firmware=self.firmware,
                     t=t,
@@ -339,6 +340,16 @@ class DxlsimUrl:
             )
         except ValueError as exc:
             raise ValueError(f"{self._where()!r}: {exc}") from None
+
+
+def _p1_baud(table: ControlTable, host_baud: int) -> int:
+    """The servos' rate when the URL names none: the host's if the model has a Baud Rate
+    value for it, else the model's factory rate (the host then hears nothing, as on a wire)."""
+    try:
+        P1Servo(table, 1, baud=host_baud)
+    except ValueError:
+        return table.family.baud_rates[table.item("Baud Rate").default or 0]
+    return host_baud
 
 
 def _normal_model(text: str, ids: tuple[int, ...]) -> str:

@@ -105,6 +105,15 @@ class Family:
     lock_persist: bool
     bus_watchdog: bool = False
 
+    @property
+    def read_method(self) -> str:
+        """How a host reads every servo each tick: ``"sync_read"`` (Feetech STS),
+        ``"bulk_read"`` (Dynamixel MX) or ``"single"`` (one READ per servo: AX, SCS); the
+        values of :class:`drivers.protocol1.wire_time.ReadMethod`."""
+        if self.sync_read:
+            return "sync_read"
+        return "bulk_read" if self.bulk_read else "single"
+
     def baud_code(self, baud: int) -> int:
         """The register value for ``baud`` bit/s; ValueError if the family has none."""
         for code, rate in self.baud_rates.items():
@@ -114,8 +123,13 @@ class Family:
 
 
 def _dxl_bauds() -> dict[int, int]:
-    """Baud = 2 000 000 / (value + 1) (e-Manual); the codes people use."""
-    return {v: round(2_000_000 / (v + 1)) for v in (1, 3, 4, 7, 9, 16, 34, 103, 207)}
+    """Baud Rate value -> the rate it stands for. The servo runs at 2 000 000 / (value + 1)
+    (e-Manual); the e-Manual's table names the standard rate each value is meant for (34:
+    57 142.9 bps for 57 600, 16: 117 647.1 for 115 200), and a host at that rate is heard."""
+    return {
+        1: 1_000_000, 3: 500_000, 4: 400_000, 7: 250_000, 9: 200_000,
+        16: 115_200, 34: 57_600, 103: 19_200, 207: 9_600,
+    }  # fmt: skip
 
 
 _FEETECH_BAUDS = {  # LeRobot STS_SMS_SERIES_BAUDRATE_TABLE / SCS_SERIES_BAUDRATE_TABLE
@@ -177,6 +191,16 @@ class ControlTable:
     def last_address(self) -> int:
         return max(i.end for i in self.items) - 1
 
+    @property
+    def deg_per_step(self) -> float:
+        """Degrees of one position step: 300/1024 (AX, SCS0009), 360/4096 (MX, STS3215)."""
+        return self.range_deg / self.resolution
+
+    @property
+    def steps_per_rev(self) -> float:
+        """Position steps in one turn of the horn."""
+        return self.resolution * 360.0 / self.range_deg
+
 
 def _items(big: bool, rows: list[Row]) -> tuple[Item, ...]:
     """Rows ``(name, addr, size, access, eeprom, default, lo, hi[, sign_bit])``."""
@@ -214,7 +238,7 @@ _DXL_RAM_HEAD = [
 ]
 _DXL_RAM_TAIL = [
     ("Goal Position", 30, 2, "RW", R, None, 0, 1023),
-    ("Moving Speed", 32, 2, "RW", R, 0, 0, 1023),
+    ("Moving Speed", 32, 2, "RW", R, 0, 0, 2047),  # bit 10: wheel-mode direction
     ("Torque Limit", 34, 2, "RW", R, None, 0, 1023),  # power-up: Max Torque
     ("Present Position", 36, 2, "R", R, None, 0, 1023),
     ("Present Speed", 38, 2, "R", R, 0, 0, 2047, 10),
@@ -418,6 +442,15 @@ def table_for(model: str) -> ControlTable:
         if name.upper() == key:
             return table
     raise ValueError(f"unknown Protocol 1.0 servo model {model!r}; known: {', '.join(TABLES)}")
+
+
+def table_for_number(model_number: int) -> ControlTable | None:
+    """The table whose Model Number is ``model_number`` (what a PING/READ of address 0 or 3
+    returns), or None."""
+    for table in TABLES.values():
+        if table.model_number == model_number:
+            return table
+    return None
 
 
 def is_protocol1_model(model: str) -> bool:

@@ -268,3 +268,69 @@ def test_one_protocol_per_bus_and_no_watchdog() -> None:
     assert str(DxlsimUrl.parse("dxlsim://?ids=1-3&model=ax-12a,3:AX-18A")) == (
         "dxlsim://?ids=1-3&model=AX-12A,3:AX-18A"
     )
+
+
+@pytest.mark.parametrize(
+    "plan",
+    [
+        "late:id=1,delay=0.05,count=1",
+        "truncate:id=1,count=1",
+        "garbage:id=1,nbytes=3,count=1",
+        "brownout:id=1,at=0.001,duration=0.005",
+        "duplicate_id:id=1,at=0.001",
+        "unplug:at=0.001",
+    ],
+)
+def test_every_fault_kind_runs_on_a_p1_bus(plan: str) -> None:
+    """The X-series fault machinery, unchanged, on a Feetech bus: each kind leaves the host
+    a reply it can tell from a good one (or none), and a later read is good again."""
+    import serial
+
+    url = f"dxlsim://?ids=1-2&model=STS3215&clock=virtual&faults={plan}"
+    port = serial.serial_for_url(url, baudrate=BAUD)
+    try:
+        bus = port.bus
+        bus.clock.advance(0.01)
+        if plan.startswith("unplug"):
+            with pytest.raises(serial.SerialException):
+                port.write(p1.ping(1))
+            return
+        port.write(p1.read(1, 56, 2))
+        bus.clock.advance(0.02)
+        first = port.read(port.in_waiting)
+        good = p1.encode_status(1, 0, (2048).to_bytes(2, "little"))
+        if plan.startswith("duplicate"):
+            assert first == good  # twins with the same state: the merged reply is theirs
+        elif plan.startswith("brownout"):
+            assert first == good  # back at power-up values
+        else:
+            assert first != good
+        port.reset_input_buffer()
+        port.write(p1.read(2, 56, 2))
+        bus.clock.advance(0.02)
+        assert port.read(port.in_waiting) == p1.encode_status(2, 0, (2048).to_bytes(2, "little"))
+    finally:
+        port.close()
+
+
+def test_feetech_status_register_reports_latched_errors() -> None:
+    bus = make("STS3215", [1], faults="hardware_error:id=1,at=0.001,bits=32")
+    bus.clock.advance(0.01)  # type: ignore[attr-defined]
+    reply = p1.decode(txrx(bus, p1.read(1, 65, 1)))
+    assert reply.code == 32 and reply.params == bytes((32,))
+
+
+def test_baud_rate_values_and_the_hosts_rate() -> None:
+    """Dynamixel Baud Rate 34 runs at 57 142.9 bps, the e-Manual's value for 57 600: a host at
+    57 600 is heard. Feetech value 4 is 115 200. A URL without baud takes the host's rate, or
+    the factory rate when the model has no value for it."""
+    bus = make("MX-28", [1])
+    txrx(bus, p1.write(1, 4, bytes((34,))))
+    bus.baud = 57_600
+    assert txrx(bus, p1.ping(1)) == p1.encode_status(1, 0)
+    sts = make("STS3215", [1])
+    txrx(sts, p1.write(1, 6, bytes((4,))))
+    assert sts.servo(1).baud == 115_200
+    url = DxlsimUrl.parse("dxlsim://?ids=1&model=STS3215")
+    assert url.build_bus(9600).servos[0].baud == 1_000_000  # no Feetech value for 9600
+    assert url.build_bus(500_000).servos[0].baud == 500_000

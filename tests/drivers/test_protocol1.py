@@ -148,3 +148,18 @@ def test_wire_time_matches_the_reference_arithmetic() -> None:
     assert cycle_time_s(12, 1e6, "single", turnaround_s=0, latency_s=1e-3, reads=2) == (
         pytest.approx(0.44e-3 + 2 * 0.16e-3 + 2e-3)
     )
+
+
+def test_family_read_methods_and_units() -> None:
+    from drivers.protocol1.control_table import MX_28, table_for_number
+
+    assert [t.family.read_method for t in (STS3215, MX_28, AX_12A, SCS0009)] == [
+        "sync_read",
+        "bulk_read",
+        "single",
+        "single",
+    ]
+    assert AX_12A.deg_per_step == pytest.approx(0.293, abs=1e-3)
+    assert STS3215.steps_per_rev == 4096
+    assert table_for_number(777) is STS3215 and table_for_number(1020) is None
+    assert FEETECH_STS.baud_code(115_200) == 4 and AX_12A.family.baud_code(57_600) == 34
