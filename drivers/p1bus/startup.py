@@ -17,7 +17,7 @@ from dataclasses import dataclass
 
 from drivers.dynamixel.errors import CommError, CommTimeout, Mismatch
 from drivers.p1bus.link import P1Link, StatusError, decode
-from drivers.p1bus.table import Family, ReadMethod, Reg, model_by_number
+from drivers.p1bus.table import Family, ReadMethod, Reg, canonical, model_by_number
 
 #: Feetech Operating Mode (addr 33): 0 is position servo mode
 FEETECH_MODE = Reg("Operating Mode", 33, 1)
@@ -137,7 +137,7 @@ def check_servo(  # noqa: C901, PLR0915
     try:
         number = read(fam.model_number)
         known = model_by_number(fam.protocol, number)
-        want = fam.models.get((exp.model or "").strip().upper())
+        want = fam.models.get(canonical(exp.model or ""))
         if want is not None and number != want:
             found = f"{known[0]} ({known[1].name})" if known else f"model number {number}"
             add("model", f"{exp.model} (model number {want})", found, "fix the rig or the ID")

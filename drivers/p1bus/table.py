@@ -14,7 +14,8 @@ Dynamixel AX       AX-12A, AX-18A, AX-12W  single Reads in rotation             
 =================  ======================  ====================================  ============
 
 The emulator's full tables (defaults, ranges, access) are :mod:`drivers.protocol1`'s; this
-module holds the addresses the host uses and a test holds the two equal. Sources: the
+module holds the addresses the host uses, and a test holds the two equal; the baud codes and
+the models' other names are taken from there. Sources: the
 ROBOTIS e-Manual AX-12A / MX-28 (Protocol 1.0) control tables, Feetech's STS/SCS memory
 tables as LeRobot's ``feetech/tables.py`` cites them, ``docs/dxlsim.md``. Data and tiny
 lookups; no I/O, no SDK.
@@ -26,6 +27,7 @@ import math
 from dataclasses import dataclass, field
 from enum import StrEnum
 
+from drivers.protocol1.control_table import ALIASES, DXL_P1, FEETECH_STS
 from drivers.protocol2.control_table import MODEL_NAMES as P2_MODEL_NAMES
 
 
@@ -105,10 +107,6 @@ class Family:
         return ", ".join(names) or "none"
 
 
-def _dxl_baud(value: int) -> int:
-    return round(2_000_000 / (value + 1))
-
-
 _DXL_ERRORS = {
     0x01: "input voltage",
     0x02: "angle limit",
@@ -145,7 +143,7 @@ _DXL_COMMON = dict(
     present_temperature=Reg("Present Temperature", 43, 1),
     lock=None,
     phase=None,
-    baud_codes={v: _dxl_baud(v) for v in (1, 3, 4, 7, 9, 16, 34, 103, 207)},
+    baud_codes=DXL_P1.baud_rates,  # the standard rate each value stands for
     error_bits=_DXL_ERRORS,
     hardware_bits=0x01 | 0x04 | 0x20,
 )
@@ -161,16 +159,7 @@ _FEETECH_COMMON = dict(
     min_limit=Reg("Min Position Limit", 9, 2),
     max_limit=Reg("Max Position Limit", 11, 2),
     torque_enable=Reg("Torque Enable", 40, 1),
-    baud_codes={
-        0: 1_000_000,
-        1: 500_000,
-        2: 250_000,
-        3: 128_000,
-        4: 115_200,
-        5: 57_600,
-        6: 38_400,
-        7: 19_200,
-    },
+    baud_codes=FEETECH_STS.baud_rates,
     error_bits=_FEETECH_ERRORS,
     hardware_bits=0x01 | 0x02 | 0x04 | 0x08 | 0x20,
 )
@@ -241,9 +230,16 @@ P1_MODELS: tuple[str, ...] = tuple(_BY_MODEL)
 P2_MX_MODELS: tuple[str, ...] = ("MX-28-P2", "MX-64-P2", "MX-106-P2")
 
 
+def canonical(model: str) -> str:
+    """The model's name as the tables write it: ``"st3215"`` -> ``"STS3215"``."""
+    key = model.strip().upper()
+    return ALIASES.get(key, key)
+
+
 def family_of(model: str) -> Family | None:
-    """The Protocol 1.0 family of a model name (case-insensitive), None for any other name."""
-    return _BY_MODEL.get(model.strip().upper())
+    """The Protocol 1.0 family of a model name (case-insensitive; the names people write for
+    one, ``ST3215``, ``AX-12``, too), None for any other name."""
+    return _BY_MODEL.get(canonical(model))
 
 
 def protocol_of(model: str) -> Protocol | None:

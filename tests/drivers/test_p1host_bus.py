@@ -184,7 +184,7 @@ def test_startup_check_names_every_difference_in_one_table(p1):
     stub.servos[3].set("Model Number", 1284)
     stub.servos[4].silent = True
     with pytest.raises(StartupMismatch) as info:
-        bus.check(expect(models))
+        bus.check(expect({**models, 3: "ST3215"}))  # (another name of the STS3215)
     rows = {(r.servo_id, r.item) for r in info.value.rows}
     assert rows == {
         (1, "Return Delay Time"),
@@ -253,6 +253,7 @@ def test_one_protocol_per_bus():
     assert table.protocol_of("MX-28-P2") is table.Protocol.DXL2
     assert table.protocol_of("xm430-w350-t") is table.Protocol.DXL2
     assert table.protocol_of("sts3215") is table.Protocol.FEETECH
+    assert table.family_of("ST3215") is table.STS and table.family_of("AX-12") is table.AX
     assert table.protocol_of("HS-485HB") is None
 
 
