@@ -206,8 +206,15 @@ def check_teach(rig: Rig, bus: DynamixelBus, director: Director | None) -> None:
     from drivers.protocol2.control_table import DRIVE_MODE
 
     teach = None if director is None else director.teach
-    if teach is None or not bus.has_watchdog:  # (Protocol 1.0 families: no Drive Mode)
+    if teach is None or not teach.limp_indices:
         return
+    if not bus.has_watchdog:  # a Feetech or Dynamixel Protocol 1.0 bus
+        joint = rig.joints[teach.limp_indices[0]]
+        raise ShowRefusedError(
+            f"teach: servo {joint.servo_id} ({joint.name}) is a {joint.model}: on these servos a "
+            "goal write can turn torque back on (Feetech always does), under the hand, and every "
+            "tick writes every servo's goal. Teach-by-hand runs on X-series servos only"
+        )
     for i in teach.limp_indices:
         joint = rig.joints[i]
         try:

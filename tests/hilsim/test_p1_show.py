@@ -343,3 +343,25 @@ def test_the_joint_plot_draws_a_rotation_buses_present_line_through_its_unread_t
         asked = np.count_nonzero(run.columns[f"status_{j}"] != 4)
         assert 0 < asked < run.n_ticks and len(line.get_xdata()) == asked
         assert np.isfinite(line.get_ydata()).all()  # one line, not dots between NaNs
+
+
+def test_teach_by_hand_is_refused_on_a_feetech_bus(emulated):
+    """A Feetech goal write turns torque back on, and every tick writes every goal: a limp
+    joint would stiffen under the hand. Refused before anything moves, naming the servo."""
+    import types
+
+    from drivers.p1bus.bus import P1ServoBus
+    from hilsim.live.teach import Teach, TeachConfig
+    from hilsim.show.session import ShowRefusedError, check_teach
+
+    emu = emulated()
+    rig = load_rig(emu.path)
+    bus = P1ServoBus.open(rig.bus.port, baud=1_000_000, ids=rig.servo_ids, models=["STS3215"] * 3)
+    try:
+        names = rig.joint_names
+        teach = Teach(names, TeachConfig.from_table({"joints": ["jaw"]}, "show.toml: teach", names))
+        with pytest.raises(ShowRefusedError, match=r"teach: servo 3 \(jaw\) is a STS3215"):
+            check_teach(rig, bus, types.SimpleNamespace(teach=teach))  # type: ignore[arg-type]
+    finally:
+        bus.close()
+    assert not [p for p in emu.stub.instructions() if p.code in (3, 0x83)]  # nothing written
