@@ -162,6 +162,7 @@ def _joint(path: Path, table: dict[str, Any], index: int) -> JointConfig:
     if hi <= lo:
         raise r.fail("max_deg", f"must be greater than min_deg ({lo}), got {hi}")
     servo = JointMap([home], [direction])  # degrees here: the map is linear
+    fam = family_of(model)
     for edge, value in (("min_deg", lo), ("max_deg", hi)):
         servo_deg = servo.servo_angle(0, value)
         if not -180.0 <= servo_deg <= 180.0:
@@ -170,6 +171,14 @@ def _joint(path: Path, table: dict[str, Any], index: int) -> JointConfig:
                 f"home_deg + direction*{edge} = {servo_deg:g} deg is outside one "
                 "servo turn (-180..180 deg around tick 2048)",
             )
+        if fam is not None and fam.max_tick < 4095:  # AX, SCS: 1024 ticks over 300 degrees
+            reach = 180.0 * fam.center_tick / (fam.ticks_per_turn / 2.0)
+            if not -reach <= servo_deg <= reach:
+                raise r.fail(
+                    edge,
+                    f"home_deg + direction*{edge} = {servo_deg:g} deg is beyond what a "
+                    f"{model} turns (-{reach:g}..{reach:g} deg around tick {fam.center_tick})",
+                )
     for field_name in ("max_speed_rad_s", "max_accel_rad_s2"):
         key(field_name)
     key("tracking_tolerance_rad")

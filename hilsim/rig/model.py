@@ -293,7 +293,8 @@ class JointConfig:
         "The joint's lower limit (joint frame); the safety filter never commands beyond it.",
         toml="min_deg",
         unit="deg",
-        allowed="home_deg + direction · min_deg within -180 .. 180 (one servo turn)",
+        allowed="home_deg + direction · min_deg within -180 .. 180 (one servo turn; AX and SCS "
+        "servos: -150 .. 150)",
         example=-70,
         convert=math.radians,
     )

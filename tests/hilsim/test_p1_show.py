@@ -365,3 +365,11 @@ def test_teach_by_hand_is_refused_on_a_feetech_bus(emulated):
     finally:
         bus.close()
     assert not [p for p in emu.stub.instructions() if p.code in (3, 0x83)]  # nothing written
+
+
+def test_an_ax_joint_beyond_300_degrees_is_refused_at_load(tmp_path):
+    path = tmp_path / "ax.toml"
+    path.write_text(RIG.replace('"STS3215"', '"AX-12A"').replace("max_deg = 50", "max_deg = 160"))
+    with pytest.raises(RigError, match=r"joints\[0\]\.max_deg: .*160 deg is beyond what a AX-12A "
+                       r"turns \(-150\.\.150 deg around tick 512\)"):  # fmt: skip
+        load_rig(path)
