@@ -51,12 +51,16 @@ class ReadStatus(IntEnum):
            reading. Position NaN.
     ALERT  the Alert bit is set (a hardware error is latched; torque may be cut). The
            reading itself is valid when the error number is 0 (position finite), else NaN.
+    UNREAD not asked this tick: a bus that reads its servos in rotation (single reads on
+           AX or SCS servos, which have no Sync Read) asks a few per tick. Position NaN;
+           not a failure (no comm error, no silence counted).
     """
 
     OK = 0
     STALE = 1
     ERROR = 2
     ALERT = 3
+    UNREAD = 4
 
 
 @dataclass(slots=True, eq=False)
@@ -316,8 +320,9 @@ class ServoBus(ABC):
         status = out.status
         if status.any():  # OK is 0; the all-OK tick stays cheap
             st._not_ok[status, self._cols] += 1
-            st.consecutive_bad += 1
-            st.consecutive_bad *= status != 0
+            asked = status != ReadStatus.UNREAD  # a servo not asked keeps its count
+            st.consecutive_bad[asked] += 1
+            st.consecutive_bad *= (status != 0) | ~asked
         else:
             st.consecutive_bad.fill(0)
         return out
@@ -357,6 +362,10 @@ class ServoBus(ABC):
         if servo_id not in self._ids:
             raise ValueError(f"servo {servo_id} is not on this bus {self._ids}")
         return self._read_health(int(servo_id), HealthPart(part))
+
+    #: False for a family without a Bus Watchdog (Dynamixel Protocol 1.0, Feetech): if the
+    #: host dies its servos hold their last goal; :meth:`arm_watchdog` then arms nothing
+    has_watchdog: bool = True
 
     @property
     def health_read_s(self) -> float:

@@ -179,6 +179,10 @@ def test_the_cycle_finder_finds_a_circle() -> None:
         ("drivers.dxlsim", "drivers.dynamixel"),  # the emulator speaks protocol2, not the SDK
         ("drivers.protocol2", "drivers.dynamixel"),
         ("drivers.protocol2", "drivers.dxlsim"),
+        ("drivers.protocol1", "drivers.dynamixel"),  # both sides' facts, for either side
+        ("drivers.protocol1", "drivers.dxlsim"),
+        ("drivers.p1bus", "drivers.dxlsim"),  # the host side stands without the emulator
+        ("drivers.dxlsim", "drivers.p1bus"),
         ("drivers", "hilsim"),
     ],
 )
@@ -201,9 +205,9 @@ def test_hilsim_run_does_not_reach_the_bench() -> None:
 
 def test_protocol2_imports_no_sdk() -> None:
     for name, path in _modules().items():
-        if name.startswith("drivers.protocol2"):
+        if name.startswith(("drivers.protocol2", "drivers.protocol1")):
             code = path.read_text(encoding="utf-8")
-            assert not re.search(r"^\s*(from|import) dynamixel_sdk", code, re.M), name
+            assert not re.search(r"^\s*(from|import) (dynamixel_sdk|scservo_sdk)", code, re.M), name
 
 
 def test_no_module_is_over_the_limit() -> None:

@@ -1,4 +1,5 @@
-"""dxlsim: an emulated bus of Dynamixel X-series servos that speaks Protocol 2.0 byte for byte.
+"""dxlsim: an emulated bus of Dynamixel X-series servos that speaks Protocol 2.0 byte for byte,
+or of Protocol 1.0-framed servos (Dynamixel AX/MX-P1, Feetech STS/SCS: :class:`P1Bus`).
 
 Three ways in:
 
@@ -15,6 +16,8 @@ import serial
 
 from drivers.dxlsim.bus import DxlBus, TraceRecord
 from drivers.dxlsim.faults import Fault, FaultKind, FaultPlan, parse_fault_plan
+from drivers.dxlsim.p1bus import P1Bus
+from drivers.dxlsim.p1servo import P1Servo
 from drivers.dxlsim.servo import VirtualServo
 from drivers.dxlsim.url import DxlsimUrl, bus_from_url, register_bus, unregister_bus
 
@@ -24,6 +27,8 @@ __all__ = [
     "Fault",
     "FaultKind",
     "FaultPlan",
+    "P1Bus",
+    "P1Servo",
     "TraceRecord",
     "VirtualServo",
     "bus_from_url",

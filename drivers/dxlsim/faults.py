@@ -18,9 +18,10 @@ garbage    ``nbytes`` random bytes precede the header on the wire
 
 ============== =============================================================
 brownout       the servo is silent for ``duration`` s, then comes back with RAM reset
-hardware_error Hardware Error Status bits ``bits`` latch (Alert bit; torque cut per Shutdown)
+hardware_error Hardware Error Status bits ``bits`` latch (Alert bit; torque cut per Shutdown);
+               on Protocol 1.0 servos the family's status error bits (p1servo.py)
 torque_off     torque silently drops to 0
-watchdog_trip  the Bus Watchdog trips as if the host had gone quiet
+watchdog_trip  the Bus Watchdog trips as if the host had gone quiet (X series only)
 duplicate_id   a second servo of the same model answers on the same ID (collisions)
 unplug         the USB adapter disappears: every read/write raises SerialException
 ============== =============================================================

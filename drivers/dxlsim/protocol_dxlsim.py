@@ -27,13 +27,13 @@ if TYPE_CHECKING:
     from collections.abc import Iterable
 
     from drivers.clock import Clock
-    from drivers.dxlsim.bus import DxlBus
+    from drivers.dxlsim.url import AnyBus
 
 
 class Serial(SerialBase):  # type: ignore[misc]  # pyserial ships no types
-    """A serial port whose other end is a :class:`~drivers.dxlsim.bus.DxlBus`."""
+    """A serial port whose other end is an emulated bus (:data:`~drivers.dxlsim.url.AnyBus`)."""
 
-    bus: DxlBus | None = None
+    bus: AnyBus | None = None
     _bus_key = ""
     _bus_url: str | None = None
     # pyserial's attributes this class uses (pyserial declares none)
@@ -78,7 +78,7 @@ class Serial(SerialBase):  # type: ignore[misc]  # pyserial ships no types
     def from_url(self, url: str) -> str:  # pyserial calls this with the whole URL
         return url
 
-    def _check(self) -> DxlBus:
+    def _check(self) -> AnyBus:
         """The bus, while the port is open and the adapter plugged in."""
         bus = self.bus
         if not self.is_open or bus is None:  # (open sets the bus before is_open)

@@ -33,7 +33,7 @@ import tty
 from typing import Self
 
 from drivers.clock import precise_timers
-from drivers.dxlsim.bus import DxlBus
+from drivers.dxlsim.url import AnyBus
 from drivers.protocol2.wire_time import USB_CHUNK
 
 #: Longest the server sleeps with nothing due, so a stop request is seen promptly.
@@ -78,7 +78,7 @@ def line_speed(fd: int) -> int | None:
     return buf[_OSPEED_WORD] or None
 
 
-def piece_due(bus: DxlBus) -> tuple[float | None, int]:
+def piece_due(bus: AnyBus) -> tuple[float | None, int]:
     """When the next piece of reply bytes is due, and its length: ``(None, 0)`` when no
     byte is on its way. The piece starts at the first unread byte and runs while each next
     byte's stop bit follows the previous one's within :data:`_PIECE_GAP_BYTES` byte times
@@ -102,7 +102,7 @@ def piece_due(bus: DxlBus) -> tuple[float | None, int]:
 class PtyServer:
     """Owns a pty pair; :attr:`path` is the device a client opens."""
 
-    def __init__(self, bus: DxlBus) -> None:
+    def __init__(self, bus: AnyBus) -> None:
         if bus.clock.virtual:
             raise ValueError("a pty is served in real time: build the bus on a MonotonicClock")
         self.bus = bus

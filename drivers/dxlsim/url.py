@@ -33,10 +33,16 @@ from drivers.dxlsim.bus import DxlBus
 from drivers.dxlsim.dual_axis import pair_axes
 from drivers.dxlsim.faults import FaultPlan, parse_fault_plan
 from drivers.dxlsim.models import format_models, models_by_id
+from drivers.dxlsim.p1_models import bus_protocol, format_tables, tables_by_id
+from drivers.dxlsim.p1bus import P1Bus
+from drivers.dxlsim.p1servo import P1Servo
 from drivers.dxlsim.servo import VirtualServo
+from drivers.protocol1.control_table import ControlTable
 from drivers.protocol2.ids import format_ids, parse_ids
 from drivers.protocol2.wire_time import DEFAULT_TURNAROUND_S
 
+#: Any emulated bus: Protocol 2.0 (X series) or Protocol 1.0 framing (AX/MX, Feetech).
+AnyBus = DxlBus | P1Bus
 #: The host's line rate when a port is opened without one (bit/s).
 DEFAULT_HOST_BAUD = 1_000_000
 CLOCKS = ("virtual", "real")
@@ -56,11 +62,11 @@ _KEYS = (
 )
 #: characters left readable in a printed URL (the fault grammar's separators)
 _SAFE = ",;:=|-"
-_registry: dict[str, DxlBus] = {}
+_registry: dict[str, AnyBus] = {}
 _lock = threading.Lock()
 
 
-def register_bus(name: str, bus: DxlBus) -> str:
+def register_bus(name: str, bus: AnyBus) -> str:
     """Make ``bus`` openable as ``dxlsim://NAME``; returns that URL."""
     if not name or not name.replace("-", "").replace("_", "").isalnum():
         raise ValueError(f"bus name must be letters, digits, - or _: {name!r}")
@@ -132,7 +138,7 @@ class DxlsimUrl:
             "firmware": None if self.firmware is None else int(self.firmware),
         }
         try:  # the normal form names each model once, in its e-Manual spelling
-            values["model"] = format_models(models_by_id(self.model, values["ids"]))
+            values["model"] = _normal_model(self.model, values["ids"])
         except ValueError:
             values["model"] = str(self.model)  # reported by _fault_plan(), naming the key
         for key, value in values.items():
@@ -239,7 +245,7 @@ class DxlsimUrl:
 
     def _fault_plan(self) -> FaultPlan:
         try:
-            models_by_id(self.model, self.ids)
+            _normal_model(self.model, self.ids)
         except ValueError as exc:
             raise self._bad("model", str(exc)) from None
         try:
@@ -247,7 +253,7 @@ class DxlsimUrl:
         except ValueError as exc:
             raise self._bad("faults", str(exc)) from None
 
-    def build_bus(self, host_baud: int = DEFAULT_HOST_BAUD) -> DxlBus:
+    def build_bus(self, host_baud: int = DEFAULT_HOST_BAUD) -> AnyBus:
         """The bus this URL names (registered) or describes (new, host side at
         ``host_baud``). Raises ValueError saying what is wrong."""
         if self.name:
@@ -266,6 +272,8 @@ class DxlsimUrl:
             raise self._bad("spin_us", str(exc)) from None
         t = clock.now()
         servo_baud = host_baud if self.baud is None else self.baud
+        if bus_protocol(self.model) != "2.0":
+            return self._build_p1(faults, clock, t, servo_baud, host_baud)
         models = models_by_id(self.model, self.ids)
         try:
             servos = [
@@ -300,6 +308,56 @@ class DxlsimUrl:
         except ValueError as exc:
             raise ValueError(f"{self._where()!r}: {exc}") from None
 
+    def _build_p1(
+        self, faults: FaultPlan, clock: Any, t: float, servo_baud: int, host_baud: int
+    ) -> P1Bus:
+        """A Protocol 1.0-framed bus (Dynamixel AX/MX P1, Feetech STS/SCS)."""
+        tables = tables_by_id(self.model, self.ids)
+        try:
+            servos = [
+                P1Servo(
+                    tables[i],
+                    i,
+                    baud=servo_baud if self.baud is not None else _p1_baud(tables[i], servo_baud),
+                    return_delay_us=self.rdt_us,
+                    firmware=self.firmware,
+                    t=t,
+                )
+                for i in self.ids
+            ]
+        except ValueError as exc:
+            key = "rdt_us" if "return_delay" in str(exc) else "baud"
+            raise self._bad(key, str(exc)) from None
+        try:
+            return P1Bus(
+                servos,
+                baud=host_baud,
+                clock=clock,
+                latency_timer_ms=self.latency_ms,
+                turnaround_us=self.turnaround_us,
+                faults=faults,
+                trace=self.trace,
+            )
+        except ValueError as exc:
+            raise ValueError(f"{self._where()!r}: {exc}") from None
+
+
+def _p1_baud(table: ControlTable, host_baud: int) -> int:
+    """The servos' rate when the URL names none: the host's if the model has a Baud Rate
+    value for it, else the model's factory rate (the host then hears nothing, as on a wire)."""
+    try:
+        P1Servo(table, 1, baud=host_baud)
+    except ValueError:
+        return table.family.baud_rates[table.item("Baud Rate").default or 0]
+    return host_baud
+
+
+def _normal_model(text: str, ids: tuple[int, ...]) -> str:
+    """The ``model`` key's normal form, for either protocol (ValueError naming the problem)."""
+    if bus_protocol(text) == "2.0":
+        return format_models(models_by_id(text, ids))
+    return format_tables(tables_by_id(text, ids))
+
 
 _DEFAULTS = {f.name: f.default for f in dataclasses.fields(DxlsimUrl)}
 
@@ -315,7 +373,7 @@ def _text(value: object) -> str:
     return str(value)
 
 
-def bus_from_url(url: str, host_baud: int = DEFAULT_HOST_BAUD) -> DxlBus:
+def bus_from_url(url: str, host_baud: int = DEFAULT_HOST_BAUD) -> AnyBus:
     """A bus a ``dxlsim://`` URL names or describes (a new one for ``?keys``, not shared:
     ports use :func:`acquire_bus`). Raises ValueError saying what is wrong."""
     return DxlsimUrl.parse(url).build_bus(host_baud=host_baud)
@@ -326,7 +384,7 @@ class _Live:
 
     __slots__ = ("ref", "users")
 
-    def __init__(self, ref: weakref.ref[DxlBus]) -> None:
+    def __init__(self, ref: weakref.ref[AnyBus]) -> None:
         self.ref = ref
         self.users = 0
 
@@ -335,7 +393,7 @@ class _Live:
 _live: dict[str, _Live] = {}
 
 
-def _forget(key: str, ref: weakref.ref[DxlBus]) -> None:
+def _forget(key: str, ref: weakref.ref[AnyBus]) -> None:
     with _lock:
         entry = _live.get(key)
         if entry is not None and entry.ref is ref:
@@ -343,8 +401,8 @@ def _forget(key: str, ref: weakref.ref[DxlBus]) -> None:
 
 
 def acquire_bus(
-    url: str, host_baud: int = DEFAULT_HOST_BAUD, keep: DxlBus | None = None
-) -> tuple[DxlBus, str]:
+    url: str, host_baud: int = DEFAULT_HOST_BAUD, keep: AnyBus | None = None
+) -> tuple[AnyBus, str]:
     """The bus a port opening ``url`` at ``host_baud`` is connected to, and its key for
     :func:`release_bus`: a named bus; the bus another port has open under the same normal
     form; ``keep`` (the bus this port had before it was closed); else a new one. The host
@@ -368,7 +426,7 @@ def acquire_bus(
     return bus, key
 
 
-def release_bus(key: str, bus: DxlBus) -> None:
+def release_bus(key: str, bus: AnyBus) -> None:
     """A port that had ``bus`` open (from :func:`acquire_bus`) closed. The last one to close
     ends the sharing: the next open of the URL powers up a fresh bus."""
     if not key:
@@ -382,7 +440,7 @@ def release_bus(key: str, bus: DxlBus) -> None:
             del _live[key]
 
 
-def live_buses() -> dict[str, DxlBus]:
+def live_buses() -> dict[str, AnyBus]:
     """The buses ports have open now, by normal form (for tests and diagnostics)."""
     with _lock:
         pairs = [(key, entry.ref()) for key, entry in _live.items()]

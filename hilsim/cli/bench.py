@@ -142,6 +142,10 @@ def run(args: argparse.Namespace) -> int:
     from hilsim.rig import RigError
 
     t_start = time.perf_counter()
+    if args.config:  # Feetech or Dynamixel Protocol 1.0 servos: their bus beside its model
+        code = _p1_bench(args)
+        if code is not None:
+            return code
     command = "hilsim bench " + " ".join(sys.argv[2:]) if sys.argv[1:2] == ["bench"] else None
     try:
         plan = build_plan(args, command or "hilsim bench")
@@ -200,3 +204,33 @@ def _url_baud(port: str) -> int | None:
     from drivers.dxlsim.url import DxlsimUrl  # the emulator only when the port names it
 
     return DxlsimUrl.parse(port).baud
+
+
+def _p1_bench(args: argparse.Namespace) -> int | None:
+    """``hilsim bench RIG`` for a rig of the Protocol 1.0-framed families: the tick's bus
+    calls timed beside the wire model (:mod:`hilsim.bench.p1rate`); None for any other rig."""
+    import json
+
+    from hilsim.rig import RigError, load_rig
+    from hilsim.show.session import ShowRefusedError, p1_models, port_for
+
+    try:
+        rig = load_rig(args.config, port=args.port)
+    except (RigError, ValueError) as exc:
+        return usage_error("bench", exc)
+    if p1_models(rig) is None:
+        return None
+    from hilsim.bench.p1rate import measure
+
+    try:
+        port = port_for(rig, virtual=args.clock == "virtual")
+        result = measure(rig, port, cycles=500 if args.quick else 2000)
+    except (ShowRefusedError, ValueError) as exc:
+        return usage_error("bench", exc)
+    print(result.text(), end="")
+    out = Path(args.out or f"runs/bench-{time.strftime('%Y%m%d-%H%M%S')}")
+    out.mkdir(parents=True, exist_ok=True)
+    json_path = Path(args.json) if args.json else out / "bench.json"
+    json_path.write_text(json.dumps({"p1_bus": result.as_dict()}, indent=2) + "\n")
+    print(f"  json: {json_path}")
+    return int(ExitCode.OK)

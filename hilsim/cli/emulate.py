@@ -22,6 +22,7 @@ from types import FrameType
 
 from drivers.dxlsim.pty_server import PtyServer
 from drivers.dxlsim.url import DEFAULT_HOST_BAUD, DxlsimUrl
+from drivers.protocol1.control_table import TABLES as P1_TABLES
 from drivers.protocol2.wire_time import PTY_LATENCY_MS
 from hilsim.cli._args import add_baud, add_ids, parse_baud, usage_error
 from hilsim.exit_codes import ExitCode
@@ -42,7 +43,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         default=keep,
         help=f"servo model for all, and IDS:MODEL for the IDs that differ, e.g. "
         f"'XM430-W350,5-6:XL330-M288' (default {BASE.model}; the models: hilsim scan names "
-        "them, the README lists them)",
+        "them, the README lists them); or Protocol 1.0 servos, one protocol a bus: "
+        f"{', '.join(P1_TABLES)}",
     )
     add_baud(
         p,

@@ -1,6 +1,8 @@
 """``hilsim scan --port P``: which servos answer on a port, at which baud rates.
 
-Broadcast Ping at each baud rate (unicast pings where nobody answers a broadcast).
+Broadcast Ping at each baud rate (unicast pings where nobody answers a broadcast);
+``--protocol 1.0`` (Dynamixel AX/MX) or ``feetech`` (STS/SCS): a Ping per ID, each servo named
+with its model and family.
 On the emulator: ``hilsim scan --port "dxlsim://?ids=1-4"``.
 
 ``--baud`` takes bit/s as an integer (``1000000``) or with a k/M suffix as the help writes them
@@ -23,6 +25,9 @@ if TYPE_CHECKING:
 
 HELP = "find servo IDs, models and firmware across baud rates"
 DEFAULT_BAUDS = (57_600, 115_200, 1_000_000, 2_000_000, 3_000_000, 4_000_000)
+PROTOCOLS = ("2.0", "1.0", "feetech")
+#: what the Protocol 1.0-framed families run at (Feetech's default is 1 Mbit/s)
+P1_DEFAULT_BAUDS = (1_000_000, 57_600, 115_200, 500_000)
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -37,6 +42,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--no-unicast", action="store_true", help="broadcast Ping only (faster when nobody answers)"
     )
+    p.add_argument(
+        "--protocol",
+        choices=PROTOCOLS,
+        default="2.0",
+        help="2.0: Dynamixel X series (default); 1.0: Dynamixel AX/MX; feetech: STS/SCS "
+        "(an SO-101 arm). 1.0 and feetech ping each ID: give --ids to be quick",
+    )
 
 
 def run(args: argparse.Namespace) -> int:
@@ -48,6 +60,9 @@ def run(args: argparse.Namespace) -> int:
         bauds = tuple(parse_baud(b) for b in args.baud) if args.baud else DEFAULT_BAUDS
     except ValueError as exc:
         return usage_error("scan", exc)
+    protocol = getattr(args, "protocol", "2.0")
+    if protocol != "2.0" and not args.baud:
+        bauds = P1_DEFAULT_BAUDS
     print(f"hilsim scan: {args.port} at {', '.join(str(b) for b in bauds)} bit/s", file=sys.stderr)
     n_ids = len(ids) if ids is not None else 253
     t0 = time.monotonic()
@@ -66,7 +81,16 @@ def run(args: argparse.Namespace) -> int:
             print(f"hilsim scan: {baud} bit/s: {who} ({took})", file=sys.stderr, flush=True)
 
     try:
-        found = scan(args.port, bauds, ids, unicast_fallback=not args.no_unicast, progress=progress)
+        if protocol != "2.0":
+            from drivers.p1bus.scan import scan1
+            from drivers.p1bus.table import Protocol
+
+            proto = Protocol.FEETECH if protocol == "feetech" else Protocol.DXL1
+            found: list[object] = list(scan1(args.port, bauds, ids, proto))
+        else:
+            found = list(
+                scan(args.port, bauds, ids, unicast_fallback=not args.no_unicast, progress=progress)
+            )
     except ValueError as exc:  # a dxlsim:// URL that cannot be built: a usage error
         return usage_error("scan", exc)
     except DynamixelError as exc:
@@ -77,7 +101,12 @@ def run(args: argparse.Namespace) -> int:
     if not found:
         print(
             "hilsim scan: no servo answered. Check power (the servos' LED blinks once at "
-            "power-up), wiring, and that nothing else has the port open.",
+            "power-up), wiring, and that nothing else has the port open"
+            + (
+                "; Feetech (SO-101) or AX/MX servos: --protocol feetech or --protocol 1.0."
+                if protocol == "2.0"
+                else "."
+            ),
             file=sys.stderr,
         )
         return int(ExitCode.NOTHING_FOUND)

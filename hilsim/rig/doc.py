@@ -42,7 +42,8 @@ COLUMN_UNITS = {
     "sim_v": "rad/s, the spring's velocity",
     "cmd": "rad, the command after the safety filter",
     "present": "rad, read back from the servo (`nan`: no valid read)",
-    "status": "no unit: the read status (0 OK, 1 STALE, 2 ERROR, 3 ALERT)",
+    "status": "no unit: the read status (0 OK, 1 STALE, 2 ERROR, 3 ALERT, 4 UNREAD: not asked "
+    "this tick, on a bus that reads in rotation)",
 }
 
 INTRO = """\
@@ -63,7 +64,8 @@ the same figure on real servos. Below, every key: *default* "required" means the
 * **Rig files are in degrees** (keys ending `_deg`, `_deg_s`, `_deg_s2`, and the angles of target
   keyframes and CSV animations). Everything inside hilsim is in radians.
 * Joint angles are in the **joint frame**: servo angle = `home_deg + direction · joint angle`,
-  where servo angle 0 is the centre tick 2048.
+  where servo angle 0 is the centre tick (2048; 512 on AX and SCS servos, whose 1024 ticks span
+  300 degrees).
 * The run's telemetry (`telemetry.csv`; `.csv.gz` or Parquet for a big rig, see
   `telemetry.format`) holds, per joint `<j>`, in the joint frame:
 """

@@ -15,6 +15,7 @@ import tomllib
 from pathlib import Path
 from typing import Any
 
+from drivers.p1bus.table import Protocol, family_of, protocol_of
 from drivers.protocol2.control_table import model_number, no_load_speed_deg_s, series
 from hilsim.dynamics.integrators import INTEGRATORS
 from hilsim.dynamics.springs import Spring
@@ -49,6 +50,22 @@ from hilsim.rig.model import (
 from hilsim.rig.reader import Reader, build, finish, read_key, read_table
 
 log = logging.getLogger("hilsim.rig")
+
+
+def _one_protocol_per_bus(path: Path, joints: list[JointConfig], named: bool) -> None:
+    """Every servo on one bus speaks one protocol: a servo of another never answers right."""
+    first: dict[str | None, tuple[int, Protocol]] = {}
+    for i, j in enumerate(joints):
+        proto = protocol_of(j.model)
+        assert proto is not None  # (the joint's reader checked the model)
+        k, seen = first.setdefault(j.bus, (i, proto))
+        if seen is not proto:
+            where = f"buses.{j.bus}" if named else "bus"
+            raise RigError(
+                f"{path}: joints[{i}].model: one protocol per bus: {j.name} is a {j.model} "
+                f"({proto}) but {joints[k].name} on the same {where} is a {joints[k].model} "
+                f"({seen}); put them on separate [buses.<name>] tables"
+            )
 
 
 # ------------------------------------------------------------------------------------ the springs
@@ -126,14 +143,20 @@ def _joint(path: Path, table: dict[str, Any], index: int) -> JointConfig:
         raise r.fail("servo_id", f"must be {id_lo}..{id_hi}, got {servo_id}")
     key("bus")  # which of the rig's buses: checked against them in _on_buses
     model = key("model")
-    try:
-        model_number(model)
-    except ValueError:
+    if protocol_of(model) is None:
         raise r.fail(
             "model",
             f"unknown servo model {model!r}; known: {', '.join(KNOWN_MODELS)} "
             "(a -T or -R suffix is fine)",
-        ) from None
+        )
+    if family_of(model) is None:
+        try:
+            model_number(model)
+        except ValueError:
+            raise r.fail(
+                "model",
+                f"{model} (Dynamixel Protocol 2.0) is not run by hilsim yet; the X series is",
+            ) from None
     home = key("home_rad")
     direction = key("direction")
     if direction not in (1, -1):
@@ -142,6 +165,7 @@ def _joint(path: Path, table: dict[str, Any], index: int) -> JointConfig:
     if hi <= lo:
         raise r.fail("max_deg", f"must be greater than min_deg ({lo}), got {hi}")
     servo = JointMap([home], [direction])  # degrees here: the map is linear
+    fam = family_of(model)
     for edge, value in (("min_deg", lo), ("max_deg", hi)):
         servo_deg = servo.servo_angle(0, value)
         if not -180.0 <= servo_deg <= 180.0:
@@ -150,6 +174,14 @@ def _joint(path: Path, table: dict[str, Any], index: int) -> JointConfig:
                 f"home_deg + direction*{edge} = {servo_deg:g} deg is outside one "
                 "servo turn (-180..180 deg around tick 2048)",
             )
+        if fam is not None and fam.max_tick < 4095:  # AX, SCS: 1024 ticks over 300 degrees
+            reach = 180.0 * fam.center_tick / (fam.ticks_per_turn / 2.0)
+            if not -reach <= servo_deg <= reach:
+                raise r.fail(
+                    edge,
+                    f"home_deg + direction*{edge} = {servo_deg:g} deg is beyond what a "
+                    f"{model} turns (-{reach:g}..{reach:g} deg around tick {fam.center_tick})",
+                )
     for field_name in ("max_speed_rad_s", "max_accel_rad_s2"):
         key(field_name)
     key("tracking_tolerance_rad")
@@ -252,6 +284,7 @@ def _on_buses(
                 f"{path}: joints[{i}].servo_id: servo_id {j.servo_id!r} is already used by "
                 f"joints[{first}]{on}"
             )
+    _one_protocol_per_bus(path, out, bool(buses))
     for name in names:
         if not any(j.bus == name for j in out):
             raise RigError(

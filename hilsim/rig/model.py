@@ -15,6 +15,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from drivers.clock import DEFAULT_SPIN_S
+from drivers.p1bus.table import P1_MODELS
 from drivers.protocol2.control_table import MODEL_NAMES
 from drivers.servo_bus import ExitPolicy  # hold | relax: the bus carries it out
 from hilsim.dynamics.integrators import INTEGRATORS
@@ -45,8 +46,9 @@ class TelemetryFailurePolicy(StrEnum):
 
 
 # ----------------------------------------------------------------------------------------- bounds
-#: The servo models the driver knows (Model Number table), in table order.
-KNOWN_MODELS: tuple[str, ...] = tuple(MODEL_NAMES.values())
+#: The servo models the drivers know: the X series (Protocol 2.0, Model Number table order),
+#: then the Protocol 1.0-framed families (Feetech STS/SCS, Dynamixel MX/AX).
+KNOWN_MODELS: tuple[str, ...] = tuple(MODEL_NAMES.values()) + P1_MODELS
 #: loop.substeps <= MAX_STEPS_PER_S / rate_hz. An integrator step costs tens of µs, so more
 #: steps a second could never keep real time; at the cap a tick's integration still ends in
 #: milliseconds, and a Ctrl-C is heard at once. The step costs: docs/performance.md.
@@ -266,7 +268,8 @@ class JointConfig:
     )
     model: str = rig_key(
         "text",
-        "The servo model; checked against the servo at start.",
+        "The servo model; checked against the servo at start. It chooses the protocol: one "
+        "protocol per bus (see [families](../README.md#servo-families)).",
         default="XM430-W350",
         allowed="a model the driver knows: " + ", ".join(KNOWN_MODELS) + " (a -T or -R suffix "
         "is fine)",
@@ -290,7 +293,8 @@ class JointConfig:
         "The joint's lower limit (joint frame); the safety filter never commands beyond it.",
         toml="min_deg",
         unit="deg",
-        allowed="home_deg + direction · min_deg within -180 .. 180 (one servo turn)",
+        allowed="home_deg + direction · min_deg within -180 .. 180 (one servo turn; AX and SCS "
+        "servos: -150 .. 150)",
         example=-70,
         convert=math.radians,
     )

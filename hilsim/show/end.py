@@ -70,6 +70,8 @@ def end_show(
         "clock": "virtual time" if bus.clock.virtual else "real time",
         "port": rig.bus.port,
         "read_mode": bus.read_mode.value,
+        "reads_per_tick": getattr(bus, "per_tick", bus.n),  # (a bus reading in rotation: fewer)
+        "read_hz_per_servo": rig.loop.rate_hz * getattr(bus, "per_tick", bus.n) / bus.n,
         "loop": result.loop,
     }
     if live is not None:  # the inputs stopped, the take written, their counts

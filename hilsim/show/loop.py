@@ -50,7 +50,7 @@ from hilsim.show.events import ShowLog
 from hilsim.show.monitors import STALL_EVENT_S, WATCHDOG_GAP_FRACTION, HostStalls
 from hilsim.show.parts import Parts
 from hilsim.show.realtime import REALTIME_SWITCH_INTERVAL_S, realtime
-from hilsim.show.servo_watch import LoopFaultError, ServoWatch
+from hilsim.show.servo_watch import LoopFaultError, ServoWatch, failed_reads
 from hilsim.show.stepper import Stepper, TickBuffers
 from hilsim.show.stop import StopFlag, signal_name
 from hilsim.show.warm_up import warm_up
@@ -467,7 +467,7 @@ class HilLoop:
         rec.t_sim_us, rec.t_telemetry_us, rec.overrun = math.nan, math.nan, False
         rec.t_safety_us = (p_bus - p_safety - checks) * 1e6
         rec.t_bus_us = (p_bus_end - p_bus + checks) * 1e6
-        rec.comm_errors = watch.comm_errors + (0 if all_ok else int(np.count_nonzero(status)))
+        rec.comm_errors = watch.comm_errors + (0 if all_ok else failed_reads(status))
         rec.host_stall_us = stall * 1e6
         if self._recording:
             try:
@@ -480,6 +480,7 @@ class HilLoop:
             self.log.host_stall(stall, k, t_sim)
             if stall >= WATCHDOG_GAP_FRACTION * watch.watchdog_s:
                 watch.last_long_gap_t = t_read  # explains a watchdog trip found later
+            watch.check_stall(stall)
         watch.check_reads(reading, t_read, self.stalls.total_s, stall > 0.0, all_ok)
         watch.check_following(present, cmd)
         # -- advance the springs to the next tick (target held over each step)

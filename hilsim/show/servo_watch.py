@@ -25,6 +25,7 @@ import math
 from collections.abc import Callable, Iterable, Sequence
 
 import numpy as np
+from numpy.typing import NDArray
 
 from drivers.servo_bus import (
     HealthPart,
@@ -59,6 +60,11 @@ HEALTH_FLOOR_S = 1.0
 
 class LoopFaultError(RuntimeError):
     """A condition that stops the show: the message names the servo/joint and the cause."""
+
+
+def failed_reads(status: NDArray[np.uint8]) -> int:
+    """Servos whose read failed (not OK, and asked: UNREAD is no failure)."""
+    return sum(1 for s in status.tolist() if s and s != ReadStatus.UNREAD)
 
 
 class ServoWatch:
@@ -134,6 +140,9 @@ class ServoWatch:
         None if ``stopping()`` says a stop was requested first."""
         bus, period = self.bus, self.following.period_s
         attempts = max(3, min(100, math.ceil(self.comm_budget_ms * 1e-3 / period)))
+        # a bus reading in rotation reads each servo once every n/per_tick reads: three rounds
+        per_tick = getattr(bus, "per_tick", bus.n)
+        attempts = max(attempts, 3 * math.ceil(bus.n / per_tick))
         positions = np.full(len(self.joints), np.nan)
         got = np.zeros(len(self.joints), dtype=bool)
         last = reading
@@ -173,6 +182,8 @@ class ServoWatch:
             if s == ReadStatus.OK:
                 self.silence.ok(i, t_now, stall_total_s)
                 continue
+            if s == ReadStatus.UNREAD:  # not asked this tick (a bus reading in rotation)
+                continue
             self.comm_errors += 1
             if s == ReadStatus.ALERT:
                 alert = f"hardware error: Alert bit set (ERR byte {int(reading.errors[i]):#04x})"
@@ -185,6 +196,18 @@ class ServoWatch:
                     f"{self.comm_budget_ms:g} ms, host stalls not counted); "
                     f"last read {ReadStatus(s).name}"
                 )
+
+    def check_stall(self, stall_s: float) -> None:
+        """A bus without a Bus Watchdog (Feetech, Dynamixel Protocol 1.0): a host stall
+        longer than ``safety.watchdog_ms`` stops the show, as the servos' own watchdog would
+        have stopped them; the host does what they cannot."""
+        if not self.bus.has_watchdog and self.watchdog_s and stall_s >= self.watchdog_s:
+            raise LoopFaultError(
+                f"host stall of {stall_s * 1e3:.0f} ms, longer than safety.watchdog_ms "
+                f"({self.watchdog_s * 1e3:g} ms): these servos have no Bus Watchdog to stop on "
+                "their own, so the host stops the show (they held their last goal meanwhile; "
+                "not a servo fault)"
+            )
 
     def check_following(
         self, present: FloatArray | list[float], cmd: FloatArray | list[float]
@@ -264,8 +287,9 @@ class ServoWatch:
         self.last_long_gap_t = self.clock.now()
         self._event(
             "bus_silence",
-            f"no packet on the bus for {gap_s * 1e3:.0f} ms (Bus Watchdog "
-            f"{self.watchdog_s * 1e3:g} ms): checking every servo",
+            f"no packet on the bus for {gap_s * 1e3:.0f} ms ("
+            + ("Bus Watchdog" if self.bus.has_watchdog else "safety.watchdog_ms, no Bus Watchdog")
+            + f" {self.watchdog_s * 1e3:g} ms): checking every servo",
             tick=k,
             gap_ms=round(gap_s * 1e3, 3),
         )

@@ -40,6 +40,7 @@ from hilsim.show.stop import StopFlag
 
 if TYPE_CHECKING:
     from drivers.dynamixel.bus import DynamixelBus
+    from drivers.p1bus.startup import P1Expectation
     from hilsim.live.director import Director
     from hilsim.telemetry import TelemetryWriter
 
@@ -79,14 +80,36 @@ def port_for(rig: Rig, virtual: bool) -> str:
     return str(url.replace(clock="real", spin_us=rig.loop.spin_us))
 
 
+def p1_models(rig: Rig) -> list[str] | None:
+    """The rig's servo models when they are of the Protocol 1.0-framed families (Feetech,
+    Dynamixel AX/MX), None for an X-series bus (one protocol per bus: the loader checked)."""
+    from drivers.p1bus.table import family_of
+
+    models = [j.model for j in rig.joints]
+    return models if family_of(models[0]) is not None else None
+
+
 def open_bus(rig: Rig, port: str) -> DynamixelBus:
-    """Open the bus the rig names (``port`` from :func:`port_for`). Hardware gets a monotonic
-    clock with the rig's spin window; the emulator brings its own clock."""
+    """Open the bus the rig names (``port`` from :func:`port_for`): the X-series backend, or
+    :class:`~drivers.p1bus.bus.P1ServoBus` for Feetech and Dynamixel Protocol 1.0 servos. Hardware
+    gets a monotonic clock with the rig's spin window; the emulator brings its own clock."""
     from drivers.dynamixel.bus import DynamixelBus
     from drivers.dynamixel.errors import DynamixelError
 
     clock = None if port.lower().startswith("dxlsim://") else real_clock(rig)
+    models = p1_models(rig)
     try:
+        if models is not None:
+            from drivers.p1bus.bus import P1ServoBus
+
+            return P1ServoBus.open(  # type: ignore[return-value]  # the loop needs a ServoBus
+                port,
+                baud=rig.bus.baud,
+                ids=rig.servo_ids,
+                models=models,
+                latency_timer_ms=rig.bus.latency_timer_ms,
+                clock=clock,
+            )
         return DynamixelBus.open(
             port,
             baud=rig.bus.baud,
@@ -114,6 +137,8 @@ def check_bus(rig: Rig, bus: DynamixelBus, say: Callable[[str], None]) -> list[s
     from drivers.dynamixel.errors import DynamixelError
     from hilsim.show.servo_check import check_everything, render
 
+    if not bus.has_watchdog:
+        return check_p1_bus(rig, bus, say)
     latency_ms = bus.link.latency_timer_ms
     notes: list[str] = []
     try:
@@ -148,6 +173,40 @@ def check_bus(rig: Rig, bus: DynamixelBus, say: Callable[[str], None]) -> list[s
     return notes
 
 
+def check_p1_bus(rig: Rig, bus: DynamixelBus, say: Callable[[str], None]) -> list[str]:
+    """:func:`check_bus` for the Protocol 1.0-framed families (no Bus Watchdog): the reads
+    fitted to the tick, the start-up check in the family's terms, the bus's capacity."""
+    from drivers.dynamixel.errors import DynamixelError, StartupMismatch
+    from drivers.p1bus.bus import P1ServoBus
+
+    assert isinstance(bus, P1ServoBus)
+    bus.plan(rig.loop.period_s)
+    try:
+        report = bus.check(p1_expectations(rig, bus))
+    except StartupMismatch as exc:
+        raise ShowRefusedError(
+            f"the servos on {rig.bus.port} do not match {rig.path}:\n{exc}"
+        ) from None
+    except (DynamixelError, ValueError) as exc:
+        raise ShowRefusedError(f"start-up check failed on {rig.bus.port}: {exc}") from None
+    notes = list(report.notes)
+    rate = bus.read_rate_hz(rig.loop.rate_hz)
+    notes.append(f"each servo's position is read {rate:.4g} times a second ({bus.read_mode})")
+    for note in notes:
+        say(f"note: {note}")
+    cycle = bus.model_cycle_s()
+    budget = BUS_SHARE_OF_TICK * rig.loop.period_s
+    if cycle > budget:
+        raise ShowRefusedError(
+            f"{rig.path}: the bus cannot carry {rig.loop.rate_hz:g} Hz: one tick's Sync Write + "
+            f"{bus.read_mode} takes {cycle * 1e3:.2f} ms against {budget * 1e3:.2f} ms "
+            f"({BUS_SHARE_OF_TICK:.0%} of a {rig.loop.period_s * 1e3:g} ms tick). Lower "
+            f"loop.rate_hz to {BUS_SHARE_OF_TICK / cycle:.0f} or less, or shorten the cycle: "
+            "Return Delay Time 0, a 1 ms latency timer (`hilsim bench` shows each)."
+        )
+    return notes
+
+
 def check_teach(rig: Rig, bus: DynamixelBus, director: Director | None) -> None:
     """A show's teach-by-hand joints go limp; a servo whose Drive Mode has bit 3 set (Torque
     On by Goal Update) would turn its torque back on at the next goal, under a person's hand:
@@ -156,8 +215,15 @@ def check_teach(rig: Rig, bus: DynamixelBus, director: Director | None) -> None:
     from drivers.protocol2.control_table import DRIVE_MODE
 
     teach = None if director is None else director.teach
-    if teach is None:
+    if teach is None or not teach.limp_indices:
         return
+    if not bus.has_watchdog:  # a Feetech or Dynamixel Protocol 1.0 bus
+        joint = rig.joints[teach.limp_indices[0]]
+        raise ShowRefusedError(
+            f"teach: servo {joint.servo_id} ({joint.name}) is a {joint.model}: on these servos a "
+            "goal write can turn torque back on (Feetech always does), under the hand, and every "
+            "tick writes every servo's goal. Teach-by-hand runs on X-series servos only"
+        )
     for i in teach.limp_indices:
         joint = rig.joints[i]
         try:
@@ -181,6 +247,28 @@ def return_delay_budget_us(rig: Rig, latency_timer_ms: float = 0.0) -> float:
     base = cycle_time_s(n, rig.bus.baud, fast, latency_s=latency_timer_ms * 1e-3)
     spare = BUS_SHARE_OF_TICK * rig.loop.period_s - base
     return max(0.0, spare / (1 if fast else n) * 1e6)
+
+
+def p1_return_delay_budget_us(rig: Rig, bus: object) -> float:
+    """The largest Return Delay Time a Protocol 1.0-framed bus's tick leaves room for: what
+    is left of the tick's bus share after the cycle at Return Delay 0, over the replies."""
+    from drivers.p1bus.bus import P1ServoBus
+
+    assert isinstance(bus, P1ServoBus)
+    spare = BUS_SHARE_OF_TICK * rig.loop.period_s - bus.model_cycle_s(return_delay_s=0.0)
+    return max(0.0, spare / bus.per_tick * 1e6)
+
+
+def p1_expectations(rig: Rig, bus: object) -> list[P1Expectation]:
+    """:func:`expectations` of a Protocol 1.0-framed bus's servos."""
+    from drivers.p1bus.startup import P1Expectation
+
+    rdt_max = p1_return_delay_budget_us(rig, bus)
+    jmap = JointMap.of(rig.joints)
+    return [
+        P1Expectation(j.servo_id, j.model, jmap.servo_range(i, j.min_rad, j.max_rad), rdt_max)
+        for i, j in enumerate(rig.joints)
+    ]
 
 
 def expectations(rig: Rig, latency_timer_ms: float = 0.0) -> list[Expectation]:

@@ -219,7 +219,12 @@ def joints_figure(
         if lim is not None:
             for edge in lim:
                 ax.axhline(edge, **LIMIT_STYLE)
-        trace_lines = [ax.plot(t, traces[q][:, j], **style)[0] for q, style in TRACE_STYLE.items()]
+        asked = status[:, j] != ReadStatus.UNREAD  # a bus read in rotation: only asked ticks
+        trace_lines = [
+            ax.plot(*((t[asked], traces[q][asked, j]) if q == "present" else (t, traces[q][:, j])),
+                    **style)[0]
+            for q, style in TRACE_STYLE.items()
+        ]  # fmt: skip
         stacked = np.concatenate([traces[q][:, j] for q in TRACE_STYLE])
         ax.set_ylim(*_y_range(stacked, lim, MIN_SPAN_DEG))
         note = ax.text(

@@ -16,7 +16,12 @@ from hilsim.telemetry.reader import read_run
 REPO = Path(__file__).resolve().parents[2]
 U2D2 = "dxlsim://?ids=1-4&model=XM430-W350&rdt_us=0&latency_ms=1"
 #: rigs for a bigger bus than the four-servo figure: their own set-up, on the emulator
-OWN_BUS = {"scale16.toml": "dxlsim://?ids=1-16&model=XM430-W350&rdt_us=0&baud=4000000"}
+OWN_BUS = {
+    "scale16.toml": "dxlsim://?ids=1-16&model=XM430-W350&rdt_us=0&baud=4000000",
+    # the other servo families: their own emulated servos (README, Servo families)
+    "so101_arm.toml": "dxlsim://?ids=1-6&model=STS3215&rdt_us=0&latency_ms=1",
+    "ax12_figure.toml": "dxlsim://?ids=1-6&model=AX-12A&rdt_us=0&latency_ms=1",
+}
 
 
 #: rigs with several [buses.<name>]: each bus on the emulated bus its table names (one process

@@ -70,7 +70,7 @@ from tests.hilsim.clocks import NotVirtual
 from tests.hilsim.disk_layer import FailsOnce, SmallDisk
 from tests.serial_stub import CannedPort
 
-OK, STALE, ERROR, ALERT = (int(s) for s in ReadStatus)
+OK, STALE, ERROR, ALERT = (int(ReadStatus[n]) for n in ("OK", "STALE", "ERROR", "ALERT"))
 BAUD = 1_000_000
 PERIOD = 0.004
 DEG = math.pi / 180

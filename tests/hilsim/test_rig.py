@@ -181,7 +181,7 @@ BAUDS = "9600, 57600, 115200, 1000000, 2000000, 3000000, 4000000, 4500000"
             'name = "pan"',
             'name = "pan"\nmodel = "XM999-W999"',
             r"joints\[0\]\.model: unknown servo model 'XM999-W999'; known: XH430-W350, "
-            r"XH430-W210, XM430-W350, .*XC330-M288 \(a -T or -R suffix is fine\)",
+            r"XH430-W210, XM430-W350, .*XC330-M288, STS3215, .*AX-12W \(a -T or -R suffix is fine\)",
         ),
         (
             'name = "pan"',

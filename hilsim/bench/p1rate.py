@@ -1,0 +1,107 @@
+"""Bus rate of a Feetech or Dynamixel Protocol 1.0 rig: the tick's own bus calls, timed, beside
+the family's wire model.
+
+One cycle is what one tick of a show puts on the bus through
+:class:`~drivers.p1bus.bus.P1ServoBus`: ``write_goals`` (one Sync Write of the servos' present
+positions: nothing moves) and ``read_present`` (Sync Read, Bulk Read, or the tick's share of
+single reads in rotation). The achieved time per cycle is measured on the bus's clock; the
+model is :meth:`~drivers.p1bus.bus.P1ServoBus.model_cycle_s` with the Return Delay Times the
+start-up check read and the adapter's latency timer. On a virtual clock the two must agree;
+on a real one the gap is the host's time per cycle. Also said: how often each servo is read
+at the rig's tick rate.
+"""
+
+from __future__ import annotations
+
+import gc
+from dataclasses import dataclass
+
+import numpy as np
+
+from hilsim._types import JsonDict
+from hilsim.rig import Rig
+
+
+@dataclass(frozen=True)
+class P1Rate:
+    """One rig's bus: achieved and model seconds per cycle, and the reads."""
+
+    families: tuple[str, ...]
+    method: str
+    servos: int
+    baud: int
+    reads_per_tick: int
+    cycles: int
+    failed_reads: int
+    achieved_s: float
+    model_s: float
+    read_hz_per_servo: float
+    rate_hz: float
+    clock: str
+
+    @property
+    def ratio(self) -> float:
+        return self.achieved_s / self.model_s
+
+    def as_dict(self) -> JsonDict:
+        return {**self.__dict__, "ratio": self.ratio}
+
+    def text(self) -> str:
+        return (
+            f"bus ({', '.join(self.families)}, {self.method}, {self.servos} servos at "
+            f"{self.baud} bit/s, {self.clock} clock): {self.achieved_s * 1e3:.3f} ms a tick "
+            f"measured over {self.cycles} ticks vs {self.model_s * 1e3:.3f} ms wire model "
+            f"({(self.ratio - 1) * 100:+.1f} %); {self.failed_reads} failed reads\n"
+            f"  reads: {self.reads_per_tick} of {self.servos} servos a tick: each servo read "
+            f"{self.read_hz_per_servo:.4g} times a second at {self.rate_hz:g} Hz\n"
+        )
+
+
+def measure(rig: Rig, port: str, cycles: int = 2000) -> P1Rate:
+    """Open the rig's bus (``port``: the rig's or another), run its start-up check, and time
+    ``cycles`` tick-like cycles. Raises what the session raises for a bus that cannot run."""
+    from hilsim.show.session import check_bus, open_bus
+
+    bus = open_bus(rig, port)
+    try:
+        check_bus(rig, bus, lambda _msg: None)
+        from drivers.p1bus.bus import P1ServoBus
+
+        assert isinstance(bus, P1ServoBus)
+        reading = bus.read_present()
+        for _ in range(3 * bus.n):  # every servo's position, through the rotation too
+            if np.isfinite(reading.positions).all():
+                break
+            more = bus.read_present()
+            reading.positions[np.isnan(reading.positions)] = more.positions[
+                np.isnan(reading.positions)
+            ]
+        goals = np.nan_to_num(reading.positions)
+        clock = bus.clock
+        failed = 0
+        gc.disable()
+        try:
+            t0 = clock.now()
+            for _ in range(cycles):
+                bus.write_goals(goals)
+                r = bus.read_present(reading)
+                failed += int(((r.status != 0) & (r.status != 4)).sum())
+            elapsed = clock.now() - t0
+        finally:
+            gc.enable()
+        return P1Rate(
+            bus.families,
+            str(bus.read_mode),
+            bus.n,
+            bus.link.baud,
+            bus.per_tick,
+            cycles,
+            failed,
+            elapsed / cycles,
+            bus.model_cycle_s(),
+            bus.read_rate_hz(rig.loop.rate_hz),
+            rig.loop.rate_hz,
+            "virtual" if clock.virtual else "real",
+        )
+    finally:
+        bus.close()
