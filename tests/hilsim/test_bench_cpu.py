@@ -32,11 +32,15 @@ def result() -> CpuResult:
 def test_the_line_says_both_ports_cpu_and_wall():
     text = result().text()
     assert text.splitlines()[0] == (
-        "CPU per cycle over a pty: bare SDK (busy-poll) 1450 µs, hilsim 150 µs; "
+        "CPU per cycle over a pty (emulated: host overhead only: hilsim emulate): bare SDK "
+        "(busy-poll) 1450 µs, hilsim 150 µs; "
         "wall per cycle 1460 vs 1480 µs (+1.4%)"
     )
     assert "load 0.50 0.60 0.70" in text
-    assert "The demo over a pty: 180 µs of CPU per tick at 250 Hz (4.5 % of a core" in text
+    assert (
+        "The demo over a pty (emulated: host overhead only): 180 µs of CPU per tick at 250 Hz "
+        "(4.5 % of a core"
+    ) in text
     assert (
         "  loop thread 150 µs, other threads (telemetry) 30 µs; 2.1 wake-ups per tick; "
         "lateness p50 0.1 µs, p99 35 µs"
