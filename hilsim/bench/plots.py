@@ -159,10 +159,10 @@ def plot_bus_rate(rows: list[BusRate], path: str | Path) -> Path:
         ax.set_title(f"{baud / 1e6:g} Mbps" if baud >= 1e6 else f"{baud} bps")
         ax.grid(True, which="both", alpha=0.3)
         ax.legend(fontsize=8, loc="upper right")
-    emulated = f"{EMULATED}: " if r0.port.startswith("dxlsim") else ""
+    emulated = f"{EMULATED}\n" if r0.port.startswith("dxlsim") else ""  # its own line
     fig.suptitle(
-        f"{emulated}Bus cycle rate vs wire-time model (RDT {r0.return_delay_us:g} µs, turnaround "
-        f"{r0.turnaround_us:g} µs, latency timer {r0.latency_timer_ms:g} ms; "
+        f"{emulated}Bus cycle rate vs wire-time model\n(RDT {r0.return_delay_us:g} µs, turnaround "
+        f"{r0.turnaround_us:g} µs,\nlatency timer {r0.latency_timer_ms:g} ms; "
         "labels: achieved / model)"
     )
     return _save(fig, path, plt)
@@ -206,7 +206,7 @@ def plot_step(lat: LatencyResult, path: str | Path, emulated: bool = False) -> P
     ax.set_xlabel("time from the step tick's start (ms); samples at the servos' reply")
     ax.set_ylabel("position (pulses)")
     ax.set_title(
-        (f"{EMULATED}: " if emulated else "")
+        (f"{EMULATED}\n" if emulated else "")  # its own line: the title stays in the figure
         + f"Command to motion: {lat.step_pulses:+d}-pulse goal step at {lat.rate_hz:g} Hz "
         f"(servo ID {lat.ids[0]})"
     )

@@ -1,13 +1,16 @@
 """``hilsim bench [CONFIG | --port P] [--quick] [--json FILE] [--out DIR]``.
 
-"Why does my loop only reach 60 Hz?" in one command: the tick scheduler's lateness (beside
-cyclictest when installed), the bus's achieved write+read cycle rate beside its wire-time
-model, command/feedback latencies, a diagnosis of the bus with the fix for each problem
-and the rate it would give, and the host's cost of one whole tick beside a bare
-dynamixel-sdk Sync Write + Fast Sync Read cycle (4, 8, 16 servos; :mod:`hilsim.bench.tick`).
+"Why does my loop only reach 60 Hz?" in one command: the tick scheduler's lateness sleeping
+only, beside cyclictest when installed (like with like), then with its spin window and
+that window's CPU; the bus's achieved write+read cycle rate beside its wire-time model,
+command/feedback latencies, a diagnosis of the bus with the fix for each problem and the
+rate it would give, and the host's cost of one whole tick beside a bare dynamixel-sdk Sync
+Write + Fast Sync Read cycle (4, 8, 16 servos; :mod:`hilsim.bench.tick`). One report, in
+that order, then notes, files and the verdict last; the run says its expected length first.
 
 Without CONFIG or --port the bus side runs on the built-in emulator on the real clock (1, 4,
-8 and 16 servos at 1 and 4 Mbps). With a rig file it measures that rig's bus and loop rate;
+8 and 16 servos at 1 and 4 Mbps; 4 and 16 with ``--quick``), and says so: those figures are
+the host's overhead only. With a rig file it measures that rig's bus and loop rate;
 ``--port`` measures any port (``/dev/ttyUSB0``, a pty, ``dxlsim://?...``).
 
 Exit codes (:mod:`hilsim.exit_codes`): 0 measured; 2 a bad value, a rig that cannot be

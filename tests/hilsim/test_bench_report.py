@@ -136,7 +136,7 @@ def test_emulated_figures_say_so_in_the_text_and_the_plots(report, tmp_path, mon
     monkeypatch.setattr(plots, "_save", keep)
     plots.plot_bus_rate(report.bus, tmp_path / "bus_rate.png")
     plots.plot_step(report.latency, tmp_path / "step.png", emulated=True)
-    assert all(t.startswith(f"{EMULATED}: ") for t in titles) and len(titles) == 2
+    assert all(t.startswith(f"{EMULATED}\n") for t in titles) and len(titles) == 2
 
 
 def test_the_loop_is_measured_sleeping_first_then_cyclictest_then_the_spin_window(monkeypatch):
