@@ -424,12 +424,15 @@ def for_bench(
     args: argparse.Namespace, report: BenchReport, progress: Callable[[str], None]
 ) -> CpuResult | None:
     """The measurement for ``hilsim bench``'s parsed ``args``, or None where it does not
-    belong (a rig, a port, the virtual clock) or cannot run (then a note in ``report``)."""
+    belong (a rig, a port, the virtual clock), is left to the full run (``--quick``) or
+    cannot run (then a note in ``report``)."""
     if args.config or args.port or args.clock != "real":
         return None
+    if getattr(args, "quick", False):  # seconds of subprocesses: the full run's
+        report.notes.append("CPU per cycle over a pty: measured by the full run, not --quick")
+        return None
     try:
-        quick = bool(args.quick)  # --quick: the SDK cycles only, not the demo's seconds
-        return measure(quick=quick, demo=not quick, waits=False, progress=progress)
+        return measure(waits=False, progress=progress)
     except (OSError, RuntimeError, subprocess.SubprocessError) as exc:
         report.notes.append(f"CPU per cycle over a pty not measured: {exc}")
         return None

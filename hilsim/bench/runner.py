@@ -25,8 +25,10 @@ from hilsim.bench.sched import DEFAULT_PRIORITY, SCHED_FIFO, measure_scheduler
 DEFAULT_SERVO_COUNTS = (1, 4, 8, 16)
 DEFAULT_EMULATOR_BAUDS = (1_000_000, 4_000_000)
 MIN_LOOP_TICKS = 100
-#: setting up one bus-rate row beyond its measurement (s; a 2-core VM), for the expected length
-BUS_ROW_SETUP_S = 0.25
+#: one bus-rate row takes about this × its measurement + BUS_ROW_SETUP_S (its warm-up, the
+#: emulator's start; a 2-core VM), for the expected length
+BUS_ROW_FACTOR = 1.6
+BUS_ROW_SETUP_S = 0.1
 
 
 @dataclass(frozen=True)
@@ -72,13 +74,14 @@ class BenchPlan:
     def expected_s(self) -> float:
         """About how long the whole command takes (s): the planned measurements plus the
         setting up around them, as measured on a 2-core VM (a slower host takes longer)."""
-        t = 2.0  # start, diagnosis, plots
+        t = 4.0  # start, diagnosis, plots
         if self.clock != "virtual":  # sleep only, cyclictest, the spin window: per rate
             runs = 1 + (1 if self.use_cyclictest else 0) + (1 if self.spin_us > 0 else 0)
             each = [max(MIN_LOOP_TICKS / r, self.loop_duration_s) for r in self.loop_rates_hz]
             t += runs * sum(each)
         rows = max(1, len(self.sweep)) * 2
-        t += rows * (self.bus_duration_s + BUS_ROW_SETUP_S) + self.latency_duration_s + 1.0
+        t += rows * (BUS_ROW_FACTOR * self.bus_duration_s + BUS_ROW_SETUP_S)
+        t += self.latency_duration_s + 1.0
         return t + self.host_s
 
 

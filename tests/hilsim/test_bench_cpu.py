@@ -78,6 +78,15 @@ def test_it_runs_only_for_the_built_in_emulator_on_the_real_clock():
         assert for_bench(a, None, print) is None  # returns before measuring anything
 
 
+def test_quick_leaves_it_to_the_full_run_and_says_so():
+    from hilsim.bench.report import BenchReport
+
+    report = BenchReport(command="x", quick=True, subject="t")
+    a = argparse.Namespace(config=None, port=None, clock="real", quick=True)
+    assert for_bench(a, report, print) is None
+    assert report.notes == ["CPU per cycle over a pty: measured by the full run, not --quick"]
+
+
 def test_the_clock_measurement_waits_for_every_deadline_with_the_slack_asked_for(monkeypatch):
     """measure_waits on a simulated clock (nothing sleeps): one wait per deadline, the
     lateness each returned, and the timer slack in force while it waited."""
