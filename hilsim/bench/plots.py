@@ -52,7 +52,9 @@ def plot_lateness(loop: LoopResult, path: str | Path) -> Path:
     bins = np.logspace(np.log10(max(min(ours.min(), 0.5), 1e-3)), np.log10(hi), 80)
 
     fig, ax = plt.subplots(figsize=(9, 4.8), layout="constrained")
-    ax.hist(ours, bins=bins, color=OURS_COLOR, alpha=0.75, label=f"ours ({loop.ours.sched})")
+    ax.hist(
+        ours, bins=bins, color=OURS_COLOR, alpha=0.75, label=f"ours, sleep only ({loop.ours.sched})"
+    )
     ax.axvline(loop.ours.stats.p99_us, color=OURS_COLOR, ls="--", lw=1.5)
     ax.text(
         loop.ours.stats.p99_us,
@@ -90,7 +92,7 @@ def plot_lateness(loop: LoopResult, path: str | Path) -> Path:
     ax.set_ylabel("ticks")
     n = loop.ours.stats.ticks
     ax.set_title(
-        f"Tick lateness at {loop.ours.rate_hz:g} Hz, {n} ticks: ours sleeping only (spin "
+        f"Tick lateness at {loop.ours.rate_hz:g} Hz, {n} ticks\nours sleeping only (spin "
         f"window 0, CPU {loop.ours.cpu_percent:.0f} % of a core) beside cyclictest"
     )
     ax.legend(loc="upper right", bbox_to_anchor=(1.0, 0.62))
