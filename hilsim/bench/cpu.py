@@ -33,7 +33,7 @@ import time
 from collections.abc import Callable, Iterator
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 from hilsim._types import JsonDict
 from hilsim.bench.report import EMULATED
@@ -208,6 +208,27 @@ def _hilsim_port(path: str) -> PortHandler:
     return Link.open(path, baud=BAUD).port  # as a show opens it
 
 
+#: how long a port waits for a late reply to drain before it asks again (s)
+DRAIN_S = 0.05
+
+
+def first_read(bb: Any, port: Any, tries: int = 3) -> dict[int, int]:
+    """The servos' positions through a port just opened, asked again (up to ``tries``) after
+    draining it: on a loaded host the previous port may have given up on a reply that
+    arrives now, and its bytes would spoil the first read. Raises the last BenchError."""
+    from drivers.dynamixel.bench_session import BenchError
+
+    for attempt in range(tries):
+        try:
+            return dict(bb.read_positions(IDS))
+        except BenchError:
+            if attempt == tries - 1:
+                raise
+            time.sleep(DRAIN_S)
+            port.clearPort()
+    raise AssertionError("unreachable")  # (tries >= 1)
+
+
 class _Cycler:
     """One port, the SDK's group objects built once: :meth:`run` times ``cycles`` cycles."""
 
@@ -217,7 +238,7 @@ class _Cycler:
 
         self.port = port
         bb = BenchBus(port, Link(port).ph, port.port_name, BAUD)
-        goals = bb.read_positions(IDS)  # written back: the servos do not move (torque off)
+        goals = first_read(bb, port)  # written back: the servos do not move (torque off)
         self.tx, self.rx = bb.goal_writer(goals).txPacket, bb.position_reader(IDS).fastSyncRead
 
     def run(self, cycles: int) -> tuple[float, float, int]:

@@ -7,6 +7,8 @@ from __future__ import annotations
 import argparse
 import json
 
+import pytest
+
 from hilsim.bench.cpu import CpuResult, CycleCpu, DemoCpu, WaitCpu, add_to_bench, for_bench
 
 
@@ -112,3 +114,34 @@ def test_the_clock_measurement_waits_for_every_deadline_with_the_slack_asked_for
     assert slack == [1, 50_000]  # set for the waits, then restored
     # woke 20 µs before each deadline (50 - 30), spun the rest: on time to a microsecond
     assert 0.0 <= w.lateness_p50_us <= 1.0 and w.lateness_max_us <= 1.0
+
+
+def test_the_first_read_drains_a_late_reply_and_asks_again(monkeypatch):
+    """A loaded host: the previous port gave up on a reply that arrives as the next port
+    opens. The first read asks again after draining, rather than drop the whole section."""
+    from drivers.dynamixel.bench_session import BenchError
+    from hilsim.bench import cpu
+
+    monkeypatch.setattr(cpu, "DRAIN_S", 0.0)
+
+    class Bus:
+        def __init__(self, fails: int) -> None:
+            self.fails = fails
+
+        def read_positions(self, ids):
+            if self.fails:
+                self.fails -= 1
+                raise BenchError("Incorrect status packet!")
+            return {i: 2048 for i in ids}
+
+    class Port:
+        cleared = 0
+
+        def clearPort(self):
+            self.cleared += 1
+
+    port = Port()
+    assert cpu.first_read(Bus(2), port) == {1: 2048, 2: 2048, 3: 2048, 4: 2048}
+    assert port.cleared == 2
+    with pytest.raises(BenchError, match="Incorrect status packet"):  # the bench's to report
+        cpu.first_read(Bus(3), Port())
