@@ -115,6 +115,12 @@ class Fault:
             raise FaultSpecError(
                 f"{self.kind}: bits must be 1..255 or one of {names}, got {self.bits}"
             )
+        if self.kind is FaultKind.UNPLUG and self.ids is not None:
+            given = ",".join(str(i) for i in sorted(self.ids))
+            raise FaultSpecError(
+                f"{self.kind}: the USB adapter goes for every servo; it takes no id= "
+                f"(got id={given})"
+            )
         if (
             self.is_event
             and self.kind is not FaultKind.UNPLUG

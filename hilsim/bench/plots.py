@@ -1,9 +1,12 @@
 """The bench's figures (PNG). matplotlib is imported inside each function, never at import.
 
-* ``lateness.png``: distribution of tick lateness, ours vs cyclictest, p99 of each marked;
+* ``lateness.png``: distribution of tick lateness, ours sleeping only (spin window 0) vs
+  cyclictest, p99 of each marked;
 * ``bus_rate.png``: achieved cycle rate vs servo count beside the wire model, plain and Fast,
   one panel per baud rate;
 * ``step.png``: the step response the command-to-motion figures come from.
+
+Figures measured on the built-in emulator say so in their titles (:data:`EMULATED`).
 """
 
 from __future__ import annotations
@@ -17,7 +20,7 @@ import numpy as np
 from drivers.protocol2.wire_time import cycle_rate_hz
 from hilsim.bench.busrate import BusRate
 from hilsim.bench.latency import FRACTION_63, LatencyResult
-from hilsim.bench.report import LoopResult
+from hilsim.bench.report import EMULATED, LoopResult
 
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
@@ -49,7 +52,9 @@ def plot_lateness(loop: LoopResult, path: str | Path) -> Path:
     bins = np.logspace(np.log10(max(min(ours.min(), 0.5), 1e-3)), np.log10(hi), 80)
 
     fig, ax = plt.subplots(figsize=(9, 4.8), layout="constrained")
-    ax.hist(ours, bins=bins, color=OURS_COLOR, alpha=0.75, label=f"ours ({loop.ours.sched})")
+    ax.hist(
+        ours, bins=bins, color=OURS_COLOR, alpha=0.75, label=f"ours, sleep only ({loop.ours.sched})"
+    )
     ax.axvline(loop.ours.stats.p99_us, color=OURS_COLOR, ls="--", lw=1.5)
     ax.text(
         loop.ours.stats.p99_us,
@@ -87,8 +92,8 @@ def plot_lateness(loop: LoopResult, path: str | Path) -> Path:
     ax.set_ylabel("ticks")
     n = loop.ours.stats.ticks
     ax.set_title(
-        f"Tick lateness at {loop.ours.rate_hz:g} Hz, {n} ticks "
-        f"(CPU {loop.ours.cpu_percent:.0f} % of a core)"
+        f"Tick lateness at {loop.ours.rate_hz:g} Hz, {n} ticks\nours sleeping only (spin "
+        f"window 0, CPU {loop.ours.cpu_percent:.0f} % of a core) beside cyclictest"
     )
     ax.legend(loc="upper right", bbox_to_anchor=(1.0, 0.62))
     ax.grid(True, which="major", alpha=0.3)
@@ -156,9 +161,10 @@ def plot_bus_rate(rows: list[BusRate], path: str | Path) -> Path:
         ax.set_title(f"{baud / 1e6:g} Mbps" if baud >= 1e6 else f"{baud} bps")
         ax.grid(True, which="both", alpha=0.3)
         ax.legend(fontsize=8, loc="upper right")
+    emulated = f"{EMULATED}\n" if r0.port.startswith("dxlsim") else ""  # its own line
     fig.suptitle(
-        f"Bus cycle rate vs wire-time model (RDT {r0.return_delay_us:g} µs, turnaround "
-        f"{r0.turnaround_us:g} µs, latency timer {r0.latency_timer_ms:g} ms; "
+        f"{emulated}Bus cycle rate vs wire-time model\n(RDT {r0.return_delay_us:g} µs, turnaround "
+        f"{r0.turnaround_us:g} µs,\nlatency timer {r0.latency_timer_ms:g} ms; "
         "labels: achieved / model)"
     )
     return _save(fig, path, plt)
@@ -170,8 +176,9 @@ def _minor_label(y: float, _pos: int | None) -> str:
     return f"{y:,.0f}" if round(lead) in (2, 3, 5) else ""
 
 
-def plot_step(lat: LatencyResult, path: str | Path) -> Path | None:
-    """Present Position around the goal step, with the motion-start and 63 % marks."""
+def plot_step(lat: LatencyResult, path: str | Path, emulated: bool = False) -> Path | None:
+    """Present Position around the goal step, with the motion-start and 63 % marks
+    (``emulated``: the title says the servo is the emulator's)."""
     if lat.step_tick is None:
         return None
     plt = _pyplot()
@@ -201,7 +208,8 @@ def plot_step(lat: LatencyResult, path: str | Path) -> Path | None:
     ax.set_xlabel("time from the step tick's start (ms); samples at the servos' reply")
     ax.set_ylabel("position (pulses)")
     ax.set_title(
-        f"Command to motion: {lat.step_pulses:+d}-pulse goal step at {lat.rate_hz:g} Hz "
+        (f"{EMULATED}\n" if emulated else "")  # its own line: the title stays in the figure
+        + f"Command to motion: {lat.step_pulses:+d}-pulse goal step at {lat.rate_hz:g} Hz "
         f"(servo ID {lat.ids[0]})"
     )
     ax.grid(True, alpha=0.3)

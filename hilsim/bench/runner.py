@@ -1,8 +1,10 @@
 """What the bench measures (a :class:`BenchPlan`) and running it into a :class:`BenchReport`.
 
-Order: loop timing first (nothing else running in this process), then the diagnosis of the
-bus under test (its facts also say whether Fast Sync Read exists), the bus-rate rows, and
-the latency loop. Progress lines go to ``progress`` (stderr in the CLI).
+Order: loop timing first (nothing else running in this process): the loop sleeping only
+(spin window 0), cyclictest right after it (like with like: both sleep), then the loop with
+its spin window, apart; then the diagnosis of the bus under test (its facts also say
+whether Fast Sync Read exists), the bus-rate rows, and the latency loop. Progress lines go
+to ``progress`` (stderr in the CLI).
 """
 
 from __future__ import annotations
@@ -23,6 +25,10 @@ from hilsim.bench.sched import DEFAULT_PRIORITY, SCHED_FIFO, measure_scheduler
 DEFAULT_SERVO_COUNTS = (1, 4, 8, 16)
 DEFAULT_EMULATOR_BAUDS = (1_000_000, 4_000_000)
 MIN_LOOP_TICKS = 100
+#: one bus-rate row takes about this × its measurement + BUS_ROW_SETUP_S (its warm-up, the
+#: emulator's start; a 2-core VM), for the expected length
+BUS_ROW_FACTOR = 1.6
+BUS_ROW_SETUP_S = 0.1
 
 
 @dataclass(frozen=True)
@@ -61,6 +67,22 @@ class BenchPlan:
     subject: str = "the built-in emulator (dxlsim, real clock)"
     rig_rate_hz: float | None = None
     command: str = "hilsim bench"
+    #: how long the sections the CLI runs after the bus side take (s): the tick cost, and
+    #: CPU over a pty (for the expected length only)
+    host_s: float = 0.0
+
+    def expected_s(self) -> float:
+        """About how long the whole command takes (s): the planned measurements plus the
+        setting up around them, as measured on a 2-core VM (a slower host takes longer)."""
+        t = 4.0  # start, diagnosis, plots
+        if self.clock != "virtual":  # sleep only, cyclictest, the spin window: per rate
+            runs = 1 + (1 if self.use_cyclictest else 0) + (1 if self.spin_us > 0 else 0)
+            each = [max(MIN_LOOP_TICKS / r, self.loop_duration_s) for r in self.loop_rates_hz]
+            t += runs * sum(each)
+        rows = max(1, len(self.sweep)) * 2
+        t += rows * (BUS_ROW_FACTOR * self.bus_duration_s + BUS_ROW_SETUP_S)
+        t += self.latency_duration_s + 1.0
+        return t + self.host_s
 
 
 def run_bench(plan: BenchPlan, progress: Callable[[str], None] = lambda _s: None) -> BenchReport:
@@ -68,6 +90,7 @@ def run_bench(plan: BenchPlan, progress: Callable[[str], None] = lambda _s: None
     report = BenchReport(
         command=plan.command, quick=plan.quick, subject=plan.subject, rig_rate_hz=plan.rig_rate_hz
     )
+    progress(f"expected to take about {plan.expected_s():.0f} s")
     if plan.clock == "virtual":
         report.notes.append("virtual clock: loop timing skipped; bus figures are the model's")
     else:
@@ -75,7 +98,7 @@ def run_bench(plan: BenchPlan, progress: Callable[[str], None] = lambda _s: None
 
     t = plan.target or BusTarget(emulator_url((1, 2, 3, 4), 1_000_000, clock=plan.clock), 1_000_000)
     with open_bus(t.url, t.baud, clock=plan.clock) as bb:
-        emulated = bb.emulated
+        emulated = report.emulated = bb.emulated
         ids = t.ids or tuple(bb.discover_ids())
         progress(f"diagnosing {t.url} ({len(ids)} servo(s) at {t.baud} bps)")
         report.diagnosis = diagnose(gather_facts(bb, ids))
@@ -141,13 +164,9 @@ def _loops(plan: BenchPlan, report: BenchReport, progress: Callable[[str], None]
         )
     for rate in plan.loop_rates_hz:
         ticks = max(MIN_LOOP_TICKS, round(plan.loop_duration_s * rate))
-        progress(f"loop timing at {rate:g} Hz ({ticks / rate:.1f} s)")
+        progress(f"loop timing at {rate:g} Hz, sleep only ({ticks / rate:.1f} s)")
         ours = measure_scheduler(
-            MonotonicClock(spin_s=plan.spin_us * 1e-6),
-            rate,
-            ticks,
-            sched=plan.sched,
-            priority=plan.priority,
+            MonotonicClock(spin_s=0.0), rate, ticks, sched=plan.sched, priority=plan.priority
         )
         ct = None
         if ct_path is not None:
@@ -163,7 +182,18 @@ def _loops(plan: BenchPlan, report: BenchReport, progress: Callable[[str], None]
                 report.notes.append(
                     f"cyclictest ran in {ct.sched}, ours in {ours.sched}: not the same class"
                 )
-        report.loops.append(LoopResult(ours, ct, ct_path is not None or not plan.use_cyclictest))
+        spin = None
+        if plan.spin_us > 0:
+            progress(f"loop timing at {rate:g} Hz, spin window {plan.spin_us:g} µs")
+            spin = measure_scheduler(
+                MonotonicClock(spin_s=plan.spin_us * 1e-6),
+                rate,
+                ticks,
+                sched=plan.sched,
+                priority=plan.priority,
+            )
+        installed = ct_path is not None or not plan.use_cyclictest
+        report.loops.append(LoopResult(ours, ct, installed, spin))
 
 
 __all__ = ["BenchError", "BenchPlan", "BusTarget", "run_bench"]

@@ -13,6 +13,7 @@ from collections.abc import Callable
 from typing import TextIO
 
 from hilsim._types import JsonDict
+from hilsim.show.monitors import STALL_EVENT_S
 
 #: a show that completes with more than this share of overrunning ticks, or of failed reads,
 #: ends with a verdict line saying so (the exit code stays 0: the show did go on)
@@ -113,11 +114,15 @@ def print_stats(summary: JsonDict) -> None:
         return "n/a" if value is None else f"{value:.0f} us"
 
     stalls = loop.get("host_stalls") or {}
+    n_stalls, max_ms = stalls.get("count", 0), stalls.get("max_ms", 0)
+    event_ms = STALL_EVENT_S * 1e3
+    # a stall shorter than the event threshold is counted here but has no events.jsonl line
+    quiet = f", each under {event_ms:g} ms: no event" if n_stalls and max_ms < event_ms else ""
     print(
         f"  lateness p50 {us('p50')}, p99 {us('p99')}, max {us('max')}; "
         f"overruns {summary.get('overruns', 0)}; "
         f"comm errors {comm_errors(summary)}; "
-        f"host stalls {stalls.get('count', 0)} (max {stalls.get('max_ms', 0):.0f} ms)"
+        f"host stalls {n_stalls} (max {max_ms:.0f} ms{quiet})"
         + (f"; watchdog recoveries {loop['recoveries']}" if loop.get("recoveries") else ""),
         file=sys.stderr,
     )

@@ -1,14 +1,18 @@
 """``hilsim bench [CONFIG | --port P] [--quick] [--json FILE] [--out DIR]``.
 
-"Why does my loop only reach 60 Hz?" in one command: the tick scheduler's lateness (beside
-cyclictest when installed), the bus's achieved write+read cycle rate beside its wire-time
-model, command/feedback latencies, a diagnosis of the bus with the fix for each problem
-and the rate it would give, and the host's cost of one whole tick beside a bare
-dynamixel-sdk Sync Write + Fast Sync Read cycle (4, 8, 16 servos; :mod:`hilsim.bench.tick`).
+"Why does my loop only reach 60 Hz?" in one command: the tick scheduler's lateness sleeping
+only, beside cyclictest when installed (like with like), then with its spin window and
+that window's CPU; the bus's achieved write+read cycle rate beside its wire-time model,
+command/feedback latencies, a diagnosis of the bus with the fix for each problem and the
+rate it would give, and the host's cost of one whole tick beside a bare dynamixel-sdk Sync
+Write + Fast Sync Read cycle (4, 8, 16 servos; :mod:`hilsim.bench.tick`). One report, in
+that order, then notes, files and the verdict last; the run says its expected length first.
 
 Without CONFIG or --port the bus side runs on the built-in emulator on the real clock (1, 4,
-8 and 16 servos at 1 and 4 Mbps). With a rig file it measures that rig's bus and loop rate;
-``--port`` measures any port (``/dev/ttyUSB0``, a pty, ``dxlsim://?...``).
+8 and 16 servos at 1 and 4 Mbps; 4 and 16 with ``--quick``, which also leaves the CPU over a
+pty to the full run), and says so: those figures are the host's overhead only. With a rig
+file it measures that rig's bus and loop rate; ``--port`` measures any port
+(``/dev/ttyUSB0``, a pty, ``dxlsim://?...``).
 
 Exit codes (:mod:`hilsim.exit_codes`): 0 measured; 2 a bad value, a rig that cannot be
 loaded, or a bus that cannot be used (nothing was measured).
@@ -33,6 +37,12 @@ if TYPE_CHECKING:  # the bench is imported when it runs
 HELP = "measure loop timing, bus rate and latency beside the physical limit; diagnose the bus"
 #: the scheduler's spin window without a rig (µs)
 _SPIN_US = round(DEFAULT_SPIN_S * 1e6, 6)
+#: how long the tick cost and the CPU over a pty take (s; quick, full), measured on a 2-core
+#: VM: the expected length said at the start
+TICK_COST_S = {True: 3.0, False: 12.0}
+PTY_CPU_S = {True: 0.0, False: 22.0}
+#: what ``--quick`` takes on this project's 2-core VM (s), as --help and the README say
+QUICK_S = 20
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -40,7 +50,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_port(parser, help="port to measure instead (or overriding the rig's)")
     add_baud(parser, help="baud rate with --port, e.g. 1M (default: the URL's, else 1000000)")
     add_ids(parser, help="servo IDs with --port, e.g. 1-4 (default: discover)")
-    parser.add_argument("--quick", action="store_true", help="short runs (~20 s in all)")
+    parser.add_argument(
+        "--quick", action="store_true", help=f"short runs (~{QUICK_S} s in all on a 2-core VM)"
+    )
     parser.add_argument(
         "--json", metavar="FILE", help="write the JSON here (default OUT/bench.json)"
     )
@@ -75,7 +87,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="clock of emulated buses: virtual reproduces the wire model exactly "
         "(loop timing is skipped)",
     )
-    parser.add_argument("--servos", default="1,4,8,16", help="emulator sweep: servo counts")
+    parser.add_argument(
+        "--servos", help="emulator sweep: servo counts (default 1,4,8,16; 4,16 with --quick)"
+    )
     parser.add_argument("--bauds", default="1000000,4000000", help="emulator sweep: baud rates")
 
 
@@ -84,10 +98,12 @@ def build_plan(args: argparse.Namespace, argv_text: str = "hilsim bench") -> Ben
     from hilsim.bench.runner import BenchPlan, BusTarget
 
     quick = bool(args.quick)
+    pty = not (args.config or args.port or quick) and args.clock == "real"  # CPU over a pty
     common = dict(
+        host_s=TICK_COST_S[quick] + (PTY_CPU_S[quick] if pty else 0.0),
         quick=quick,
         clock=args.clock,
-        loop_duration_s=2.0 if quick else 10.0,
+        loop_duration_s=1.5 if quick else 10.0,
         spin_us=_SPIN_US if args.spin_us is None else args.spin_us,
         sched=args.sched,
         priority=args.priority,
@@ -126,7 +142,8 @@ def build_plan(args: argparse.Namespace, argv_text: str = "hilsim bench") -> Ben
             latency_rate_hz=args.rate or 500.0,
             subject=f"{args.port} at {baud} bps",
         )
-    counts = [int(x) for x in args.servos.split(",") if x.strip()]
+    servos = args.servos or ("4,16" if quick else "1,4,8,16")
+    counts = [int(x) for x in servos.split(",") if x.strip()]
     bauds = [int(x) for x in args.bauds.split(",") if x.strip()]
     return BenchPlan(
         **common,
@@ -161,25 +178,36 @@ def run(args: argparse.Namespace) -> int:
     except BenchError as exc:  # the bus cannot be used: nothing was measured
         return usage_error("bench", exc)
     from hilsim.bench import cpu as cpu_bench  # CPU per cycle over a pty: SDK vs hilsim
-
-    cpu = cpu_bench.for_bench(args, report, progress)
     from hilsim.bench import tick as tick_bench  # host CPU of a tick: bare SDK cycle vs hilsim
+    from hilsim.bench.report import _finite
 
-    tick_cost = tick_bench.measure_tick_cost(quick=bool(args.quick), progress=progress)
+    quick = bool(args.quick)  # --quick: the ticks' totals, not where their time goes
+    tick_cost = tick_bench.measure_tick_cost(quick=quick, stages=not quick, progress=progress)
+    report.sections.append(tick_cost.text())
+    report.extra["tick_cost"] = _finite(tick_cost.as_dict())
+    cpu = cpu_bench.for_bench(args, report, progress)
+    if cpu is not None:
+        report.sections.append(cpu.text())
+        report.extra["cpu"] = _finite(cpu.as_dict())
     out.mkdir(parents=True, exist_ok=True)
     if not args.no_plots:
         progress("plotting")
         report.files += _plots(report, out)
     json_path = Path(args.json) if args.json else out / "bench.json"
     report.files.insert(0, str(json_path))
-    report.notes.append(f"whole command: {time.perf_counter() - t_start:.1f} s wall time")
+    report.notes.append(
+        f"whole command: {time.perf_counter() - t_start:.1f} s wall time (expected about "
+        f"{plan.expected_s():.0f} s); load average {_load()}"
+    )
     report.write_json(json_path)
     print(report.text(), end="")
-    print(tick_cost.text(), end="")
-    tick_cost.add_to_json(json_path)
-    if cpu is not None:
-        cpu_bench.add_to_bench(cpu, json_path)
     return int(ExitCode.OK)
+
+
+def _load() -> str:
+    import os
+
+    return " ".join(f"{x:.2f}" for x in os.getloadavg()) if hasattr(os, "getloadavg") else "n/a"
 
 
 def _plots(report: BenchReport, out: Path) -> list[str]:
@@ -191,7 +219,7 @@ def _plots(report: BenchReport, out: Path) -> list[str]:
     if report.bus:
         files.append(plots.plot_bus_rate(report.bus, out / "bus_rate.png"))
     if report.latency is not None:
-        step = plots.plot_step(report.latency, out / "step.png")
+        step = plots.plot_step(report.latency, out / "step.png", emulated=report.emulated)
         if step is not None:
             files.append(step)
     return [str(f) for f in files]

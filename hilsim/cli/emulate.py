@@ -6,6 +6,7 @@ SIGINT/SIGTERM. Any serial program (dynamixel-sdk's own PortHandler, Dynamixel W
 under Wine, a terminal) can open that path. The defaults serve the demo figure as
 ``configs/demo.toml``'s own emulated bus has it (IDs 1-4, XM430-W350, 1 Mbps, Return
 Delay Time 0): ``hilsim emulate``, then ``hilsim run configs/demo.toml --port /dev/pts/N``.
+Any other bus is told a ``hilsim scan`` of itself and the rig it needs, not the demo.
 
 The servos answer only a client whose line speed is theirs (``--baud``; after a write of
 Baud Rate(8) or a Factory Reset, their new rate), as on a wire: the client's speed is read
@@ -22,7 +23,9 @@ from types import FrameType
 
 from drivers.dxlsim.pty_server import PtyServer
 from drivers.dxlsim.url import DEFAULT_HOST_BAUD, DxlsimUrl
+from drivers.p1bus.table import Protocol, protocol_of
 from drivers.protocol1.control_table import TABLES as P1_TABLES
+from drivers.protocol2.ids import format_ids
 from drivers.protocol2.wire_time import PTY_LATENCY_MS
 from hilsim.cli._args import add_baud, add_ids, parse_baud, usage_error
 from hilsim.exit_codes import ExitCode
@@ -89,13 +92,39 @@ def url_from_args(args: argparse.Namespace) -> DxlsimUrl:
     return BASE.replace(**given)
 
 
+def demo_fits(url: DxlsimUrl, baud: int) -> bool:
+    """Whether ``configs/demo.toml`` can run on this bus: its IDs, model, Return Delay Time
+    and baud rate are the demo's (any other and its start-up check refuses)."""
+    return (url.ids, url.model, url.rdt_us, baud) == (
+        BASE.ids,
+        BASE.model,
+        BASE.rdt_us,
+        DEFAULT_HOST_BAUD,
+    )
+
+
 def usage_lines(path: str, args: argparse.Namespace) -> str:
-    """What to give a host to use this pty: ``--port`` and a rig's ``[bus]`` lines."""
+    """What to give a host to use this pty: ``--port``, a command that fits this bus (the
+    demo only where it can run) and a rig's ``[bus]`` lines."""
     latency = PTY_LATENCY_MS + getattr(args, "latency_ms", BASE.latency_ms)
+    url = url_from_args(args)
+    if demo_fits(url, args.baud):
+        example = [f"  e.g. hilsim run configs/demo.toml --port {path}"]
+    else:
+        ids = format_ids(url.ids)
+        proto = {Protocol.DXL1: " --protocol 1.0", Protocol.FEETECH: " --protocol feetech"}
+        flag = proto.get(protocol_of(url.model) or Protocol.DXL2, "")
+        example = [
+            f"  e.g. hilsim scan --port {path} --baud {args.baud} --ids {ids}{flag}"
+            "   (what answers)",
+            f'  then a rig of your own: servo_id {ids}, model = "{url.model}", baud = {args.baud}',
+            f"  (configs/demo.toml expects IDs {format_ids(BASE.ids)}, {BASE.model}, "
+            f"{DEFAULT_HOST_BAUD} bps, Return Delay {BASE.rdt_us:g} µs: it cannot run here)",
+        ]
     return "\n".join(
         (
             f"--port {path}",
-            f"  e.g. hilsim run configs/demo.toml --port {path}",
+            *example,
             "  or in a rig file:",
             "[bus]",
             f'port = "{path}"',

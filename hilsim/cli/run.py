@@ -340,10 +340,11 @@ def _report(
     show_s = show.ticks / rig.loop.rate_hz
     x = show_s / show.wall_s if virtual and show.wall_s > 0 else None
     pace = "" if x is None else f": {x:.0f}× real time" if x >= 10 else f": {x:.2g}× real time"
-    _say(
-        f"{show.reason} after {show.ticks} ticks "
-        f"({show_s:.2f} s of show in {show.wall_s:.2f} s{pace}); {show.exit_policy}"
-    )
+    when = f"{show.ticks} ticks ({show_s:.2f} s of show in {show.wall_s:.2f} s{pace})"
+    if show.reason.startswith(("end of show", "stopped by", "interrupted")):
+        _say(f"{show.reason} after {when}; {show.exit_policy}")
+    else:  # a fault's sentences end with what to do: the tick count must not follow them
+        _say(f"stopped after {when}: {show.reason}; {show.exit_policy}")
     print_stats(summary)
     tel = summary.get("telemetry") or {}
     how = (

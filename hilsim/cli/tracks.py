@@ -133,9 +133,11 @@ def _preview(args: argparse.Namespace, shows: list[tuple[Rig, Parts]]) -> int:
     for i, name in enumerate(p.joints):
         count = int(p.clamped[:, i].sum())
         if count:
+            which = p.limits_text(i)
             _say(
                 f"{name}: the safety filter would change the command on {count} tick(s) "
                 f"after the {rig.safety.soft_start_s:g} s soft start"
+                + (f": {which}" if which else "")
             )
     out = Path(args.out) if args.out else Path(rig.telemetry.out_dir) / f"{rig.name}-tracks.png"
     title = f"{rig.name}: targets through the springs and safety filter"

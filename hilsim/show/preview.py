@@ -32,6 +32,8 @@ if TYPE_CHECKING:  # matplotlib is imported when a preview is plotted, not befor
 CLAMP_TOLERANCE_RAD = 1e-9
 #: the longest preview, in ticks (a 10-minute show at 1 kHz)
 MAX_PREVIEW_TICKS = 600_001
+#: the safety filter's counters the preview names (the others are faults, not limits)
+ACTED_KINDS = ("position", "speed", "brake", "accel")
 
 
 @dataclass(frozen=True)
@@ -52,6 +54,46 @@ class Preview:
     soft_start_s: float = 0.0
     #: each joint's bus, for a rig with several ``[buses.<name>]`` (empty: one bus)
     buses: tuple[str, ...] = ()
+    #: per joint, how many ticks after the soft start each limit acted (position, speed,
+    #: accel, brake: the safety filter's counters), and each joint's speed and acceleration
+    #: limits (deg/s, deg/s²)
+    acted: tuple[dict[str, int], ...] = ()
+    max_speed_deg_s: tuple[float, ...] = ()
+    max_accel_deg_s2: tuple[float, ...] = ()
+
+    def limits_text(self, i: int) -> str:
+        """Which limits acted on joint ``i`` after the soft start (most often first), each with
+        the figure the spring asked and the key to change: "" when none did."""
+        acted = self.acted[i] if self.acted else {}
+        speed = acted.get("speed", 0) + acted.get("brake", 0)  # the brake is the speed's
+        counts = {"position": acted.get("position", 0), "speed": speed}
+        counts["accel"] = acted.get("accel", 0)
+        period = float(self.t[1] - self.t[0]) if len(self.t) > 1 else 1.0
+        x = self.spring_deg[self.t >= self.soft_start_s, i]
+        said = []
+        for kind in sorted((k for k, n in counts.items() if n), key=lambda k: -counts[k]):
+            if kind == "position":
+                lo, hi = self.min_deg[i], self.max_deg[i]
+                under, over = lo - float(x.min(initial=lo)), float(x.max(initial=hi)) - hi
+                side, by, limit = ("min", under, lo) if under >= over else ("max", over, hi)
+                said.append(
+                    f"position (the spring goes {by:.2g}° beyond {side}_deg {limit:g}°: keep "
+                    f"the target off the limit, raise damping_ratio, or widen {side}_deg)"
+                )
+            elif kind == "speed" and self.max_speed_deg_s:
+                v = float(np.abs(np.diff(x)).max(initial=0.0)) / period
+                said.append(
+                    f"speed (the spring asks up to {v:.0f}°/s of max_speed_deg_s "
+                    f"{self.max_speed_deg_s[i]:g}: raise it within the servo's, or slow the "
+                    "motion)"
+                )
+            elif kind == "accel" and self.max_accel_deg_s2:
+                a = float(np.abs(np.diff(x, 2)).max(initial=0.0)) / period**2
+                said.append(
+                    f"accel (the spring asks up to {a:.0f}°/s² of max_accel_deg_s2 "
+                    f"{self.max_accel_deg_s2[i]:g}: raise it, or lower frequency_hz)"
+                )
+        return "; ".join(said)
 
 
 def combine(previews: Sequence[Preview], buses: Sequence[str]) -> Preview:
@@ -71,6 +113,9 @@ def combine(previews: Sequence[Preview], buses: Sequence[str]) -> Preview:
         max_deg=tuple(v for p in previews for v in p.max_deg),
         soft_start_s=first.soft_start_s,
         buses=tuple(bus for p, bus in zip(previews, buses, strict=True) for _ in p.joints),
+        acted=tuple(a for p in previews for a in p.acted),
+        max_speed_deg_s=tuple(v for p in previews for v in p.max_speed_deg_s),
+        max_accel_deg_s2=tuple(v for p in previews for v in p.max_accel_deg_s2),
     )
 
 
@@ -115,8 +160,12 @@ def preview(parts: Parts, duration_s: float) -> Preview:
     target = np.empty((ticks, n))
     spring = np.empty((ticks, n))
     out = np.empty((ticks, n))
+    soft = math.ceil(rig.safety.soft_start_s / period - 1e-9)
+    before = parts.safety.counters.by_kind()
     for k in range(ticks):  # the loop's tick without the bus
         t = k * period
+        if k == soft:  # the limits' counts after the soft start, as `clamped` marks them
+            before = parts.safety.counters.by_kind()
         stepper.command()
         spring[k] = x
         out[k] = buffers.cmd
@@ -124,8 +173,12 @@ def preview(parts: Parts, duration_s: float) -> Preview:
         target[k] = u
         stepper.advance(t, first)
     clamped = np.abs(out - spring) > CLAMP_TOLERANCE_RAD
-    soft = math.ceil(rig.safety.soft_start_s / period - 1e-9)
     clamped[:soft] = False  # the soft start's blend, not a limit
+    counts = parts.safety.counters.by_kind() if ticks > soft else before
+    acted = tuple(
+        {kind: counts[kind][name] - before[kind][name] for kind in ACTED_KINDS}
+        for name in rig.joint_names
+    )
     return Preview(
         joints=tuple(rig.joint_names),
         t=np.arange(ticks, dtype=np.float64) * period,
@@ -136,6 +189,9 @@ def preview(parts: Parts, duration_s: float) -> Preview:
         min_deg=tuple(math.degrees(j.min_rad) for j in rig.joints),
         max_deg=tuple(math.degrees(j.max_rad) for j in rig.joints),
         soft_start_s=rig.safety.soft_start_s,
+        acted=acted,
+        max_speed_deg_s=tuple(math.degrees(j.max_speed_rad_s) for j in rig.joints),
+        max_accel_deg_s2=tuple(math.degrees(j.max_accel_rad_s2) for j in rig.joints),
     )
 
 
@@ -167,10 +223,19 @@ def plot_preview(p: Preview, path: Path, title: str, dpi: int = 110) -> Path:
     for ax in axes:  # one legend for every panel's lines, on the first
         for handle, label in zip(*ax.get_legend_handles_labels(), strict=True):
             legend.setdefault(label, handle)
-    axes[0].legend(legend.values(), legend.keys(), loc="upper right", fontsize="small", ncols=4)
+    # above the first panel, outside every axes: a legend never covers the curves
+    axes[0].legend(
+        legend.values(),
+        legend.keys(),
+        loc="lower right",
+        bbox_to_anchor=(1.0, 1.0),
+        fontsize="small",
+        ncols=5,
+        frameon=False,
+    )
     axes[-1].set_xlabel("show time (s)")
     height = fig.get_figheight()  # margins in inches: a figure of many joints is tall
     fig.subplots_adjust(
-        left=0.1, right=0.98, top=1 - 0.6 / height, bottom=0.55 / height, hspace=0.25
+        left=0.1, right=0.98, top=1 - 0.85 / height, bottom=0.55 / height, hspace=0.25
     )
     return save(fig, path, dpi)

@@ -40,6 +40,7 @@ import numpy as np
 
 from hilsim.targets import FloatArray, TargetSet, Track
 from hilsim.targets.csv_file import CsvCurve
+from hilsim.targets.formats.common import AUDIO_JAW_SOURCE
 
 #: default span over which endless generators are checked (s)
 HORIZON_S = 60.0
@@ -84,6 +85,8 @@ class TrackWarning:
     worst_value: float
     total_s: float
     checked_s: float | None = None
+    #: what to change, for a speed warning (the audio jaw has its own knob)
+    fix: str = ""
 
     def __str__(self) -> str:
         of = "" if self.checked_s is None else f" of the first {_secs(self.checked_s)} s"
@@ -101,6 +104,7 @@ class TrackWarning:
         return (
             f"{self.joint}: {what} {_deg(first, limit)}{unit} at t = {_secs(self.first_t)} s "
             f"{verb} {key} {_deg(limit)}{unit} ({more}{_secs(self.total_s)} s {adj} in all{of})"
+            + (f": {self.fix}" if self.fix else "")
         )
 
 
@@ -248,6 +252,14 @@ def _check_one(
     for kind, limit, ex in (("min", lo, below), ("max", hi, above), ("speed", vmax, fast)):
         if ex.first is None or ex.worst is None:
             continue
+        fix = ""
+        if kind == "speed":
+            audio = str(getattr(track, "source", "")).endswith(AUDIO_JAW_SOURCE)
+            fix = (
+                "raise max_speed_deg_s (within the servo's), "
+                + ("lengthen attack_ms" if audio else "slow the animation")
+                + ", or accept it (the safety filter holds the joint to its limit)"
+            )
         out.append(
             TrackWarning(
                 joint=joint.name,
@@ -258,6 +270,7 @@ def _check_one(
                 worst_t=ex.worst[0],
                 worst_value=ex.worst[1],
                 total_s=ex.count * period_s,
+                fix=fix,
                 checked_s=checked_s,
             )
         )

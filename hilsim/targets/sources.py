@@ -24,11 +24,14 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Hashable, Mapping
 from pathlib import Path
-from typing import Any, TypeVar
+from typing import TYPE_CHECKING, Any, TypeVar
 
 from hilsim.dynamics.springs import Spring
-from hilsim.targets.formats.common import UnitMap
+from hilsim.targets.formats.common import FormatError, UnitMap
 from hilsim.targets.tracks import Track
+
+if TYPE_CHECKING:
+    from hilsim.targets.formats.bottango import BottangoExport
 
 #: per source type: (required keys, optional keys), besides "type"
 SOURCE_KEYS: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = {
@@ -175,6 +178,7 @@ def _bottango(
         raise SourceError("animation", f"must be an index or a name, got {animation!r}")
     if "signal" in spec and "movement" in spec:
         raise SourceError("movement", "give signal or movement, not both")
+    _effector_exists(export, str(effector))
     if "movement" in spec:
         track = export.track(animation, str(effector), movement=_unit(spec, "movement", ""))
     elif "signal" in spec:
@@ -184,7 +188,7 @@ def _bottango(
         if eff is None or eff.signal_min is None or eff.signal_max is None:
             raise SourceError(
                 "signal",
-                f"effector {effector!r} has no registered signal range in {path.name}: give "
+                f"effector {str(effector)!r} has no registered signal range in {export.path}: give "
                 "movement = [0, 1] (Bottango's movement) with degrees",
             )
         # degrees at the ends of the effector's registered range (e.g. 1000-2000 µs)
@@ -201,6 +205,20 @@ def _bottango(
               f"{a:.3f}-{b:.3f} s); the target is that signal, as the driver moves the "
               "servo")  # fmt: skip
     return track
+
+
+def _effector_exists(export: BottangoExport, effector: str) -> None:
+    """A FormatError naming the export's effectors when ``effector`` is none of them: the
+    first thing to fix, before any advice about its signal range or curves."""
+    known = set(export.effectors)
+    for anim in export.animations.values():
+        known.update(anim.segments, anim.loop_segments)
+    if effector not in known:
+        have = sorted(known, key=lambda e: (not e.isdigit(), int(e) if e.isdigit() else 0, e))
+        listed = ", ".join(have) or "none"
+        raise FormatError(
+            export.path, "", f"no effector {effector!r} in this export; it has {listed}"
+        )
 
 
 def _blender(

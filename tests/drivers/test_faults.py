@@ -168,6 +168,10 @@ def test_fault_windows_respect_at_and_until(faulty):
         ("drop:colour=red", "unknown key"),
         ("brownout:at=1", "give id=N"),
         ("drop:rate=abc", "bad value"),
+        (
+            "unplug:id=2,at=3",
+            r"unplug: the USB adapter goes for every servo; it takes no id= \(got id=2\)$",
+        ),
     ],
 )
 def test_bad_fault_specs_say_what_is_wrong(text, message):

@@ -7,6 +7,8 @@ from __future__ import annotations
 import argparse
 import json
 
+import pytest
+
 from hilsim.bench.cpu import CpuResult, CycleCpu, DemoCpu, WaitCpu, add_to_bench, for_bench
 
 
@@ -32,11 +34,15 @@ def result() -> CpuResult:
 def test_the_line_says_both_ports_cpu_and_wall():
     text = result().text()
     assert text.splitlines()[0] == (
-        "CPU per cycle over a pty: bare SDK (busy-poll) 1450 µs, hilsim 150 µs; "
+        "CPU per cycle over a pty (emulated: host overhead only: hilsim emulate): bare SDK "
+        "(busy-poll) 1450 µs, hilsim 150 µs; "
         "wall per cycle 1460 vs 1480 µs (+1.4%)"
     )
     assert "load 0.50 0.60 0.70" in text
-    assert "The demo over a pty: 180 µs of CPU per tick at 250 Hz (4.5 % of a core" in text
+    assert (
+        "The demo over a pty (emulated: host overhead only): 180 µs of CPU per tick at 250 Hz "
+        "(4.5 % of a core"
+    ) in text
     assert (
         "  loop thread 150 µs, other threads (telemetry) 30 µs; 2.1 wake-ups per tick; "
         "lateness p50 0.1 µs, p99 35 µs"
@@ -74,6 +80,15 @@ def test_it_runs_only_for_the_built_in_emulator_on_the_real_clock():
         assert for_bench(a, None, print) is None  # returns before measuring anything
 
 
+def test_quick_leaves_it_to_the_full_run_and_says_so():
+    from hilsim.bench.report import BenchReport
+
+    report = BenchReport(command="x", quick=True, subject="t")
+    a = argparse.Namespace(config=None, port=None, clock="real", quick=True)
+    assert for_bench(a, report, print) is None
+    assert report.notes == ["CPU per cycle over a pty: measured by the full run, not --quick"]
+
+
 def test_the_clock_measurement_waits_for_every_deadline_with_the_slack_asked_for(monkeypatch):
     """measure_waits on a simulated clock (nothing sleeps): one wait per deadline, the
     lateness each returned, and the timer slack in force while it waited."""
@@ -99,3 +114,34 @@ def test_the_clock_measurement_waits_for_every_deadline_with_the_slack_asked_for
     assert slack == [1, 50_000]  # set for the waits, then restored
     # woke 20 µs before each deadline (50 - 30), spun the rest: on time to a microsecond
     assert 0.0 <= w.lateness_p50_us <= 1.0 and w.lateness_max_us <= 1.0
+
+
+def test_the_first_read_drains_a_late_reply_and_asks_again(monkeypatch):
+    """A loaded host: the previous port gave up on a reply that arrives as the next port
+    opens. The first read asks again after draining, rather than drop the whole section."""
+    from drivers.dynamixel.bench_session import BenchError
+    from hilsim.bench import cpu
+
+    monkeypatch.setattr(cpu, "DRAIN_S", 0.0)
+
+    class Bus:
+        def __init__(self, fails: int) -> None:
+            self.fails = fails
+
+        def read_positions(self, ids):
+            if self.fails:
+                self.fails -= 1
+                raise BenchError("Incorrect status packet!")
+            return {i: 2048 for i in ids}
+
+    class Port:
+        cleared = 0
+
+        def clearPort(self):
+            self.cleared += 1
+
+    port = Port()
+    assert cpu.first_read(Bus(2), port) == {1: 2048, 2: 2048, 3: 2048, 4: 2048}
+    assert port.cleared == 2
+    with pytest.raises(BenchError, match="Incorrect status packet"):  # the bench's to report
+        cpu.first_read(Bus(3), Port())

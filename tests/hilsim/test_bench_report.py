@@ -27,7 +27,11 @@ def _loop() -> LoopResult:
     rng = np.random.default_rng(0)
     late = rng.exponential(0.05e-6, size=2000)
     late[7] = 650e-6
+    slept = rng.exponential(40e-6, size=2000)
     ours = SchedulerRun(
+        1000.0, slept, lateness_stats(slept, 1e-3), 2.0, 0.06, SCHED_FIFO, 80, True, 0.0
+    )
+    spin = SchedulerRun(
         1000.0, late, lateness_stats(late, 1e-3), 2.0, 0.4, SCHED_FIFO, 80, True, 200.0
     )
     ct = cyclictest.CyclictestRun(
@@ -39,7 +43,7 @@ def _loop() -> LoopResult:
         1000,
         cyclictest.parse_output(FIFO_SAMPLE),
     )
-    return LoopResult(ours, ct, True)
+    return LoopResult(ours, ct, True, spin)
 
 
 @pytest.fixture(scope="module")
@@ -67,7 +71,10 @@ def test_json_shape(report, tmp_path):
     assert set(loop["lateness_us"]) == {"p50", "p99", "p999", "max"}
     assert loop["cyclictest_p99_us"] == 6.0
     assert loop["p99_ratio"] == pytest.approx(loop["lateness_us"]["p99"] / 6.0)
-    assert loop["cpu_percent"] == pytest.approx(20.0)
+    assert loop["cpu_percent"] == pytest.approx(3.0) and loop["spin_us"] == 0.0  # sleep only
+    spin = loop["spin"]
+    assert spin["spin_us"] == 200.0 and spin["cpu_percent"] == pytest.approx(20.0)
+    assert set(spin["lateness_us"]) == {"p50", "p99", "p999", "max"}
     for row in d["bus"]:
         assert {"ids", "baud", "read", "achieved_hz", "model_hz", "return_delay_us"} <= set(row)
         assert row["read"] in ("fast", "plain")
@@ -87,9 +94,91 @@ def test_terminal_text(report):
     assert "The bus keeps up" in text  # 1 servo: ~1,900 cycles/s for a 500 Hz rig
 
 
+def test_the_report_compares_sleep_with_sleep_first_and_ends_with_the_verdict(report):
+    """Like with like: the loop's first row sleeps as cyclictest does (spin window 0); the
+    spin window is a separate, labelled section with its CPU; one fixed order, verdict last."""
+    text = report.text()
+    lines = text.splitlines()
+    first = next(i for i, x in enumerate(lines) if x.startswith("Loop timing"))
+    assert "spin window 0" in lines[first] and "cyclictest" in lines[first]
+    assert lines[first + 2].split()[:3] == ["ours,", "sleep", "only"]
+    assert lines[first + 3].split()[0] == "cyclictest"
+    assert "sleep vs sleep: ours / cyclictest p99 =" in lines[first + 4]
+    spin = next(i for i, x in enumerate(lines) if x.startswith("Spin window"))
+    assert spin > first + 4 and "200 µs" in lines[spin] and "not comparable" in lines[spin]
+    assert "% of a core" in lines[spin + 3]
+    order = ["Loop timing", "Spin window", "Bus rate", "Latency", "Diagnosis", "Verdict"]
+    at = [next(i for i, x in enumerate(lines) if x.startswith(h)) for h in order]
+    assert at == sorted(at)
+    verdict = lines.index("Verdict")
+    assert all(x.startswith("  ") for x in lines[verdict + 1 :])  # nothing after the verdict
+
+
+def test_emulated_figures_say_so_in_the_text_and_the_plots(report, tmp_path, monkeypatch):
+    from hilsim.bench import plots
+    from hilsim.bench.report import EMULATED
+
+    report.emulated = True
+    try:
+        text = report.text()
+    finally:
+        report.emulated = False
+    for heading in ("Bus rate", "Latency at", "Diagnosis of"):
+        line = next(x for x in text.splitlines() if x.startswith(heading))
+        assert EMULATED in line, line
+    titles = []
+    real_save = plots._save
+
+    def keep(fig, path, plt):
+        titles.append(fig._suptitle.get_text() if fig._suptitle else fig.axes[0].get_title())
+        return real_save(fig, path, plt)
+
+    monkeypatch.setattr(plots, "_save", keep)
+    plots.plot_bus_rate(report.bus, tmp_path / "bus_rate.png")
+    plots.plot_step(report.latency, tmp_path / "step.png", emulated=True)
+    assert all(t.startswith(f"{EMULATED}\n") for t in titles) and len(titles) == 2
+
+
+def test_the_loop_is_measured_sleeping_first_then_cyclictest_then_the_spin_window(monkeypatch):
+    from hilsim.bench import runner
+    from hilsim.bench.runner import BenchPlan
+
+    done = []
+
+    def scheduler(clock, rate, ticks, **_kw):
+        done.append(("ours", clock.spin_s))
+        late = np.zeros(ticks)
+        stats = lateness_stats(late, 1 / rate)
+        return SchedulerRun(rate, late, stats, 1.0, 0.1, SCHED_FIFO, 80, True, clock.spin_s * 1e6)
+
+    def ct_run(interval_us, ticks, **_kw):
+        done.append(("cyclictest", interval_us))
+        return _loop().cyclictest
+
+    monkeypatch.setattr(runner, "measure_scheduler", scheduler)
+    monkeypatch.setattr(cyclictest, "find", lambda: "/usr/bin/cyclictest")
+    monkeypatch.setattr(cyclictest, "run", ct_run)
+    report = BenchReport(command="x", quick=True, subject="t")
+    runner._loops(BenchPlan(loop_duration_s=0.1, spin_us=100.0), report, lambda _s: None)
+    assert done == [("ours", 0.0), ("cyclictest", 1000), ("ours", pytest.approx(100e-6))]
+    (lr,) = report.loops
+    assert lr.ours.spin_us == 0.0 and lr.spin is not None and lr.spin.spin_us == pytest.approx(100)
+
+
+def test_the_quick_plan_is_short_and_says_how_long():
+    parser = __import__("argparse").ArgumentParser()
+    bench_cli.add_arguments(parser)
+    quick = bench_cli.build_plan(parser.parse_args(["--quick"]))
+    full = bench_cli.build_plan(parser.parse_args([]))
+    assert len(quick.sweep) == 4 and len(full.sweep) == 8  # 4 and 16 servos with --quick
+    assert quick.expected_s() <= 25 < full.expected_s()
+    help_text = parser.format_help()
+    assert f"~{bench_cli.QUICK_S} s" in " ".join(help_text.split())
+
+
 def test_missing_cyclictest_says_how_to_install():
     lr = _loop()
-    missing = LoopResult(lr.ours, None, False)
+    missing = LoopResult(lr.ours, None, False, lr.spin)
     rep = BenchReport(command="x", quick=True, subject="t", loops=[missing])
     assert cyclictest.INSTALL_HINT in rep.text()
     assert rep.as_dict()["loop"]["cyclictest_install"] == cyclictest.INSTALL_HINT
@@ -194,7 +283,7 @@ target = { type = "sine", amplitude_deg = 30, frequency_hz = 0.25 }
     assert plan.loop_rates_hz == (1000.0, 250.0) and plan.rig_rate_hz == 250.0
     assert plan.target.ids == (1, 2) and plan.target.baud == 1_000_000
     assert plan.sweep == () and plan.latency_rate_hz == 250.0
-    assert plan.loop_duration_s == 2.0 and plan.bus_duration_s == 0.3
+    assert plan.loop_duration_s == 1.5 and plan.bus_duration_s == 0.3
     assert plan.spin_us == 100.0  # the rig's spin window, as its shows run
     rig.write_text(rig.read_text().replace("[loop]\n", "[loop]\nspin_us = 250\n", 1))
     assert bench_cli.build_plan(parser.parse_args([str(rig)])).spin_us == 250.0

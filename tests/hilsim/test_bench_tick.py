@@ -130,8 +130,8 @@ def test_the_table_and_its_json(tmp_path):
         assert set(r.stages_us) == {*STAGES, "rest"} and r.stages_us["rest"] >= 0
     text = cost.text()
     head = text.splitlines()[1].split()
-    assert head == ["servos", "bare", "SDK", "µs", "hilsim", "tick", "µs", "ratio", "target"]
-    assert len(text.splitlines()[2].split()) == 4  # 2 servos: no target
+    assert head == ["servos", "bare", "SDK", "µs", "hilsim", "tick", "µs", "ratio"]
+    assert len(text.splitlines()[2].split()) == 4
     path = tmp_path / "bench.json"
     path.write_text(json.dumps({"command": "hilsim bench"}))
     cost.add_to_json(path)
@@ -143,11 +143,13 @@ def test_the_table_and_its_json(tmp_path):
     )
 
 
-def test_the_table_names_the_targets_and_nan_becomes_null(tmp_path):
+def test_the_table_has_no_internal_target_and_nan_becomes_null(tmp_path):
     cost = TickCost([TickRow(4, 10.0, 12.0), TickRow(16, 20.0, math.nan)], rounds=1, reps=1)
     lines = cost.text().splitlines()
-    assert lines[2].split()[-2:] == ["<=", "1.3"] and lines[3].split()[-2:] == ["<=", "1.1"]
+    assert "target" not in cost.text() and lines[2].split() == ["4", "10.0", "12.0", "1.20"]
+    assert "ratio: hilsim's whole tick" in lines[0] and "no servo" in lines[0]
     path = tmp_path / "b.json"
     path.write_text("{}")
     cost.add_to_json(path)
-    assert json.loads(path.read_text())["tick_cost"]["rows"][1]["tick_us"] is None
+    rows = json.loads(path.read_text())["tick_cost"]["rows"]
+    assert rows[1]["tick_us"] is None and "target_ratio" not in rows[0]

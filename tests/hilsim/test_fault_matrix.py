@@ -750,9 +750,13 @@ def test_row_11_goals_refused_mid_show_are_a_safe_stop(emulated):
     assert_rows_complete(run)
 
 
-def test_row_12_hardware_error_is_a_safe_stop_with_the_decoded_cause(emulated):
+def test_row_12_hardware_error_is_a_safe_stop_with_the_decoded_cause(emulated, capsys):
     emu = emulated(faults="hardware_error:id=3,at=0.5,bits=overheating")
     assert emu.run() == ExitCode.FAULT
+    # the tick count comes first: "reboot the servo after 123 ticks" read as an instruction
+    line = next(x for x in capsys.readouterr().err.splitlines() if "hardware error" in x)
+    assert re.match(r"hilsim run: stopped after \d+ ticks \([^)]*\): servo 3 \(jaw\): ", line)
+    assert "reboot the servo; exit policy" in line
     run, wire = emu.read(), Wire.of(emu.bus)
     assert_safe_stop(emu, run, wire, "servo 3 (jaw)", "hardware error")
     reason = run.summary["exit_reason"]

@@ -65,6 +65,17 @@ def test_bottango_signal_and_movement_maps():
     assert deg(rev, 0.0) == pytest.approx(0.0)  # parked at its start signal, 1500 us
 
 
+@pytest.mark.parametrize("extra", [{}, {"movement": [0, 1]}, {"signal": [1000, 2000]}])
+@pytest.mark.parametrize("file", ["bottango/GeneratedCodeAnimations.cpp", "bottango/sd"])
+def test_a_wrong_bottango_effector_is_named_first_with_the_ones_there_are(file, extra):
+    """Not advice about signal ranges or curves: the effector is not in the export at all."""
+    spec = {"type": "bottango", "file": file, "effector": "9", "degrees": [0, 40], **extra}
+    with pytest.raises(FormatError) as got:
+        build(spec)
+    assert got.value.detail == "no effector '9' in this export; it has 0, 643"
+    assert got.value.path == str(ANIM / file)  # the file named as the reader names it
+
+
 def test_bottango_start_and_speed_limit_through_hilsim_tracks(tmp_path, capsys):
     """configs/bottango.toml on an export whose first curves start after 0 ms: the jaw (pin
     servo 0, start 1200 µs, 500 µs/s) waits at its start signal, then moves at its limit;

@@ -72,7 +72,9 @@ def test_speed_too_fast_and_jumps():
     assert w.total_s == 17 / 64
     assert str(w) == (
         "j0: target speed 120°/s at t = 0.00 s exceeds max_speed_deg_s 60°/s "
-        "(worst 1280°/s at t = 0.984 s; 0.266 s faster in all)"
+        "(worst 1280°/s at t = 0.984 s; 0.266 s faster in all): raise max_speed_deg_s "
+        "(within the servo's), slow the animation, or accept it (the safety filter holds the "
+        "joint to its limit)"
     )
 
 

@@ -142,3 +142,42 @@ def test_a_rig_with_several_buses_shows_every_bus_or_the_one_asked_for(tmp_path,
     assert whole.joints == tuple(every) and whole.buses == ("left",) * 8 + ("right",) * 8
     np.testing.assert_array_equal(whole.cmd_deg[:, 8:], each[1].cmd_deg)
     assert whole.max_deg[8:] == each[1].max_deg
+
+
+def test_the_filter_warning_names_the_limit_its_figure_and_the_key(tmp_path, capsys):
+    assert main(["tracks", str(rig_file(tmp_path)), "--out", str(tmp_path / "p.png")]) == 0
+    line = next(x for x in capsys.readouterr().err.splitlines() if "jaw: the safety filter" in x)
+    # the jaw's target goes to 30° against max_deg 20 and at 120°/s against 50
+    assert "soft start: " in line and "position (the spring goes " in line
+    assert "° beyond max_deg 20°: keep the target off the limit" in line
+    assert "speed (the spring asks up to " in line and "of max_speed_deg_s 50: raise it" in line
+
+
+def test_the_preview_legend_covers_no_panel(tmp_path, monkeypatch):
+    from hilsim.telemetry import plot_common
+
+    figures = []
+    save = plot_common.save
+
+    def keep(fig, path, dpi):
+        figures.append(fig)
+        return save(fig, path, dpi)
+
+    monkeypatch.setattr(plot_common, "save", keep)
+    assert main(["tracks", str(rig_file(tmp_path)), "--out", str(tmp_path / "p.png")]) == 0
+    (fig,) = figures
+    fig.canvas.draw()
+    legend = next(ax.get_legend() for ax in fig.axes if ax.get_legend() is not None)
+    box = legend.get_window_extent()
+    assert not any(box.overlaps(ax.get_window_extent()) for ax in fig.axes)
+
+
+def test_the_audio_jaw_speed_warning_says_what_to_change(tmp_path, capsys):
+    rig = Path(__file__).resolve().parents[2] / "configs" / "talking_skull.toml"
+    assert main(["tracks", str(rig), "--out", str(tmp_path / "p.png")]) == 0
+    line = next(x for x in capsys.readouterr().err.splitlines() if "target speed" in x)
+    assert "jaw: target speed" in line
+    assert line.endswith(
+        "raise max_speed_deg_s (within the servo's), lengthen attack_ms, or accept it "
+        "(the safety filter holds the joint to its limit)"
+    )

@@ -32,7 +32,13 @@ import numpy as np
 
 from hilsim._types import FloatArray, IntArray
 from hilsim.dynamics.springs import Spring
-from hilsim.targets.formats.common import FormatError, SampledTrack, UnitMap, read_bytes
+from hilsim.targets.formats.common import (
+    AUDIO_JAW_SOURCE,
+    FormatError,
+    SampledTrack,
+    UnitMap,
+    read_bytes,
+)
 
 #: channel choices besides a 0-based index
 CHANNELS = ("left", "right", "mix")
@@ -435,4 +441,4 @@ def jaw_track(
     times = env.times_s - float(lead_s)
     first = max(0, int(np.searchsorted(times, 0.0, side="right")) - 1)
     values = jaw.to_rad(env.opening[first:])
-    return SampledTrack(times[first:], values, "linear", source=f"{path} (audio -> jaw)")
+    return SampledTrack(times[first:], values, "linear", source=f"{path} {AUDIO_JAW_SOURCE}")

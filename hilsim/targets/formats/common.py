@@ -109,6 +109,10 @@ class UnitMap:
         return np.radians(self.to_deg(x))
 
 
+#: how an audio jaw track's ``source`` ends (the load-time checks name its own knob)
+AUDIO_JAW_SOURCE = "(audio -> jaw)"
+
+
 @dataclass(frozen=True, eq=False, init=False)
 class SampledTrack(Track):
     """Samples ``(times_s[i], values_rad[i])`` as a track.
