@@ -24,6 +24,7 @@ from __future__ import annotations
 import logging
 import math
 import os
+import shutil
 import threading
 from collections.abc import Callable
 from pathlib import Path
@@ -32,7 +33,7 @@ from typing import TYPE_CHECKING, Self
 
 from hilsim._types import JsonDict
 from hilsim.live.controls import Controls
-from hilsim.rig import Rig, load_rigs, select_bus
+from hilsim.rig import Rig, TelemetryFailurePolicy, load_rigs, select_bus
 from hilsim.show.end import ShowResult
 from hilsim.show.parts import Parts, build_parts, with_show
 from hilsim.show.run_dir import RunDir, RunDirError, make_run_dir
@@ -46,6 +47,7 @@ from hilsim.show.session import (
     run_show,
 )
 from hilsim.show.stop import StopFlag
+from hilsim.telemetry.format import TelemetryFormat
 
 if TYPE_CHECKING:
     from drivers.dynamixel.bus import DynamixelBus
@@ -70,6 +72,17 @@ def endless_in_virtual_time(parts: Parts, duration_s: float | None) -> str | Non
     if parts.director is not None:
         return "a live show never ends by itself: give --duration with --virtual-time"
     return "the animation never ends (generators only): give --duration with --virtual-time"
+
+
+def _failure_note(rig: Rig, parts: Parts, duration_s: float | None) -> str | None:
+    """What a full disk will do to an endless show under ``telemetry.on_failure = "auto"``."""
+    endless = duration_s is None and parts.targets.duration is None
+    if rig.telemetry.on_failure is not TelemetryFailurePolicy.AUTO or not endless:
+        return None
+    return (
+        "telemetry.on_failure = auto: an endless show goes on if the disk fills up or fails "
+        "(the record ends there: a warning and telemetry_error.txt); set it to 'stop' to stop"
+    )
 
 
 class Show:
@@ -242,6 +255,9 @@ class Show:
                     "fault record may be lost"
                 )
                 self._say(self.notes[-1])
+            if (note := _failure_note(self.rig, self.parts, self.duration)) is not None:
+                self.notes.append(note)
+                self._say(note)
             for note in self.notes:  # what the start-up found and changed, in the record too
                 telemetry.event("startup", note)
             self._result = run_show(
@@ -255,6 +271,9 @@ class Show:
                 on_stop=on_stop,
             )
             self._result.run_dir = run_dir
+            if self.rig.telemetry.format is TelemetryFormat.OFF:  # nothing kept, as asked
+                shutil.rmtree(run_dir, ignore_errors=True)
+                self._result.run_dir = None
             return self._result
         finally:
             self._done.set()
