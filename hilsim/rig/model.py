@@ -261,7 +261,7 @@ class TelemetryConfig:
         unit="MB",
         default=None,
         default_doc="none: no cap",
-        bounds={"at_least": 1.0, "why": "a part is an eighth of the cap"},
+        bounds={"at_least": 0.1, "why": "a part is an eighth of the cap"},
         example=500,
     )
     max_age_h: float | None = rig_key(

@@ -283,7 +283,7 @@ def joints_figure(
                 marks.append(
                     ax.plot(
                         t[bad],
-                        np.full(count, 0.035),
+                        np.full(int(np.count_nonzero(bad)), 0.035),
                         linestyle="none",
                         marker="|",
                         markersize=10,

@@ -82,8 +82,8 @@ def plot_lateness(
     n_rows = lat.size
     if run.decimated and run.counts is not None:  # counted while reading
         counts = run.counts["overrun"]
-        overrun = counts > 0
-        overrun[1::2] |= overrun[0::2]
+        overrun = np.zeros(counts.size, dtype=bool)
+        overrun[1::2] = counts[0::2] > 0  # marked at the bucket's largest lateness
         overrun, n_over = overrun[keep], int(counts[keep].sum())
         n_rows = common.rows_in(run, keep)
     title = common.title(
