@@ -46,11 +46,13 @@ from hilsim.show.session import (
     port_for,
     run_show,
 )
+from hilsim.show.show_files import record_show_files
 from hilsim.show.stop import StopFlag
-from hilsim.telemetry.format import TelemetryFormat
+from hilsim.telemetry.format import SHOW_MANIFEST, TelemetryFormat
 
 if TYPE_CHECKING:
     from drivers.dynamixel.bus import DynamixelBus
+    from hilsim.telemetry import TelemetryWriter
 
 __all__ = ["Show", "ShowError", "ShowRefusedError", "ShowResult", "endless_in_virtual_time"]
 
@@ -132,6 +134,7 @@ class Show:
             )
         #: what the show runs: targets, joint map, safety filter, springs, director
         self.parts = parts
+        self.show_path = None if show is None else Path(show)
         self.duration = duration
         self.virtual_time = virtual_time
         self.out = out
@@ -255,6 +258,8 @@ class Show:
                     "fault record may be lost"
                 )
                 self._say(self.notes[-1])
+            if self.rig.telemetry.format is not TelemetryFormat.OFF:
+                self._record_show_files(run_dir, telemetry)
             if (note := _failure_note(self.rig, self.parts, self.duration)) is not None:
                 self.notes.append(note)
                 self._say(note)
@@ -277,6 +282,24 @@ class Show:
             return self._result
         finally:
             self._done.set()
+
+    def _record_show_files(self, run_dir: Path, telemetry: TelemetryWriter) -> None:
+        """The show file and the files it and the rig name, kept with the run (copied or
+        hashed: ``show_files.json``); a failure is a warning, never a stop."""
+        rig = self.rig
+        manifest, problem = record_show_files(run_dir, rig.path, rig.text or None, self.show_path)
+        if manifest is None:
+            self.notes.append(f"warning: {problem}")
+            self._say(self.notes[-1])
+            return
+        files = manifest["files"]
+        hashed = sum(1 for f in files if f["copy"] is None)
+        telemetry.event(
+            "show_files",
+            f"{len(files)} file(s) of this show recorded in {SHOW_MANIFEST} "
+            f"({len(files) - hashed} copied, {hashed} hashed only)",
+            files=len(files),
+        )
 
     def stop(self, signum: int | None = None) -> None:
         """End the show through the rig's exit policy (exit code 5; with ``signum``, the

@@ -150,6 +150,20 @@ def test_the_failure_default_keeps_an_endless_show_going(tmp_path: Path) -> None
     assert _failure_note(stop, endless, None) is None
 
 
+def test_a_dead_writer_stops_a_show_with_an_end_not_an_endless_one(tmp_path: Path) -> None:
+    from hilsim.show.loop import HilLoop
+    from hilsim.telemetry.writer import WriterFailedError
+
+    rig = load_rig(_rig(tmp_path, ""))
+    dead = WriterFailedError("telemetry writer failed: No space left on device")
+    endless = SimpleNamespace(rig=rig, duration_s=None, _recording=True)
+    HilLoop._telemetry_failed(endless, dead)  # type: ignore[arg-type]
+    assert endless._recording is False  # the record stops; the show goes on
+    ends = SimpleNamespace(rig=rig, duration_s=60.0, _recording=True)
+    with pytest.raises(WriterFailedError):
+        HilLoop._telemetry_failed(ends, dead)  # type: ignore[arg-type]
+
+
 def test_a_bounded_read_keeps_an_envelope_and_exact_counts(tmp_path: Path) -> None:
     n = 20_000
     bad, overruns, acted = {17, 9000}, {5, 12_345, 19_999}, set(range(3000, 3100))
