@@ -274,6 +274,27 @@ class TelemetryConfig:
         bounds={"positive": True},
         example=24,
     )
+    runs_max_mb: float | None = rig_key(
+        "number",
+        "A size cap on the run directories under `out_dir` (this run's aside): as a show "
+        "starts there, the oldest are removed until the rest fit, each a `run_removed` event "
+        "and counted in the summary. Only directories holding a run's record are touched.",
+        unit="MB",
+        default=None,
+        default_doc="none: no cap",
+        bounds={"positive": True},
+        example=5000,
+    )
+    runs_max_age_days: float | None = rig_key(
+        "number",
+        "An age cap on the run directories under `out_dir`: as a show starts there, those last "
+        "written longer ago are removed (`run_removed` events; counted in the summary).",
+        unit="days",
+        default=None,
+        default_doc="none: no cap",
+        bounds={"positive": True},
+        example=30,
+    )
 
 
 @dataclass(frozen=True, kw_only=True)

@@ -29,14 +29,14 @@ import threading
 from collections.abc import Callable
 from pathlib import Path
 from types import TracebackType
-from typing import TYPE_CHECKING, Self
+from typing import TYPE_CHECKING, Any, Self
 
 from hilsim._types import JsonDict
 from hilsim.live.controls import Controls
 from hilsim.rig import Rig, TelemetryFailurePolicy, load_rigs, select_bus
 from hilsim.show.end import ShowResult
 from hilsim.show.parts import Parts, build_parts, with_show
-from hilsim.show.run_dir import RunDir, RunDirError, make_run_dir
+from hilsim.show.run_dir import RunDir, RunDirError, make_run_dir, prune_runs
 from hilsim.show.session import (
     ShowRefusedError,
     check_bus,
@@ -248,7 +248,9 @@ class Show:
                 raise ValueError(problem)
             assert self._run_dir is not None
             run_dir = self._run_dir.path
+            pruned = self._prune_runs(run_dir)  # first: the space is this run's
             telemetry = open_telemetry(self.rig, run_dir, self._bus.clock.virtual)
+            self._said_pruned(telemetry, pruned)
             reserve = telemetry.end.reserve
             if reserve.error is not None:  # the show goes on; its end may not fit on the disk
                 why = reserve.error.strerror or reserve.error
@@ -282,6 +284,44 @@ class Show:
             return self._result
         finally:
             self._done.set()
+
+    def _prune_runs(self, run_dir: Path) -> list[dict[str, Any]]:
+        """The caps on the runs root: its oldest runs removed (a run made elsewhere, by
+        ``out``, leaves the root alone); a failure is a warning, never a stop."""
+        tel = self.rig.telemetry
+        root = Path(tel.out_dir).expanduser()
+        if run_dir.resolve().parent != root.resolve():
+            return []
+        max_bytes = None if tel.runs_max_mb is None else int(tel.runs_max_mb * 1e6)
+        max_age = None if tel.runs_max_age_days is None else tel.runs_max_age_days * 86400.0
+        try:
+            return prune_runs(root, run_dir, max_bytes, max_age)
+        except OSError as exc:
+            self.notes.append(f"warning: old runs under {root} not removed: {exc}")
+            self._say(self.notes[-1])
+            return []
+
+    def _said_pruned(self, telemetry: TelemetryWriter, pruned: list[dict[str, Any]]) -> None:
+        """Each run removed under the runs root's caps: an event; their count in the summary."""
+        tel = self.rig.telemetry
+        for rec in pruned:
+            cap = (
+                f"telemetry.runs_max_mb = {tel.runs_max_mb:g}"
+                if rec["why"] == "size"
+                else f"telemetry.runs_max_age_days = {tel.runs_max_age_days:g}"
+            )
+            telemetry.event(
+                "run_removed",
+                f"{cap}: removed the oldest run {rec['run']} ({rec['bytes'] / 1e6:.1f} MB, "
+                f"last written {rec['last_write']})",
+                **rec,
+            )
+        if tel.runs_max_mb is not None or tel.runs_max_age_days is not None:
+            telemetry.runs_removed = {
+                "runs": len(pruned),
+                "bytes": sum(int(r["bytes"]) for r in pruned),
+                "names": [r["run"] for r in pruned],
+            }
 
     def _record_show_files(self, run_dir: Path, telemetry: TelemetryWriter) -> None:
         """The show file and the files it and the rig name, kept with the run (copied or

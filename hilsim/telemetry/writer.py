@@ -146,6 +146,9 @@ class TelemetryWriter(WriterThreadSide):
         self._close_requested = False
         self._rows_off = self.format in (TelemetryFormat.NONE, TelemetryFormat.OFF)
         self.book: PartBook | None = None
+        #: the runs removed under the runs root's caps as this run started (the summary's
+        #: ``telemetry.runs_removed``), set by the show; None: no such cap
+        self.runs_removed: dict[str, Any] | None = None
         super().__init__()  # the writer thread's state (hilsim.telemetry.writer_thread)
         #: Rows are formatted only while this is set. A real-time loop passes it to
         #: ``MonotonicClock.wait_until(t, idle=...)``: set while the loop sleeps, clear while a

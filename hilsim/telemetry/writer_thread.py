@@ -67,6 +67,7 @@ class WriterThreadSide:
     _last_dropped_tick: int | None
     _ring: TickRing
     book: PartBook | None
+    runs_removed: dict[str, Any] | None
     _poll_s: float
     _chunk_rows: int
 
@@ -298,6 +299,7 @@ class WriterThreadSide:
             "error": None if self._error is None else repr(self._error),
             "error_traceback": self.error_traceback,
             "rotation": None if self.book is None else self.book.summary(),
+            "runs_removed": self.runs_removed,
         }
 
     def _leftovers(self) -> list[dict[str, Any]]:

@@ -9,6 +9,7 @@ time.
 from __future__ import annotations
 
 import math
+import os
 import time
 from pathlib import Path
 from types import SimpleNamespace
@@ -198,3 +199,54 @@ def test_plots_of_a_bounded_read_say_what_they_show(tmp_path: Path) -> None:
     paths = plot_run(run, tmp_path / "plots", parallel=False)
     assert [p.name for p in paths] == ["joints.png", "lateness.png", "timing.png"]
     assert all(p.stat().st_size > 10_000 for p in paths)
+
+
+def _old_runs(root: Path) -> list[Path]:
+    """Three old runs (300 kB each, last written 10, 5 and 1 days ago) and a folder that is
+    not a run."""
+    now = time.time()
+    runs = []
+    for name, days in (("demo-a", 10), ("demo-b", 5), ("demo-c", 1)):
+        d = root / name
+        d.mkdir(parents=True)
+        (d / "events.jsonl").write_bytes(b"x" * 300_000)
+        (d / "summary.json").write_text("{}")
+        for f in (*d.iterdir(), d):
+            os.utime(f, (now - days * 86400, now - days * 86400))
+        runs.append(d)
+    (root / "notes").mkdir()
+    (root / "notes" / "todo.txt").write_bytes(b"y" * 900_000)
+    os.utime(root / "notes" / "todo.txt", (now - 99 * 86400, now - 99 * 86400))
+    return runs
+
+
+@pytest.mark.parametrize(
+    ("cap", "gone", "why"),
+    [("runs_max_mb = 0.5", ["demo-a", "demo-b"], "size"),
+     ("runs_max_age_days = 3", ["demo-a", "demo-b"], "age"),
+     ("runs_max_mb = 1", [], "")],
+)  # fmt: skip
+def test_old_runs_under_the_runs_root_go_oldest_first_each_said(tmp_path, cap, gone, why) -> None:
+    root = tmp_path / "runs"
+    runs = _old_runs(root)
+    rig = _rig(tmp_path, f'out_dir = "{root}"\n{cap}')
+    with hilsim.Show(rig, virtual_time=True, duration=0.2) as show:
+        result = show.run()
+    assert result.exit_code == 0 and result.run_dir is not None
+    assert result.run_dir.parent == root and result.run_dir.is_dir()  # this run stays
+    assert [d.name for d in runs if not d.exists()] == gone
+    assert (root / "notes" / "todo.txt").exists()  # not a run: never touched
+    said = [e for e in read_run(result.run_dir).events if e["kind"] == "run_removed"]
+    assert [e["run"] for e in said] == gone and all(e["why"] == why for e in said)
+    removed = result.summary["telemetry"]["runs_removed"]
+    assert removed["runs"] == len(gone) and removed["names"] == gone
+    assert removed["bytes"] == sum(e["bytes"] for e in said)
+
+
+def test_a_run_made_elsewhere_leaves_the_runs_root_alone(tmp_path) -> None:
+    root = tmp_path / "runs"
+    runs = _old_runs(root)
+    rig = _rig(tmp_path, f'out_dir = "{root}"\nruns_max_age_days = 3')
+    with hilsim.Show(rig, virtual_time=True, duration=0.2, out=tmp_path / "mine") as show:
+        assert show.run().exit_code == 0
+    assert all(d.exists() for d in runs)
