@@ -130,12 +130,11 @@ class Envelope:
 
     def _bucket(self, rows: np.ndarray) -> None:
         w, ncols = self.width, rows.shape[1]
-        counts = self._row_counts(rows)
-        if w == 1:
+        if w == 1:  # rows kept as they are: counted only if they come to be bucketed
             self.lo.append(rows)
             self.hi.append(rows)  # the same array: no copy while rows are kept as they are
-            self.counts.append(counts)
             return
+        counts = self._row_counts(rows)
         shaped = rows.reshape(-1, w, ncols)
         with np.errstate(invalid="ignore"):
             self.lo.append(np.fmin.reduce(shaped, axis=1))
@@ -150,6 +149,9 @@ class Envelope:
         limit = self.max_rows if self.width == 1 else 2 * min(self.buckets, self.max_rows // 2)
         if self._n_buckets() <= limit:
             return
+        if self.width == 1:  # the rows kept so far: counted now, once
+            self.lo = self.hi = [np.concatenate(self.lo)]
+            self.counts = [self._row_counts(self.lo[0])]
         lo, hi, counts = (np.concatenate(a) for a in (self.lo, self.hi, self.counts))
         target = max(1, min(self.buckets, self.max_rows // 2))
         while len(lo) > target:
@@ -181,26 +183,23 @@ class Envelope:
             self.counts.append(counts)
 
     def columns(self) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray]]:
-        """The rows (CSV columns; two a bucket when decimated) and the counts per output row
-        (``count_names``; a bucket's counts on its first row, zeros on its second)."""
+        """The rows (CSV columns; two a bucket when decimated) and, when decimated, the counts
+        per output row (``count_names``; a bucket's counts on its first row, zeros on its
+        second); rows kept as they are have no counts (empty)."""
         ncols = len(self.names)
-        if not self.lo:
-            empty = np.empty((0, ncols))
-            return {n: empty[:, k] for k, n in enumerate(self.names)}, {
-                n: np.empty(0) for n in self.count_names
-            }
+        if not self.decimated:  # the rows as they are: nothing counted (the rows say it)
+            rows = _stacked(self.lo, ncols)
+            self.lo = self.hi = [rows]
+            return {n: rows[:, k] for k, n in enumerate(self.names)}, {}
         lo, hi, counts = (np.concatenate(a) for a in (self.lo, self.hi, self.counts))
         self.lo, self.hi, self.counts = [lo], [hi], [counts]
-        if not self.decimated:
-            rows, per_row = lo, counts
-        else:
-            rows = np.empty((2 * len(lo), ncols))
-            rows[0::2], rows[1::2] = lo, hi
-            per_row = np.zeros((2 * len(lo), counts.shape[1]))
-            per_row[0::2] = counts
+        rows = np.empty((2 * len(lo), ncols), order="F")  # a column is contiguous: no copies
+        rows[0::2], rows[1::2] = lo, hi
+        per_row = np.zeros((2 * len(lo), counts.shape[1]), order="F")
+        per_row[0::2] = counts
         return (
-            {n: rows[:, k].copy() for k, n in enumerate(self.names)},
-            {n: per_row[:, k].copy() for k, n in enumerate(self.count_names)},
+            {n: rows[:, k] for k, n in enumerate(self.names)},
+            {n: per_row[:, k] for k, n in enumerate(self.count_names)},
         )
 
     def percentile(self, name: str, q: float) -> float:
@@ -212,3 +211,13 @@ class Envelope:
             return float("nan")
         k = int(np.searchsorted(np.cumsum(h), q / 100.0 * total, side="left"))
         return float(EDGES[min(k, EDGES.size - 1)]) if k > 0 else 0.0
+
+
+def _stacked(chunks: list[np.ndarray], ncols: int) -> np.ndarray:
+    """The chunks as one array in column order (a column is a contiguous view)."""
+    out = np.empty((sum(len(c) for c in chunks), ncols), order="F")
+    at = 0
+    for c in chunks:
+        out[at : at + len(c)] = c
+        at += len(c)
+    return out

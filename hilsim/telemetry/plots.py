@@ -82,8 +82,9 @@ class PlotProcessError(RuntimeError):
 
 
 #: rows a plot reads as they are; a longer run is read as a min/max envelope (bounded memory:
-#: hilsim.telemetry.envelope). 100k rows: 6.7 minutes at 250 Hz, ~30 MB at 4 joints.
-PLOT_MAX_ROWS = 100_000
+#: hilsim.telemetry.envelope). 50k rows: 3.3 minutes at 250 Hz, 15 MB at 4 joints; matplotlib's
+#: lines of that many points take more than the rows (docs/telemetry.md: the figures measured).
+PLOT_MAX_ROWS = 50_000
 
 
 def plot_run(

@@ -369,7 +369,7 @@ def read_run(run_dir: str | os.PathLike[str], *, max_rows: int | None = None) ->
         rows_file=rows_file,
         rows_version=version,
         envelope=envelope,
-        counts=None if envelope is None else envelope.counted,
+        counts=None if envelope is None else envelope.counted or None,
     )
 
 

@@ -19,7 +19,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-#: a part is this fraction of the size cap: the rows kept are between 7/8 of it and all of it
+#: a part is this fraction of the size cap: the rows kept are between about 70 % of it (room
+#: is made for a whole part and its overshoot) and all of it
 PART_FRACTION = 1 / 8
 #: a part is closed at the latest after this fraction of the age cap
 AGE_FRACTION = 1 / 8
