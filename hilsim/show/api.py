@@ -48,7 +48,7 @@ from hilsim.show.session import (
 )
 from hilsim.show.show_files import record_show_files
 from hilsim.show.stop import StopFlag
-from hilsim.telemetry.format import SHOW_MANIFEST, TelemetryFormat
+from hilsim.telemetry.format import TelemetryFormat
 
 if TYPE_CHECKING:
     from drivers.dynamixel.bus import DynamixelBus
@@ -261,7 +261,7 @@ class Show:
                 )
                 self._say(self.notes[-1])
             if self.rig.telemetry.format is not TelemetryFormat.OFF:
-                self._record_show_files(run_dir, telemetry)
+                self._record_show_files(run_dir)
             if (note := _failure_note(self.rig, self.parts, self.duration)) is not None:
                 self.notes.append(note)
                 self._say(note)
@@ -323,23 +323,14 @@ class Show:
                 "names": [r["run"] for r in pruned],
             }
 
-    def _record_show_files(self, run_dir: Path, telemetry: TelemetryWriter) -> None:
+    def _record_show_files(self, run_dir: Path) -> None:
         """The show file and the files it and the rig name, kept with the run (copied or
         hashed: ``show_files.json``); a failure is a warning, never a stop."""
         rig = self.rig
         manifest, problem = record_show_files(run_dir, rig.path, rig.text or None, self.show_path)
-        if manifest is None:
+        if manifest is None:  # (the manifest is the record: no event, "start" stays first)
             self.notes.append(f"warning: {problem}")
             self._say(self.notes[-1])
-            return
-        files = manifest["files"]
-        hashed = sum(1 for f in files if f["copy"] is None)
-        telemetry.event(
-            "show_files",
-            f"{len(files)} file(s) of this show recorded in {SHOW_MANIFEST} "
-            f"({len(files) - hashed} copied, {hashed} hashed only)",
-            files=len(files),
-        )
 
     def stop(self, signum: int | None = None) -> None:
         """End the show through the rig's exit policy (exit code 5; with ``signum``, the
