@@ -63,6 +63,7 @@ def _option_problem(args: argparse.Namespace) -> str | None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from hilsim.telemetry.plots import PLOT_MAX_ROWS
     from hilsim.telemetry.reader import NotARunError, RunFormatError, read_run
 
     problem = _option_problem(args)
@@ -70,7 +71,7 @@ def run(args: argparse.Namespace) -> int:
         print(f"hilsim plot: {problem}", file=sys.stderr)
         return int(ExitCode.USAGE)
     try:
-        loaded = read_run(args.run_dir)
+        loaded = read_run(args.run_dir, max_rows=PLOT_MAX_ROWS)  # bounded memory, any length
     except (NotARunError, RunFormatError, NotADirectoryError) as exc:
         print(f"hilsim plot: {exc}", file=sys.stderr)
         return int(ExitCode.USAGE)

@@ -352,10 +352,17 @@ def _report(
         if tel.get("format") in (None, "csv")
         else f" ({tel['format']}: {tel.get('format_reason')})"
     )
-    print(f"  telemetry: {run_dir}{how}", file=sys.stderr)
+    if tel.get("format") == "off":
+        how, run_dir_said = "", "off (telemetry.format = 'off': nothing kept)"
+    elif tel.get("format") == "none":
+        how, run_dir_said = " (summary only: telemetry.format = 'none')", str(run_dir)
+    else:
+        run_dir_said = str(run_dir)
+    print(f"  telemetry: {run_dir_said}{how}", file=sys.stderr)
     if show.exit_code == ExitCode.OK and (line := verdict(summary, show.ticks)):
         _say(f"verdict: {line}")
-    if not args.no_plots and show.summary_error is None:  # the run reads back
+    rows = tel.get("format") not in ("none", "off")
+    if rows and not args.no_plots and show.summary_error is None:  # the run reads back
         try:
             from hilsim.telemetry.plots import plot_run
 

@@ -43,6 +43,13 @@ class TelemetryFailurePolicy(StrEnum):
 
     STOP = "stop"  # a safe stop through the exit policy: a show without a record is a fault
     CONTINUE = "continue"  # keep the figure moving; the run's record ends where the disk did
+    AUTO = "auto"  # stop for a show with an end; continue for an endless one (the show first)
+
+    def continues(self, *, endless: bool) -> bool:
+        """Whether the show goes on when the writer dies (``auto``: when it is endless)."""
+        return self is TelemetryFailurePolicy.CONTINUE or (
+            self is TelemetryFailurePolicy.AUTO and endless
+        )
 
 
 # ----------------------------------------------------------------------------------------- bounds
@@ -226,8 +233,10 @@ class TelemetryConfig:
     on_failure: TelemetryFailurePolicy = rig_key(  # noqa: RUF009
         "choice",
         "A dead telemetry writer (disk full, I/O error): `stop` = a safe stop; `continue` = the "
-        "show goes on without a record.",
-        default=TelemetryFailurePolicy.STOP,
+        "show goes on without a record; `auto` = `stop` for a show with an end, `continue` for "
+        "an endless one (a show file or `--live` without `--duration`: the show comes first; "
+        "said at the start as a `startup` event).",
+        default=TelemetryFailurePolicy.AUTO,
     )
     format: TelemetryFormat = rig_key(  # noqa: RUF009
         "choice",
@@ -240,8 +249,53 @@ class TelemetryConfig:
         "166,667: the demo), else `parquet`, or `csv.gz` without pyarrow. A crash keeps every "
         "row up to the last flush (csv, csv.gz) or fsync, every 2 s (parquet); a full disk "
         "stops the show (`on_failure`), and a Parquet run then keeps only the parts written "
-        "before it (up to 2 s of rows are lost, and the failure is noticed at the next part).",
+        "before it (up to 2 s of rows are lost, and the failure is noticed at the next part). "
+        "`none`: no per-tick rows, only `events.jsonl`, `summary.json` and the copies (a "
+        "summary-only record); `off`: nothing kept (the run directory is removed at the end; "
+        "the terminal still says the outcome).",
         default=TelemetryFormat.AUTO,
+    )
+    max_mb: float | None = rig_key(
+        "number",
+        "A size cap on the run's rows: they are written in parts (`telemetry.parts/` for CSV, "
+        "`telemetry.parquet/`) and the oldest parts are removed so the rows stay under it; "
+        "each removal is a `telemetry_rotated` event and counted in the summary.",
+        unit="MB",
+        default=None,
+        default_doc="none: no cap",
+        bounds={"at_least": 0.1, "why": "a part is an eighth of the cap"},
+        example=500,
+    )
+    max_age_h: float | None = rig_key(
+        "number",
+        "An age cap on the run's rows: parts whose newest row is older than this are removed, "
+        "oldest first (`telemetry_rotated` events; counted in the summary).",
+        unit="h",
+        default=None,
+        default_doc="none: no cap",
+        bounds={"positive": True},
+        example=24,
+    )
+    runs_max_mb: float | None = rig_key(
+        "number",
+        "A size cap on the run directories under `out_dir` (this run's aside): as a show "
+        "starts there, the oldest are removed until the rest fit, each a `run_removed` event "
+        "and counted in the summary. Only directories holding a run's record are touched.",
+        unit="MB",
+        default=None,
+        default_doc="none: no cap",
+        bounds={"positive": True},
+        example=5000,
+    )
+    runs_max_age_days: float | None = rig_key(
+        "number",
+        "An age cap on the run directories under `out_dir`: as a show starts there, those last "
+        "written longer ago are removed (`run_removed` events; counted in the summary).",
+        unit="days",
+        default=None,
+        default_doc="none: no cap",
+        bounds={"positive": True},
+        example=30,
     )
 
 

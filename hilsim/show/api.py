@@ -26,19 +26,20 @@ from __future__ import annotations
 import logging
 import math
 import os
+import shutil
 import threading
 from collections.abc import Callable
 from pathlib import Path
 from types import TracebackType
-from typing import TYPE_CHECKING, Self
+from typing import TYPE_CHECKING, Any, Self
 
 from hilsim._types import JsonDict
 from hilsim.live.controls import Controls
-from hilsim.rig import Rig, load_rigs, select_bus
+from hilsim.rig import Rig, TelemetryFailurePolicy, load_rigs, select_bus
 from hilsim.show.end import ShowResult, crashed
 from hilsim.show.heartbeat import STATUS_FILE, Heartbeat
 from hilsim.show.parts import Parts, build_parts, with_show
-from hilsim.show.run_dir import RunDir, RunDirError, make_run_dir
+from hilsim.show.run_dir import RunDir, RunDirError, make_run_dir, prune_runs
 from hilsim.show.session import (
     ShowRefusedError,
     check_bus,
@@ -48,10 +49,13 @@ from hilsim.show.session import (
     port_for,
     run_show,
 )
+from hilsim.show.show_files import record_show_files
 from hilsim.show.stop import StopFlag
+from hilsim.telemetry.format import TelemetryFormat
 
 if TYPE_CHECKING:
     from drivers.dynamixel.bus import DynamixelBus
+    from hilsim.telemetry import TelemetryWriter
 
 __all__ = ["Show", "ShowError", "ShowRefusedError", "ShowResult", "endless_in_virtual_time"]
 
@@ -73,6 +77,17 @@ def endless_in_virtual_time(parts: Parts, duration_s: float | None) -> str | Non
     if parts.director is not None:
         return "a live show never ends by itself: give --duration with --virtual-time"
     return "the animation never ends (generators only): give --duration with --virtual-time"
+
+
+def _failure_note(rig: Rig, parts: Parts, duration_s: float | None) -> str | None:
+    """What a full disk will do to an endless show under ``telemetry.on_failure = "auto"``."""
+    endless = duration_s is None and parts.targets.duration is None
+    if rig.telemetry.on_failure is not TelemetryFailurePolicy.AUTO or not endless:
+        return None
+    return (
+        "telemetry.on_failure = auto: an endless show goes on if the disk fills up or fails "
+        "(the record ends there: a warning and telemetry_error.txt); set it to 'stop' to stop"
+    )
 
 
 class Show:
@@ -129,6 +144,7 @@ class Show:
             )
         #: what the show runs: targets, joint map, safety filter, springs, director
         self.parts = parts
+        self.show_path = None if show is None else Path(show)
         self.duration = duration
         self.virtual_time = virtual_time
         self.out = out
@@ -251,7 +267,9 @@ class Show:
                 raise ValueError(problem)
             assert self._run_dir is not None
             run_dir = self._run_dir.path
+            pruned = self._prune_runs(run_dir)  # first: the space is this run's
             telemetry = open_telemetry(self.rig, run_dir, self._bus.clock.virtual)
+            self._said_pruned(telemetry, pruned)
             reserve = telemetry.end.reserve
             if reserve.error is not None:  # the show goes on; its end may not fit on the disk
                 why = reserve.error.strerror or reserve.error
@@ -261,6 +279,11 @@ class Show:
                     "fault record may be lost"
                 )
                 self._say(self.notes[-1])
+            if self.rig.telemetry.format is not TelemetryFormat.OFF:
+                self._record_show_files(run_dir)
+            if (note := _failure_note(self.rig, self.parts, self.duration)) is not None:
+                self.notes.append(note)
+                self._say(note)
             for note in self.notes:  # what the start-up found and changed, in the record too
                 telemetry.event("startup", note)
             beat = None
@@ -288,9 +311,59 @@ class Show:
             self._result.run_dir = run_dir
             if beat is not None:
                 beat.end(_outcome(self._result, self.rig.loop.period_s))
+            if self.rig.telemetry.format is TelemetryFormat.OFF:  # nothing kept, as asked
+                shutil.rmtree(run_dir, ignore_errors=True)
+                self._result.run_dir = None
             return self._result
         finally:
             self._done.set()
+
+    def _prune_runs(self, run_dir: Path) -> list[dict[str, Any]]:
+        """The caps on the runs root: its oldest runs removed (a run made elsewhere, by
+        ``out``, leaves the root alone); a failure is a warning, never a stop."""
+        tel = self.rig.telemetry
+        root = Path(tel.out_dir).expanduser()
+        if run_dir.resolve().parent != root.resolve():
+            return []
+        max_bytes = None if tel.runs_max_mb is None else int(tel.runs_max_mb * 1e6)
+        max_age = None if tel.runs_max_age_days is None else tel.runs_max_age_days * 86400.0
+        try:
+            return prune_runs(root, run_dir, max_bytes, max_age)
+        except OSError as exc:
+            self.notes.append(f"warning: old runs under {root} not removed: {exc}")
+            self._say(self.notes[-1])
+            return []
+
+    def _said_pruned(self, telemetry: TelemetryWriter, pruned: list[dict[str, Any]]) -> None:
+        """Each run removed under the runs root's caps: an event; their count in the summary."""
+        tel = self.rig.telemetry
+        for rec in pruned:
+            cap = (
+                f"telemetry.runs_max_mb = {tel.runs_max_mb:g}"
+                if rec["why"] == "size"
+                else f"telemetry.runs_max_age_days = {tel.runs_max_age_days:g}"
+            )
+            telemetry.event(
+                "run_removed",
+                f"{cap}: removed the oldest run {rec['run']} ({rec['bytes'] / 1e6:.1f} MB, "
+                f"last written {rec['last_write']})",
+                **rec,
+            )
+        if tel.runs_max_mb is not None or tel.runs_max_age_days is not None:
+            telemetry.runs_removed = {
+                "runs": len(pruned),
+                "bytes": sum(int(r["bytes"]) for r in pruned),
+                "names": [r["run"] for r in pruned],
+            }
+
+    def _record_show_files(self, run_dir: Path) -> None:
+        """The show file and the files it and the rig name, kept with the run (copied or
+        hashed: ``show_files.json``); a failure is a warning, never a stop."""
+        rig = self.rig
+        manifest, problem = record_show_files(run_dir, rig.path, rig.text or None, self.show_path)
+        if manifest is None:  # (the manifest is the record: no event, "start" stays first)
+            self.notes.append(f"warning: {problem}")
+            self._say(self.notes[-1])
 
     def stop(self, signum: int | None = None) -> None:
         """End the show through the rig's exit policy (exit code 5; with ``signum``, the

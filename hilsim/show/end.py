@@ -16,7 +16,6 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from hilsim.exit_codes import ExitCode
-from hilsim.rig import TelemetryFailurePolicy
 from hilsim.telemetry import TelemetryWriter, WriterFailedError
 
 if TYPE_CHECKING:
@@ -48,15 +47,22 @@ class ShowResult:
 
 
 def end_show(
-    parts: Parts, bus: DynamixelBus, telemetry: TelemetryWriter, result: RunResult, wall: float
+    parts: Parts,
+    bus: DynamixelBus,
+    telemetry: TelemetryWriter,
+    result: RunResult,
+    wall: float,
+    *,
+    endless: bool = False,
 ) -> ShowResult:
-    """The outcome of a show that ran (``result``, ``wall`` seconds), and its record's end."""
+    """The outcome of a show that ran (``result``, ``wall`` seconds), and its record's end.
+    ``endless``: the show had no end of its own (``telemetry.on_failure = "auto"``)."""
     rig = parts.rig
     show = ShowResult(result.exit_code, result.reason, result.ticks, wall, result.exit_policy)
     live = None if parts.director is None else parts.director.close(telemetry.run_dir)
     show.telemetry_error = error = telemetry.finish()
     show.telemetry_traceback = telemetry.error_traceback
-    stop_on_failure = rig.telemetry.on_failure is TelemetryFailurePolicy.STOP
+    stop_on_failure = not rig.telemetry.on_failure.continues(endless=endless)
     if error is not None and stop_on_failure and show.exit_code == ExitCode.OK:
         show.exit_code = int(ExitCode.FAULT)
         show.reason = f"telemetry: the writer failed at the end of the show ({error})"

@@ -45,7 +45,7 @@ from drivers.fill import Packed
 from drivers.servo_bus import ExitReport, PresentReading, ServoBus, ServoBusError
 from hilsim._types import JsonDict
 from hilsim.exit_codes import ExitCode, for_signal
-from hilsim.rig import OverrunPolicy, TelemetryFailurePolicy
+from hilsim.rig import OverrunPolicy
 from hilsim.show.events import ShowLog
 from hilsim.show.monitors import STALL_EVENT_S, WATCHDOG_GAP_FRACTION, HostStalls
 from hilsim.show.parts import Parts
@@ -548,13 +548,14 @@ class HilLoop:
     # ------------------------------------------------------------------ per-tick parts
     def _telemetry_failed(self, exc: WriterFailedError) -> None:
         """The writer died recording the tick's row: stop the show or, with
-        ``telemetry.on_failure = "continue"``, only the recording (a warning, once)."""
-        if self.rig.telemetry.on_failure is not TelemetryFailurePolicy.CONTINUE:
+        ``telemetry.on_failure = "continue"`` (or ``auto``, endless), only the recording."""
+        if not self.rig.telemetry.on_failure.continues(endless=self.duration_s is None):
             raise exc
         self._recording = False
         log.warning(
-            "telemetry stopped (%s); the show goes on (telemetry.on_failure = 'continue')",
+            "telemetry stopped (%s); the show goes on (telemetry.on_failure = '%s')",
             exc.__cause__ or exc,
+            self.rig.telemetry.on_failure,
         )
 
     def _rejoin(self, i: int, joint_rad: float) -> None:

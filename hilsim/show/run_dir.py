@@ -2,17 +2,20 @@
 
 It is made before anything touches the bus, so a path that cannot be written is refused
 while nothing has moved. A directory made for a run that never started is removed again.
+Under caps on the runs root (``telemetry.runs_max_mb``, ``runs_max_age_days``) the oldest runs
+there are removed as a show starts (:func:`prune_runs`).
 """
 
 from __future__ import annotations
 
 import contextlib
 import os
+import shutil
 import time
 from dataclasses import dataclass
 from pathlib import Path
 
-__all__ = ["RunDir", "RunDirError", "make_run_dir"]
+__all__ = ["RunDir", "RunDirError", "make_run_dir", "prune_runs"]
 
 
 class RunDirError(ValueError):
@@ -89,3 +92,57 @@ def _mkdir(path: Path, *, exist_ok: bool) -> None:
         ) from None
     if not os.access(path, os.W_OK | os.X_OK):
         raise RunDirError(f"{path}: the run directory is not writable")
+
+
+#: what makes a directory under the runs root a run's record (and so removable by the caps)
+RUN_MARKERS = ("events.jsonl", "summary.json", "buses.json")
+
+
+def _size_and_last_write(path: Path) -> tuple[int, float]:
+    size, last = 0, path.stat().st_mtime
+    for root, _dirs, files in os.walk(path):
+        for name in files:
+            with contextlib.suppress(OSError):
+                st = os.stat(os.path.join(root, name), follow_symlinks=False)
+                size += st.st_size
+                last = max(last, st.st_mtime)
+    return size, last
+
+
+def prune_runs(
+    root: Path, current: Path, max_bytes: int | None, max_age_s: float | None
+) -> list[dict[str, object]]:
+    """Remove old run directories under ``root`` (not ``current``): those last written more than
+    ``max_age_s`` ago, then the oldest until the rest take ``max_bytes`` at most. Only
+    directories holding a run's record (:data:`RUN_MARKERS`) are touched, never a symbolic
+    link. Returns one record per run removed (its name, bytes, last write, why), oldest first;
+    an OSError is the caller's to say."""
+    if max_bytes is None and max_age_s is None:
+        return []
+    here = current.resolve()
+    runs = []
+    for d in root.iterdir():
+        if d.is_symlink() or not d.is_dir() or d.resolve() == here:
+            continue
+        if any((d / m).exists() for m in RUN_MARKERS):
+            size, last = _size_and_last_write(d)
+            runs.append((last, d.name, d, size))
+    runs.sort()
+    now, removed = time.time(), []
+    held = sum(r[3] for r in runs)
+    for last, name, d, size in runs:
+        old = max_age_s is not None and now - last > max_age_s
+        big = max_bytes is not None and held > max_bytes
+        if not (old or big):
+            continue
+        shutil.rmtree(d)
+        held -= size
+        removed.append(
+            {
+                "run": name,
+                "bytes": size,
+                "last_write": time.strftime("%Y-%m-%dT%H:%M:%S", time.localtime(last)),
+                "why": "age" if old else "size",
+            }
+        )
+    return removed

@@ -303,6 +303,8 @@ def open_telemetry(rig: Rig, run_dir: Path, virtual: bool) -> TelemetryWriter:
             flush_interval_s=rig.telemetry.flush_interval_s,
             format=rig.telemetry.format,  # auto: csv, or for big runs parquet (else csv.gz)
             rate_hz=rig.loop.rate_hz,
+            max_bytes=None if (mb := rig.telemetry.max_mb) is None else int(mb * 1e6),
+            max_age_s=None if (h := rig.telemetry.max_age_h) is None else h * 3600.0,
             config_text=rig.text,
             # virtual time outruns any disk: wait for the writer rather than drop rows
             overflow="block" if virtual else "drop",
@@ -347,4 +349,5 @@ def run_show(
             parts.director.close_inputs()
         close_quietly(telemetry, crashed(exc))
         raise
-    return end_show(parts, bus, telemetry, result, wall)
+    endless = duration_s is None and parts.targets.duration is None
+    return end_show(parts, bus, telemetry, result, wall, endless=endless)

@@ -34,6 +34,8 @@ import numpy.typing as npt
 TELEMETRY_CSV = "telemetry.csv"
 TELEMETRY_CSV_GZ = "telemetry.csv.gz"
 TELEMETRY_PARQUET = "telemetry.parquet"  # a directory of part files
+TELEMETRY_PARTS = "telemetry.parts"  # CSV (or csv.gz) rows in parts, under a size or age cap
+SHOW_MANIFEST = "show_files.json"  # the show file and the files it names: copied or hashed
 EVENTS_JSONL = "events.jsonl"
 SUMMARY_JSON = "summary.json"
 CONFIG_NAME = "rig.toml"
@@ -186,6 +188,8 @@ class TelemetryFormat(StrEnum):
     CSV = "csv"  # exact text, every float64 round-trips
     CSV_GZ = "csv.gz"  # the same text, gzip-compressed (zcat, pandas, polars, duckdb read it)
     PARQUET = "parquet"  # fixed-point integer columns, delta-encoded, zstd (needs pyarrow)
+    NONE = "none"  # no per-tick rows: events.jsonl and summary.json only (summary-only)
+    OFF = "off"  # nothing kept: the run directory is removed at the end of the show
 
 
 #: auto keeps CSV while a 10-minute show's CSV stays under this many bytes (the performance goal)

@@ -119,6 +119,42 @@ def safety_acted(
     return acted
 
 
+def _counted(run: Run, name: str, keep: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """A decimated run's count ``name`` in the window: which rows' buckets count any (both rows
+    of a bucket), and the counts (on a bucket's first row)."""
+    assert run.counts is not None
+    counts = run.counts[name]
+    mask = counts > 0
+    mask[1::2] |= mask[0::2]
+    return mask[keep], counts[keep]
+
+
+def _acted(
+    run: Run,
+    raw: dict[str, np.ndarray],
+    j: int,
+    lim_rad: tuple[float, float] | None,
+    keep: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Joint ``j``: which rows the filter acted in, and how many ticks each stands for (a
+    decimated run: counted per bucket while reading; the envelope cannot tell)."""
+    if run.decimated:
+        return _counted(run, f"acted_{run.joint_names[j]}", keep)
+    acted = safety_acted(raw["cmd"][:, j], raw["sim_x"][:, j], lim_rad)
+    return acted, acted.astype(float)
+
+
+def _bad_reads(
+    run: Run, status: np.ndarray, j: int, code: int, keep: np.ndarray
+) -> tuple[np.ndarray, int]:
+    """Joint ``j``'s rows with read status ``code``, and how many ticks had it."""
+    if run.decimated:
+        bad, per_row = _counted(run, f"status{code}_{run.joint_names[j]}", keep)
+        return bad, int(per_row.sum())
+    bad = status[:, j] == code
+    return bad, int(np.count_nonzero(bad))
+
+
 def _spans(t: np.ndarray, mask: np.ndarray, dt: float) -> list[tuple[float, float]]:
     """(start, width) of each run of True in ``mask``; a tick covers [t, t + dt)."""
     if not mask.any():
@@ -195,6 +231,8 @@ def joints_figure(
     soft = soft_start_s(run)
     in_soft = t < (soft if soft is not None else -math.inf)
     dt = float(np.median(np.diff(run.t_sched))) if run.n_ticks > 1 else 0.0
+    if run.decimated:  # two rows a bucket: the tick period from the ticks' span
+        dt = common.period_s(run)
     n = len(names)
     fig = common.new_figure(12.0, 1.2 + 2.1 * n, dpi)
     axes = fig.subplots(n, 1, sharex=True, squeeze=False)[:, 0]
@@ -208,7 +246,7 @@ def joints_figure(
     for j, (ax, name) in enumerate(zip(axes, names, strict=True)):
         lim = limits.get(name)
         lim_rad = None if lim is None else (math.radians(lim[0]), math.radians(lim[1]))
-        acted = safety_acted(raw["cmd"][:, j], raw["sim_x"][:, j], lim_rad)
+        acted, acted_n = _acted(run, raw, j, lim_rad, keep)
         spans = _spans(t, acted & ~in_soft, dt)
         soft_spans = _spans(t, acted & in_soft, dt)
         for sp, style in ((spans, ACTED_STYLE), (soft_spans, SOFT_START_STYLE)):
@@ -233,8 +271,8 @@ def joints_figure(
             _safety_note(
                 run,
                 name,
-                float(np.count_nonzero(acted & ~in_soft)) * dt,
-                float(np.count_nonzero(acted & in_soft)) * dt,
+                float(acted_n[~in_soft].sum()) * dt,
+                float(acted_n[in_soft].sum()) * dt,
             ),
             transform=ax.transAxes,
             va="top",
@@ -244,14 +282,13 @@ def joints_figure(
         side.append((note, 0.01, 0.0))
         marks = []
         for code, (color, label) in STATUS_STYLE.items():
-            bad = status[:, j] == code
-            count = int(np.count_nonzero(bad))
+            bad, count = _bad_reads(run, status, j, int(code), keep)
             if count:
                 # a rug along the bottom, in axes coordinates: visible however short the stretch
                 marks.append(
                     ax.plot(
                         t[bad],
-                        np.full(count, 0.035),
+                        np.full(int(np.count_nonzero(bad)), 0.035),
                         linestyle="none",
                         marker="|",
                         markersize=10,
@@ -297,8 +334,11 @@ def joints_figure(
     legend = fig.legend(handles=handles, loc="lower center", ncols=min(len(handles), 4))
     span = f"{t[-1] - t[0]:.3g} s" if t.size else "no ticks"
     where = common.window_note(start, end)
-    ticks = common.tick_count(run, t.size, start, end)
-    title = common.title(fig, f"Joint positions: {run.path.name}{where} ({ticks}, {span})")
+    ticks = common.tick_count(run, common.rows_in(run, keep), start, end)
+    title = common.title(
+        fig,
+        f"Joint positions: {run.path.name}{where} ({ticks}, {span}){common.decimation_note(run)}",
+    )
     ruler = common.Ruler(fig)
     axes_w = axes[0].get_position().width * fig.get_figwidth()
     common.place_column(

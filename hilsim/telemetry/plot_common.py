@@ -192,6 +192,36 @@ def window(run: Run, start: float | None, end: float | None) -> np.ndarray:
     return keep
 
 
+def rows_in(run: Run, keep: np.ndarray) -> int:
+    """The ticks' rows in the window ``keep`` (a decimated run: counted, two rows a bucket)."""
+    if run.counts is not None:
+        return int(run.counts["rows"][keep].sum())
+    return int(np.count_nonzero(keep))
+
+
+def period_s(run: Run) -> float:
+    """The time between two ticks, from the rows (0 with fewer than two)."""
+    t, tick = run.t_sched, run.columns["tick"]
+    if t.size < 2 or tick[-1] <= tick[0]:
+        return 0.0
+    return float((t[-1] - t[0]) / (tick[-1] - tick[0]))
+
+
+def decimation_note(run: Run) -> str:
+    """A title's note on a bounded read: what a drawn point stands for."""
+    env = run.envelope
+    rot = (run.summary or {}).get("telemetry") or {}
+    rot = rot.get("rotation") if isinstance(rot, dict) else None
+    gone = rot.get("rows_removed") if isinstance(rot, dict) else None
+    cap = f"\nthe oldest {gone:,} rows were removed under the run's cap" if gone else ""
+    if env is None or not env.decimated:
+        return cap
+    return cap + (
+        f"\n{env.rows:,} rows read in bounded memory: drawn as the min and max of every "
+        f"{env.width:,} ticks; counts exact, percentiles within 2.3 %"
+    )
+
+
 def window_note(start: float | None, end: float | None) -> str:
     if start is None and end is None:
         return ""

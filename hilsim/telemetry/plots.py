@@ -81,6 +81,12 @@ class PlotProcessError(RuntimeError):
     are raised again as themselves)."""
 
 
+#: rows a plot reads as they are; a longer run is read as a min/max envelope (bounded memory:
+#: hilsim.telemetry.envelope). 50k rows: 3.3 minutes at 250 Hz, 15 MB at 4 joints; matplotlib's
+#: lines of that many points take more than the rows (docs/telemetry.md: the figures measured).
+PLOT_MAX_ROWS = 50_000
+
+
 def plot_run(
     run: Run | str | os.PathLike[str],
     out_dir: str | os.PathLike[str] | None = None,
@@ -114,7 +120,7 @@ def plot_run(
                 return paths
         worker.close()
     if not isinstance(run, Run):
-        run = read_run(run)
+        run = read_run(run, max_rows=PLOT_MAX_ROWS)  # bounded: a week plots in the same memory
     out = Path(out_dir) if out_dir is not None else run.path / "plots"
     joints_path, lateness_path, timing_path = (out / n for n in PNG_NAMES)
     if not (can_fork() if parallel is None else parallel):

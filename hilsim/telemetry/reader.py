@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import contextlib
 import json
-import math
 import os
 import zlib
 from collections.abc import Callable
@@ -23,31 +22,32 @@ from typing import Any
 
 import numpy as np
 
+from hilsim.telemetry.envelope import Envelope
 from hilsim.telemetry.format import (
     CONFIG_NAME,
     EVENTS_JSONL,
-    HEAD_COLUMNS,
     JOINT_FIELDS,
     ROWS_SCHEMA_VERSION,
     SUMMARY_JSON,
-    TAILS,
     TELEMETRY_CSV,
     TELEMETRY_CSV_GZ,
     TELEMETRY_PARQUET,
+    TELEMETRY_PARTS,
     TelemetryError,
-    csv_columns,
     parquet_columns,
 )
-from hilsim.telemetry.sinks import INT_INF
+from hilsim.telemetry.rows_stream import (
+    RunFormatError,
+    parquet_joints,
+    parquet_table_columns,
+    parse_header,
+    parse_rows,
+    stream_rows,
+)
 
 
 class NotARunError(TelemetryError, FileNotFoundError):
     """The directory holds no ``telemetry.csv`` (nor ``.csv.gz``, nor ``telemetry.parquet/``)."""
-
-
-class RunFormatError(TelemetryError, ValueError):
-    """The rows are not telemetry (a CSV without a telemetry header, Parquet parts without its
-    columns), or cannot be read here (Parquet without pyarrow)."""
 
 
 @dataclass(eq=False)
@@ -71,6 +71,17 @@ class Run:
     truncated: bool = False
     rows_file: str = TELEMETRY_CSV
     rows_version: int = ROWS_SCHEMA_VERSION
+    #: a bounded read of a long run (``read_run(..., max_rows=)``): the min/max envelope and
+    #: its exact counts (:mod:`hilsim.telemetry.envelope`); the columns then hold two rows a
+    #: bucket when :attr:`decimated`, else the rows themselves
+    envelope: Envelope | None = None
+    #: per row of ``columns``: the envelope's counts (rows, overruns, bad reads, acted, stage sums)
+    counts: dict[str, np.ndarray] | None = None
+
+    @property
+    def decimated(self) -> bool:
+        """The columns are a min/max envelope (two rows a bucket), not the rows themselves."""
+        return self.envelope is not None and self.envelope.decimated
 
     @property
     def n_ticks(self) -> int:
@@ -124,57 +135,6 @@ class Run:
         return self.columns[f"t_{stage}_us"]
 
 
-def _parse_header(line: str) -> tuple[list[str], tuple[str, ...], int]:
-    """The header's names, its joints and its layout's version."""
-    names = line.rstrip("\r\n").split(",")
-    for version, tail_columns in sorted(TAILS.items(), reverse=True):
-        head, tail = len(HEAD_COLUMNS), len(tail_columns)
-        middle = names[head : len(names) - tail]
-        ok = (
-            len(names) >= head + tail + len(JOINT_FIELDS)
-            and tuple(names[:head]) == HEAD_COLUMNS
-            and tuple(names[len(names) - tail :]) == tail_columns
-            and len(middle) % len(JOINT_FIELDS) == 0
-        )
-        if ok:
-            n = len(middle) // len(JOINT_FIELDS)
-            prefix = JOINT_FIELDS[0] + "_"
-            joints = tuple(c[len(prefix) :] for c in middle[:n])
-            ok = (
-                all(c.startswith(prefix) for c in middle[:n])
-                and middle == csv_columns(joints, version)[head : len(names) - tail]
-            )
-            if ok:
-                return names, joints, version
-    raise RunFormatError(f"not a telemetry header: {line[:120]!r}")
-
-
-def _parse_rows(lines: list[str], ncols: int, warnings: list[str], name: str) -> np.ndarray:
-    if not lines:
-        return np.empty((0, ncols))
-    try:
-        data = np.loadtxt(lines, delimiter=",", dtype=np.float64, ndmin=2, comments=None)
-        if data.shape[1] == ncols:
-            return data
-    except ValueError:
-        pass
-    # slow path: skip what does not parse, accept empty fields as NaN
-    rows: list[list[float]] = []
-    bad: list[int] = []
-    for i, line in enumerate(lines):
-        parts = line.rstrip("\r").split(",")
-        try:
-            if len(parts) != ncols:
-                raise ValueError
-            rows.append([float(p) if p else math.nan for p in parts])
-        except ValueError:
-            bad.append(i + 2)  # 1-based file line, after the header
-    if bad:
-        shown = ", ".join(map(str, bad[:10])) + (" ..." if len(bad) > 10 else "")
-        warnings.append(f"{name}: skipped {len(bad)} unparsable line(s): {shown}")
-    return np.array(rows, dtype=np.float64).reshape(-1, ncols)
-
-
 def _gunzip(path: Path, warnings: list[str]) -> bytes:
     """A gzip file's text as far as it decodes: a stream cut off by a crash gives everything up
     to the cut (the writer sync-flushes at every flush), damage ends it where it starts."""
@@ -226,9 +186,23 @@ def _read_csv(csv_path: Path, warnings: list[str]) -> _Rows:
     lines, truncated = _read_lines(csv_path, warnings)
     if not lines:
         raise RunFormatError(f"{csv_path} has no header")
-    names, joints, version = _parse_header(lines[0])
-    data = _parse_rows(lines[1:], len(names), warnings, csv_path.name)
+    names, joints, version = parse_header(lines[0])
+    data = parse_rows(lines[1:], len(names), warnings, csv_path.name)
     return {name: data[:, k].copy() for k, name in enumerate(names)}, joints, truncated, version
+
+
+def _read_csv_parts(parts_dir: Path, warnings: list[str]) -> _Rows:
+    """CSV parts (``part-NNNNN.csv`` or ``.csv.gz``, a header each), in order, as one table.
+    The oldest parts may have been removed under a cap (the rows start later)."""
+    files = sorted(p for p in parts_dir.glob("part-*.csv*") if p.suffix in (".csv", ".gz"))
+    if not files:
+        raise RunFormatError(f"{parts_dir} holds no part-*.csv yet")
+    tables = [_read_csv(f, warnings) for f in files]
+    joints, version = tables[0][1], tables[0][3]
+    if any(t[1] != joints or t[3] != version for t in tables):
+        raise RunFormatError(f"{parts_dir}: parts with different columns")
+    columns = {name: np.concatenate([t[0][name] for t in tables]) for name in tables[0][0]}
+    return columns, joints, tables[-1][2], version
 
 
 def _read_parquet(pq_dir: Path, warnings: list[str]) -> _Rows:
@@ -251,57 +225,20 @@ def _read_parquet(pq_dir: Path, warnings: list[str]) -> _Rows:
             "the writer, every 2 s, and at the end)"
         )
     first = tables[0].column_names
-    prefix, suffix = JOINT_FIELDS[0] + "_", "_urad"
-    joints = tuple(
-        c[len(prefix) : -len(suffix)] for c in first if c.startswith(prefix) and c.endswith(suffix)
-    )
-    layouts = {v: parquet_columns(joints, v) for v in TAILS} if joints else {}
-    version = next((v for v, cols in layouts.items() if [c.name for c in cols] == first), None)
+    joints, version = parquet_joints(first)
     if version is None:
         raise RunFormatError(f"{pq_dir}: not telemetry columns: {first[:6]!r} ...")
-    cols = layouts[version]
-    columns: dict[str, np.ndarray] = {}
-    for c in cols:
-        parts = []
-        for t in tables:
-            if t.column_names != first:
-                raise RunFormatError(f"{pq_dir}: parts with different columns")
-            # nulls come out as NaN (the column as floats); +-(2**63 - 1) is +-inf
-            q = np.asarray(t.column(c.name).to_numpy(zero_copy_only=False), dtype=np.float64)
-            x = q / c.scale
-            inf = np.abs(q) >= float(INT_INF)
-            x[inf] = np.copysign(math.inf, q[inf])
-            parts.append(x)
-        columns[c.csv] = np.concatenate(parts)
+    cols = parquet_columns(joints, version)
+    if any(t.column_names != first for t in tables):
+        raise RunFormatError(f"{pq_dir}: parts with different columns")
+    got = [parquet_table_columns(t, cols) for t in tables]
+    columns = {c.csv: np.concatenate([g[c.csv] for g in got]) for c in cols}
     return columns, joints, False, version
 
 
-def read_run(run_dir: str | os.PathLike[str]) -> Run:
-    """Load a run directory written by :class:`TelemetryWriter` (possibly while it is written,
-    or after a crash), whatever its rows' format. Raises :class:`NotARunError` if it holds no
-    rows (``telemetry.csv``, ``.csv.gz``, ``telemetry.parquet/``) and :class:`RunFormatError` if
-    they are not telemetry (or Parquet without pyarrow); everything else that is wrong is
-    tolerated and listed in ``Run.warnings``."""
-    path = Path(run_dir)
-    warnings: list[str] = []
-    read: Callable[[Path, list[str]], _Rows]
-    if (path / TELEMETRY_CSV).is_file():
-        rows_file, read = TELEMETRY_CSV, _read_csv
-    elif (path / TELEMETRY_CSV_GZ).is_file():
-        rows_file, read = TELEMETRY_CSV_GZ, _read_csv
-    elif (path / TELEMETRY_PARQUET).is_dir():
-        rows_file, read = TELEMETRY_PARQUET, _read_parquet
-    else:
-        raise NotARunError(
-            f"{path} is not a run directory (no {TELEMETRY_CSV}, {TELEMETRY_CSV_GZ} "
-            f"or {TELEMETRY_PARQUET})"
-        )
-    columns, joints, truncated, version = read(path / rows_file, warnings)
-    if columns["tick"].size > 1 and np.any(np.diff(columns["tick"]) < 1):
-        warnings.append(f"{rows_file}: tick numbers are not increasing")
-
+def _read_events(ev_path: Path, warnings: list[str]) -> list[dict[str, Any]]:
+    """The events, one JSON object a line; what does not parse is skipped and said."""
     events: list[dict[str, Any]] = []
-    ev_path = path / EVENTS_JSONL
     if ev_path.is_file():
         ev_lines, _ = _read_lines(ev_path, warnings)
         bad = 0
@@ -319,6 +256,74 @@ def read_run(run_dir: str | os.PathLike[str]) -> Run:
             warnings.append(f"{EVENTS_JSONL}: skipped {bad} unparsable line(s)")
     else:
         warnings.append(f"no {EVENTS_JSONL}")
+    return events
+
+
+def _read_bounded(
+    rows_path: Path, warnings: list[str], max_rows: int
+) -> tuple[_Rows, Envelope, tuple[int, int, int]]:
+    """The rows streamed into an :class:`Envelope` (bounded memory), and the tick gaps counted
+    on the way (:func:`tick_gaps`, across chunk edges too)."""
+    stream = stream_rows(rows_path, warnings)
+    env = Envelope(stream.names, stream.joints, max_rows=max_rows)
+    gaps = [0, 0, 0]
+    last: np.ndarray | None = None
+    want = [k for k, n in enumerate(stream.names) if n in ("tick", "skipped_ticks", "overrun")]
+    for chunk in stream.chunks():
+        if not len(chunk):
+            continue
+        edge = chunk[:, want] if last is None else np.vstack([last, chunk[:, want]])
+        cols = {stream.names[k]: edge[:, i] for i, k in enumerate(want)}
+        for i, n in enumerate(tick_gaps(cols)):
+            gaps[i] += n
+        last = chunk[-1:, want]
+        env.add(chunk)
+    env.finish()
+    columns, counts = env.columns()
+    rows: _Rows = (columns, stream.joints, stream.truncated, stream.version)
+    env.counted = counts
+    return rows, env, (gaps[0], gaps[1], gaps[2])
+
+
+def read_run(run_dir: str | os.PathLike[str], *, max_rows: int | None = None) -> Run:
+    """Load a run directory written by :class:`TelemetryWriter` (possibly while it is written,
+    or after a crash), whatever its rows' format. Raises :class:`NotARunError` if it holds no
+    rows (``telemetry.csv``, ``.csv.gz``, ``telemetry.parquet/``) and :class:`RunFormatError` if
+    they are not telemetry (or Parquet without pyarrow); everything else that is wrong is
+    tolerated and listed in ``Run.warnings``.
+
+    ``max_rows``: a bounded read: the rows are streamed, and past ``max_rows`` kept as a
+    min/max envelope per bucket of ticks with exact counts (``Run.envelope``,
+    :mod:`hilsim.telemetry.envelope`), so a run of any length reads in the same memory."""
+    path = Path(run_dir)
+    warnings: list[str] = []
+    read: Callable[[Path, list[str]], _Rows]
+    if (path / TELEMETRY_CSV).is_file():
+        rows_file, read = TELEMETRY_CSV, _read_csv
+    elif (path / TELEMETRY_CSV_GZ).is_file():
+        rows_file, read = TELEMETRY_CSV_GZ, _read_csv
+    elif (path / TELEMETRY_PARQUET).is_dir():
+        rows_file, read = TELEMETRY_PARQUET, _read_parquet
+    elif (path / TELEMETRY_PARTS).is_dir():
+        rows_file, read = TELEMETRY_PARTS, _read_csv_parts
+    else:
+        raise NotARunError(
+            f"{path} holds no per-tick rows (no {TELEMETRY_CSV}, {TELEMETRY_CSV_GZ}, "
+            f"{TELEMETRY_PARTS} or {TELEMETRY_PARQUET}: not a run directory, or one with "
+            "telemetry.format = 'none')"
+        )
+    envelope, gaps = None, None
+    if max_rows is None:
+        columns, joints, truncated, version = read(path / rows_file, warnings)
+    else:
+        (columns, joints, truncated, version), envelope, gaps = _read_bounded(
+            path / rows_file, warnings, max_rows
+        )
+    decimated = envelope is not None and envelope.decimated  # (two rows a bucket)
+    if not decimated and columns["tick"].size > 1 and np.any(np.diff(columns["tick"]) < 1):
+        warnings.append(f"{rows_file}: tick numbers are not increasing")
+
+    events = _read_events(path / EVENTS_JSONL, warnings)
 
     summary: dict[str, Any] | None = None
     sum_path = path / SUMMARY_JSON
@@ -330,8 +335,15 @@ def read_run(run_dir: str | os.PathLike[str]) -> Run:
             warnings.append(f"{SUMMARY_JSON}: unreadable ({exc})")
     else:
         warnings.append(f"no {SUMMARY_JSON} (the run did not close cleanly, or is still running)")
-    warnings.extend(gap_warnings(rows_file, columns, summary))
+    warnings.extend(gap_warnings(rows_file, columns, summary, gaps))
     tel = summary.get("telemetry") if summary else None
+    rotated = [e for e in events if e.get("kind") == "telemetry_rotated"]
+    if rotated:
+        gone = sum(int(e.get("rows") or 0) for e in rotated)
+        warnings.append(
+            f"{rows_file}: the oldest {len(rotated)} part(s) ({gone} rows, to tick "
+            f"{rotated[-1].get('last_tick')}) removed under the run's cap (telemetry_rotated)"
+        )
     if isinstance(tel, dict):
         if tel.get("rows_dropped"):
             warnings.append(
@@ -356,6 +368,8 @@ def read_run(run_dir: str | os.PathLike[str]) -> Run:
         truncated=truncated,
         rows_file=rows_file,
         rows_version=version,
+        envelope=envelope,
+        counts=None if envelope is None else envelope.counted or None,
     )
 
 
@@ -384,11 +398,15 @@ def tick_gaps(columns: dict[str, np.ndarray]) -> tuple[int, int, int]:
 
 
 def gap_warnings(
-    rows_file: str, columns: dict[str, np.ndarray], summary: dict[str, Any] | None
+    rows_file: str,
+    columns: dict[str, np.ndarray],
+    summary: dict[str, Any] | None,
+    gaps: tuple[int, int, int] | None = None,
 ) -> list[str]:
-    """What :func:`tick_gaps` found, one line each, naming the rows' file. Rows without a
-    ``skipped_ticks`` column fall back on the summary's ``loop.skipped_ticks`` if there is one."""
-    caught, lost, unknown = tick_gaps(columns)
+    """What :func:`tick_gaps` found (or ``gaps``, counted already), one line each, naming the
+    rows' file. Rows without a ``skipped_ticks`` column fall back on the summary's
+    ``loop.skipped_ticks`` if there is one."""
+    caught, lost, unknown = tick_gaps(columns) if gaps is None else gaps
     loop = (summary or {}).get("loop")
     skipped = loop.get("skipped_ticks") if isinstance(loop, dict) else None
     if unknown and "skipped_ticks" not in columns and type(skipped) is int and skipped >= 0:

@@ -26,6 +26,7 @@ from __future__ import annotations
 import contextlib
 import gzip
 import os
+import time
 from collections.abc import Callable, Generator, Sequence
 from pathlib import Path
 from typing import Any
@@ -38,11 +39,13 @@ from hilsim.telemetry.format import (
     TELEMETRY_CSV,
     TELEMETRY_CSV_GZ,
     TELEMETRY_PARQUET,
+    TELEMETRY_PARTS,
     TelemetryFormat,
     csv_columns,
     parquet_columns,
 )
 from hilsim.telemetry.ring import TickRing
+from hilsim.telemetry.rotation import Part, PartBook
 
 Opener = Callable[[Path, str], Any]
 
@@ -77,8 +80,10 @@ def row_format(n: int) -> str:
     return ",".join(fields) + "\n"
 
 
-def rows_path(run_dir: Path, fmt: TelemetryFormat) -> Path:
-    """The file (or, for Parquet, directory) the rows of a run in ``fmt`` go to."""
+def rows_path(run_dir: Path, fmt: TelemetryFormat, *, parts: bool = False) -> Path:
+    """The file (or, for Parquet and CSV in ``parts``, directory) the rows in ``fmt`` go to."""
+    if parts and fmt is not TelemetryFormat.PARQUET:
+        return run_dir / TELEMETRY_PARTS
     names = {
         TelemetryFormat.CSV: TELEMETRY_CSV,
         TelemetryFormat.CSV_GZ: TELEMETRY_CSV_GZ,
@@ -88,49 +93,84 @@ def rows_path(run_dir: Path, fmt: TelemetryFormat) -> Path:
 
 
 def open_sink(
-    fmt: TelemetryFormat, run_dir: Path, joint_names: Sequence[str], opener: Opener
+    fmt: TelemetryFormat,
+    run_dir: Path,
+    joint_names: Sequence[str],
+    opener: Opener,
+    book: PartBook | None = None,
 ) -> CsvSink | ParquetSink:
+    """The sink of a run's rows in ``fmt``; with a ``book`` (a size or age cap) in parts."""
     for other in (TelemetryFormat.CSV, TelemetryFormat.CSV_GZ, TelemetryFormat.PARQUET):
         if rows_path(run_dir, other).exists():  # a run directory holds one run
             raise FileExistsError(f"{rows_path(run_dir, other)} exists")
-    path = rows_path(run_dir, fmt)
+    if (run_dir / TELEMETRY_PARTS).exists():
+        raise FileExistsError(f"{run_dir / TELEMETRY_PARTS} exists")
+    path = rows_path(run_dir, fmt, parts=book is not None)
     if fmt is TelemetryFormat.PARQUET:
-        return ParquetSink(path, joint_names, opener)
-    return CsvSink(path, joint_names, opener, gz=fmt is TelemetryFormat.CSV_GZ)
+        return ParquetSink(path, joint_names, opener, book)
+    return CsvSink(path, joint_names, opener, gz=fmt is TelemetryFormat.CSV_GZ, book=book)
 
 
 class CsvSink:
     """Exact CSV text, plain or gzip-compressed (module docstring)."""
 
-    def __init__(self, path: Path, joint_names: Sequence[str], opener: Opener, *, gz: bool) -> None:
+    def __init__(
+        self,
+        path: Path,
+        joint_names: Sequence[str],
+        opener: Opener,
+        *,
+        gz: bool,
+        book: PartBook | None = None,
+    ) -> None:
         columns = csv_columns(joint_names)
-        self.path = path
+        self.path = path  # the file, or under a cap the parts' directory
         self.chunk_rows = max(1, _CHUNK_FLOATS // len(columns))
         self.bursts = False
+        self.book = book
+        self._opener, self._is_gz = opener, gz
         self._fmt = row_format(len(joint_names))
-        header = ",".join(columns) + "\n"
+        self._header = ",".join(columns) + "\n"
         self._gz: gzip.GzipFile | None = None
         self._pending: list[str] = []
         self._pending_len = self._pending_rows = 0
-        if gz:
-            self._file = opener(path, "xb")
+        self._rows_put = 0
+        self.parts = 0
+        # under a cap a part may pass its size by a batch (gzip) or a chunk: a quarter at most
+        part = book.part_bytes if book is not None else None
+        self._batch = _GZ_BATCH if part is None else max(1024, min(_GZ_BATCH, part // 4))
+        if book is not None:
+            path.mkdir()  # FileExistsError: a run directory holds one run
+            self._open_file(self._part_path())
+        else:
+            self._open_file(path)
+
+    def _part_path(self) -> Path:
+        return self.path / f"part-{self.parts:05d}.csv{'.gz' if self._is_gz else ''}"
+
+    def _open_file(self, path: Path) -> None:
+        """Open ``path`` (a new file) and write the header."""
+        self._file_path = path
+        self._part_rows, self._part_ticks = 0, (-1, -1)
+        self._part_bytes, self._opened_at = len(self._header), time.monotonic()
+        if self._is_gz:
+            self._file = self._opener(path, "xb")
             try:
                 self._gz = gzip.GzipFile(
                     filename="", fileobj=self._file, mode="wb", compresslevel=_GZ_LEVEL, mtime=0
                 )
-                self._gz.write(header.encode("utf-8"))
+                self._gz.write(self._header.encode("utf-8"))
                 self._gz.flush()
             except BaseException:
                 with contextlib.suppress(OSError, ValueError):
                     self._file.close()
                 raise
         else:
-            self._file = opener(path, "x")
-            self._file.write(header)
+            self._file = self._opener(path, "x")
+            self._file.write(self._header)
         self._file.flush()
-        self._rows_put = 0
         #: (bytes, rows) of the plain file at its last flush
-        self._flushed = (os.fstat(self._file.fileno()).st_size, 0)
+        self._flushed = (os.fstat(self._file.fileno()).st_size, self._rows_put)
 
     def take(self, ring: TickRing, n: int) -> list[list[float]]:
         return ring.take(n)
@@ -138,14 +178,42 @@ class CsvSink:
     def put(self, rows: list[list[float]]) -> int:
         fmt = self._fmt
         text = "".join([fmt % tuple(r) for r in rows])
+        if self.book is not None and rows:
+            first = self._part_ticks[0] if self._part_rows else int(rows[0][0])
+            self._part_ticks = (first, int(rows[-1][0]))
+            self._part_rows += len(rows)
         if self._gz is None:
             self._rows_put += len(rows)
             self._file.write(text)
-            return len(rows)
-        self._pending.append(text)
-        self._pending_len += len(text)
-        self._pending_rows += len(rows)
-        return self._compress() if self._pending_len >= _GZ_BATCH else 0
+            self._part_bytes += len(text)  # ASCII: one byte a character
+            done = len(rows)
+        else:
+            self._pending.append(text)
+            self._pending_len += len(text)
+            self._pending_rows += len(rows)
+            done = self._compress() if self._pending_len >= self._batch else 0
+        book = self.book
+        if book is not None and book.full(self._size(), self._opened_at, time.monotonic()):
+            done += self._rotate(book)
+        return done
+
+    def _size(self) -> int:
+        """The part's bytes so far (gzip: compressed, up to the last batch)."""
+        return self._part_bytes if self._gz is None else int(self._file.tell())
+
+    def _rotate(self, book: PartBook) -> int:
+        """Close the part (the gzip trailer, fsync), make room under the caps, open the next
+        part; the rows written in doing so."""
+        rows = self.flush(True)
+        self._close_file()
+        size = self._file_path.stat().st_size
+        first, last = self._part_ticks
+        book.closed(Part(self._file_path, size, self._part_rows, first, last, time.time()))
+        book.make_room((book.part_bytes or 0) * 5 // 4)  # the next part, and its overshoot
+        self.parts += 1
+        self._open_file(self._part_path())
+        fsync_dir(self.path)
+        return rows
 
     def _compress(self) -> int:
         """Compress the pending text; the rows it held (written, as far as the writer counts)."""
@@ -182,14 +250,18 @@ class CsvSink:
         if self._gz is not None:
             return None
         size, rows = self._flushed
-        with open(self.path, "rb") as f:
+        with open(self._file_path, "rb") as f:
             f.seek(size)
             return rows + f.read().count(b"\n")
 
     def close(self) -> None:
+        self._close_file()
+
+    def _close_file(self) -> None:
         try:
             if self._gz is not None:
                 self._gz.close()  # the gzip trailer; the file stays open
+                self._gz = None
         finally:
             self._file.close()
 
@@ -200,7 +272,9 @@ class ParquetSink:
     chunk_rows = _PARQUET_TAKE_ROWS
     bursts = True
 
-    def __init__(self, path: Path, joint_names: Sequence[str], opener: Opener) -> None:
+    def __init__(
+        self, path: Path, joint_names: Sequence[str], opener: Opener, book: PartBook | None = None
+    ) -> None:
         import pyarrow as pa  # the optional extra: only a Parquet run imports it
         import pyarrow.parquet as pq
 
@@ -220,6 +294,8 @@ class ParquetSink:
         self._job: Generator[None, None, Any] | None = None  # a batch being encoded
         self._job_rows = 0  # of that many rows
         self._rows = 0
+        self._ticks = (-1, -1)  # the first and last tick of the rows waiting for a part
+        self.book = book
         self.parts = 0
         path.mkdir()  # FileExistsError: a run directory holds one run
         # encode and write a throw-away part now, before the show: pyarrow's first calls
@@ -230,6 +306,9 @@ class ParquetSink:
         return ring.take_array(n)
 
     def put(self, rows: np.ndarray) -> int:
+        if len(rows):
+            first = self._ticks[0] if self._rows else int(rows[0, 0])
+            self._ticks = (first, int(rows[-1, 0]))
         self._raw.append(rows)  # encoded by work(), 256 rows or more at a time
         self._raw_rows += len(rows)
         self._rows += len(rows)
@@ -274,6 +353,8 @@ class ParquetSink:
         blob = self._write_table(self._batches, self._rows)
         final = self.path / f"part-{self.parts:05d}.parquet"
         tmp = self.path / f".part-{self.parts:05d}.tmp"  # ignored by readers of the directory
+        if self.book is not None:
+            self.book.make_room(blob.size)  # the oldest parts go first: the new one fits
         try:
             f = self._opener(tmp, "xb")
             try:
@@ -288,6 +369,9 @@ class ParquetSink:
                 tmp.unlink()
             raise
         fsync_dir(self.path)
+        if self.book is not None:
+            first, last = self._ticks
+            self.book.closed(Part(final, blob.size, self._rows, first, last, time.time()))
         self.parts += 1
         written, self._rows = self._rows, 0
         while self._batches:  # freed a batch at a time: one clear() held the GIL ~0.4 ms

@@ -19,8 +19,16 @@ if TYPE_CHECKING:
 STAGE_COLORS = {"sim": "tab:blue", "safety": "tab:orange", "bus": "tab:green", "telemetry": "0.5"}
 
 
-def _lateness_marks(lat: np.ndarray) -> list[tuple[str, float, str]]:
-    p50, p99, p999 = np.percentile(lat, [50.0, 99.0, 99.9])
+def _percentiles(run: Run, name: str, values: np.ndarray, qs: list[float]) -> list[float]:
+    """Percentiles of a column: from the rows, or a decimated run's histogram (whole run)."""
+    env = run.envelope
+    if run.decimated and env is not None:
+        return [env.percentile(name, q) if q < 100.0 else float(np.nanmax(values)) for q in qs]
+    return [float(v) for v in np.percentile(values, qs)]
+
+
+def _lateness_marks(run: Run, lat: np.ndarray) -> list[tuple[str, float, str]]:
+    p50, p99, p999 = _percentiles(run, "lateness_us", lat, [50.0, 99.0, 99.9])
     return [
         ("p50", float(p50), "tab:green"),
         ("p99", float(p99), "tab:orange"),
@@ -50,7 +58,8 @@ def plot_lateness(
     t = run.t_sched[keep]
     if common.is_virtual_time(run):
         fig = common.new_figure(11.0, 3.0, dpi)
-        where, ticks = common.window_note(start, end), common.tick_count(run, t.size, start, end)
+        where = common.window_note(start, end)
+        ticks = common.tick_count(run, common.rows_in(run, keep), start, end)
         title = common.title(fig, f"Tick lateness: {run.path.name}{where} ({ticks})")
         ax = fig.subplots()
         top = common.Ruler(fig).size(title)[1] + common.PAD
@@ -70,14 +79,28 @@ def plot_lateness(
     fig = common.new_figure(11.0, 8.0, dpi)
     ax_h, ax_t = fig.subplots(2, 1)
     n_over = int(np.count_nonzero(overrun))
+    n_rows = lat.size
+    if run.decimated and run.counts is not None:  # counted while reading
+        counts = run.counts["overrun"]
+        overrun = np.zeros(counts.size, dtype=bool)
+        overrun[1::2] = counts[0::2] > 0  # marked at the bucket's largest lateness
+        overrun, n_over = overrun[keep], int(counts[keep].sum())
+        n_rows = common.rows_in(run, keep)
     title = common.title(
         fig,
         f"Tick lateness: {run.path.name}{common.window_note(start, end)} "
-        f"({common.tick_count(run, lat.size, start, end)}, "
-        f"{n_over} overrun{'s' if n_over != 1 else ''})",
+        f"({common.tick_count(run, n_rows, start, end)}, "
+        f"{n_over} overrun{'s' if n_over != 1 else ''}){common.decimation_note(run)}",
     )
     log_x = _use_log_axis(lat)
-    if lat.size == 0:
+    if run.decimated and lat.size:
+        log_x = _decimated_hist(ax_h, run)
+        for name, value, color in _lateness_marks(run, lat):
+            ax_h.axvline(
+                value, color=color, linestyle="--", linewidth=1.2, label=f"{name} = {value:,.1f} µs"
+            )
+        ax_h.legend(loc="upper right", title="lateness (whole run)")
+    elif lat.size == 0:
         ax_h.text(0.5, 0.5, "no lateness data", transform=ax_h.transAxes, ha="center")
     else:
         lo, hi = float(lat.min()), float(lat.max())
@@ -94,7 +117,7 @@ def plot_lateness(
         common.log_axis(ax_h.yaxis)
         if log_x:
             common.log_axis(ax_h.xaxis)
-        for name, value, color in _lateness_marks(lat):
+        for name, value, color in _lateness_marks(run, lat):
             ax_h.axvline(
                 value, color=color, linestyle="--", linewidth=1.2, label=f"{name} = {value:,.1f} µs"
             )
@@ -120,6 +143,24 @@ def plot_lateness(
                          fontsize="small")  # fmt: skip
     _place_pair(fig, (ax_h, ax_t), title, 0.0, _above(fig, legend))
     return common.save(fig, Path(path), dpi)
+
+
+def _decimated_hist(ax: Any, run: Run) -> bool:
+    """A decimated run's lateness histogram (its log bins, the whole run); True: log x."""
+    from hilsim.telemetry.envelope import EDGES
+
+    assert run.envelope is not None
+    h = run.envelope.hist["lateness_us"]
+    nz = np.flatnonzero(h)
+    lo, hi = int(nz[0]), int(nz[-1])
+    left = EDGES[lo - 1] if lo > 0 else EDGES[0] / 10.0
+    ax.stairs(h[lo : hi + 1], np.concatenate([[left], EDGES[lo : hi + 1]]), fill=True,
+              color="tab:blue", alpha=0.8)  # fmt: skip
+    ax.set_xscale("log")
+    ax.set_yscale("log")
+    common.log_axis(ax.yaxis)
+    common.log_axis(ax.xaxis)
+    return True
 
 
 def _above(fig: Figure, legend: Any) -> float:
@@ -166,6 +207,30 @@ def _binned(
     return centers, means, worst
 
 
+def _binned_counted(
+    run: Run, keep: np.ndarray, n_bins: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`_binned` of a decimated run: exact means from the stage sums counted while
+    reading; the worst tick from each bucket's largest stage total."""
+    from hilsim.telemetry.envelope import STAGE_TOTAL
+
+    assert run.counts is not None
+    first = np.zeros(run.n_ticks, dtype=bool)
+    first[0::2] = True
+    pick = keep & first  # a bucket's counts are on its first row
+    t = run.t_sched[pick]
+    sums = np.column_stack([run.counts[f"sum_t_{s}_us"][pick] for s in STAGES])
+    n = np.column_stack([run.counts[f"n_t_{s}_us"][pick] for s in STAGES])
+    total = np.fmax(run.columns[STAGE_TOTAL][0::2], run.columns[STAGE_TOTAL][1::2])
+    total = total[pick[0::2]]
+    starts = np.linspace(0, t.size, min(n_bins, t.size) + 1).astype(int)[:-1]
+    counts = np.diff(np.append(starts, t.size))
+    centers = np.add.reduceat(t, starts) / counts
+    s_sum, n_sum = np.add.reduceat(sums, starts, axis=0), np.add.reduceat(n, starts, axis=0)
+    means = np.divide(s_sum, n_sum, out=np.zeros_like(s_sum), where=n_sum > 0)
+    return centers, means, np.fmax.reduceat(total, starts)
+
+
 def plot_timing(
     run: Run,
     path: str | os.PathLike[str],
@@ -185,7 +250,8 @@ def plot_timing(
     title = common.title(
         fig,
         f"Time per tick by stage: {run.path.name}{common.window_note(start, end)} "
-        f"({common.tick_count(run, t.size, start, end)})"
+        f"({common.tick_count(run, common.rows_in(run, keep), start, end)})"
+        + common.decimation_note(run)
         + (
             "\nvirtual-time run: the host's compute time per stage ('bus' includes the "
             "in-process emulator, not wire time); no deadline applied"
@@ -201,7 +267,10 @@ def plot_timing(
         ax_s.text(0.5, 0.5, "no per-stage timing in this run\n(every t_<stage>_us column is nan)",
                   transform=ax_s.transAxes, ha="center", va="center", fontsize="large")  # fmt: skip
         return common.save(fig, Path(path), dpi)
-    centers, means, worst = _binned(t, stages, n_bins)
+    if run.decimated:
+        centers, means, worst = _binned_counted(run, keep, n_bins)
+    else:
+        centers, means, worst = _binned(t, stages, n_bins)
     ax_s.stackplot(centers, means.T, labels=[f"{s} (mean)" for s in STAGES],
                    colors=[STAGE_COLORS[s] for s in STAGES], alpha=0.85)  # fmt: skip
     ax_s.plot(centers, worst, color="black", linewidth=0.8, label="all stages, worst tick")
@@ -226,7 +295,10 @@ def plot_timing(
     for k, (label, q, color) in enumerate(
         [("p50", 50.0, "#9ecae1"), ("p99", 99.0, "#4292c6"), ("max", 100.0, "#08306b")]
     ):
-        vals = [float(np.percentile(c, q)) if c.size else np.nan for c in finite_cols]
+        vals = [
+            _percentiles(run, f"t_{stage}_us", c, [q])[0] if c.size else np.nan
+            for stage, c in zip(STAGES, finite_cols, strict=True)
+        ]
         tops += vals
         bars = ax_b.bar(x + (k - 1) * width, vals, width, label=label, color=color)
         ax_b.bar_label(bars, fmt="%.0f", fontsize="x-small", padding=1)

@@ -43,12 +43,14 @@ from hilsim.telemetry.format import (
     CONFIG_NAME,
     EVENTS_JSONL,
     TelemetryError,
+    TelemetryFormat,
     TickRecord,
     check_joint_names,
     choose_format,
     csv_columns,
 )
 from hilsim.telemetry.ring import TickRing
+from hilsim.telemetry.rotation import PartBook
 from hilsim.telemetry.sinks import open_sink
 from hilsim.telemetry.stats import RunStats
 from hilsim.telemetry.writer_thread import _STOP, _WAKE, WriterThreadSide
@@ -76,7 +78,10 @@ class TelemetryWriter(WriterThreadSide):
     16 s at 1 kHz; ``8 * (12 + 6 * n_joints)`` bytes a row, 7.9 MB for 8 joints). ``overflow``
     picks what a full ring does: ``"drop"`` (count the row, return False: never blocks) or
     ``"block"`` (wait for the writer: lossless, for virtual-time runs). ``config_text`` is
-    copied to ``run_dir/config_name``. Space for the end of the record is set aside last
+    copied to ``run_dir/config_name``. ``max_bytes``/``max_age_s`` cap the rows: they are
+    written in parts, the oldest removed first (:mod:`hilsim.telemetry.rotation`). Format
+    ``none`` (and ``off``) keeps no rows: :meth:`record` only feeds :attr:`stats`.
+    Space for the end of the record is set aside last
     (``end.reserve``; if the disk has none, its ``error`` says why and the run goes on).
 
     :attr:`stats` (a :class:`RunStats`) is fed by :meth:`record`, :meth:`amend` and :meth:`event`
@@ -103,6 +108,8 @@ class TelemetryWriter(WriterThreadSide):
         max_pending_events: int = 10_000,
         format: str = "csv",
         rate_hz: float | None = None,
+        max_bytes: int | None = None,
+        max_age_s: float | None = None,
     ) -> None:
         names = check_joint_names(joint_names)
         self.format, self.format_reason = choose_format(format, rate_hz, len(names))
@@ -137,6 +144,11 @@ class TelemetryWriter(WriterThreadSide):
         self._events_put = 0
         self.events_dropped = 0
         self._close_requested = False
+        self._rows_off = self.format in (TelemetryFormat.NONE, TelemetryFormat.OFF)
+        self.book: PartBook | None = None
+        #: the runs removed under the runs root's caps as this run started (the summary's
+        #: ``telemetry.runs_removed``), set by the show; None: no such cap
+        self.runs_removed: dict[str, Any] | None = None
         super().__init__()  # the writer thread's state (hilsim.telemetry.writer_thread)
         #: Rows are formatted only while this is set. A real-time loop passes it to
         #: ``MonotonicClock.wait_until(t, idle=...)``: set while the loop sleeps, clear while a
@@ -146,8 +158,13 @@ class TelemetryWriter(WriterThreadSide):
 
         self.run_dir.mkdir(parents=True, exist_ok=True)
         try:
-            self._sink = open_sink(self.format, self.run_dir, names, self._open)
-            self._chunk_rows = self._sink.chunk_rows
+            if self.format in (TelemetryFormat.NONE, TelemetryFormat.OFF):
+                self._sink, self._chunk_rows = None, 1  # summary-only: no rows kept
+            else:
+                capped = max_bytes is not None or max_age_s is not None
+                self.book = PartBook(max_bytes, max_age_s) if capped else None
+                self._sink = open_sink(self.format, self.run_dir, names, self._open, self.book)
+                self._chunk_rows = self._sink.chunk_rows
             self._events = self._open(self.run_dir / EVENTS_JSONL, "a")
             self._events_flushed = os.fstat(self._events.fileno()).st_size
             if config_text is not None:
@@ -179,6 +196,8 @@ class TelemetryWriter(WriterThreadSide):
         if self._failed or self._close_requested:
             self._raise_not_open()
         self.stats.add(rec)
+        if self._rows_off:
+            return True  # summary-only: the statistics are the record
         ring = self._ring
         full = ((ring.cursor + 1) >> 1) - ring.tail >= ring.size  # ring.full(), on every tick
         if full and not self._wait_for_space(rec.tick):
@@ -211,7 +230,7 @@ class TelemetryWriter(WriterThreadSide):
         ``ValueError`` for any tick but the last recorded one.
         """
         self.stats.amend(rec)
-        return self._ring.amend(rec)
+        return False if self._rows_off else self._ring.amend(rec)
 
     def event(
         self,

@@ -22,6 +22,7 @@ from drivers.clock import Slack
 from hilsim.telemetry.end_record import EndRecord
 from hilsim.telemetry.format import TelemetryFormat, to_json
 from hilsim.telemetry.ring import TickRing
+from hilsim.telemetry.rotation import PartBook
 from hilsim.telemetry.stats import RunStats
 
 _yield_gil = getattr(os, "sched_yield", lambda: time.sleep(0))
@@ -65,6 +66,8 @@ class WriterThreadSide:
     events_dropped: int
     _last_dropped_tick: int | None
     _ring: TickRing
+    book: PartBook | None
+    runs_removed: dict[str, Any] | None
     _poll_s: float
     _chunk_rows: int
 
@@ -123,6 +126,8 @@ class WriterThreadSide:
             left_behind = self._drain_rows()
             self._write_events(self._unwritten)
             self._report_drops()
+            if self.book is not None and self.book.notes:  # the parts removed under a cap
+                self._write_events(self.book.take_notes())
             if sync and not left_behind:  # (rows waiting for free time: the fsync first)
                 left_behind = self._drain_rows()  # rows handed over during the events
             now = _monotonic()
@@ -158,8 +163,9 @@ class WriterThreadSide:
 
     def _drain_rows(self) -> bool:
         """Hand the ring's rows to the sink; True if some were left waiting for free time."""
-        assert self._sink is not None
         ring, sink = self._ring, self._sink
+        if sink is None:  # summary-only: no rows
+            return False
         slack = self.slack
         bursts = sink.bursts
         napping_since = None  # the first of the naps since the last chunk
@@ -268,6 +274,9 @@ class WriterThreadSide:
         self._write_events([item[0] for item in items if isinstance(item, tuple)])
         self._report_drops()
         self._flush_files(fsync=True)
+        if self.book is not None and self.book.notes:
+            self._write_events(self.book.take_notes())
+            self._flush_files(fsync=True)
         if self._sink is not None:
             self._sink.close()  # (gzip's trailer: a failure here is the writer's too)
             self._sink = None
@@ -289,6 +298,8 @@ class WriterThreadSide:
             "format_reason": self.format_reason,
             "error": None if self._error is None else repr(self._error),
             "error_traceback": self.error_traceback,
+            "rotation": None if self.book is None else self.book.summary(),
+            "runs_removed": self.runs_removed,
         }
 
     def _leftovers(self) -> list[dict[str, Any]]:

@@ -1659,7 +1659,8 @@ def test_row_30_a_full_disk_keeps_the_fault_record_and_the_summary(emulated, mon
     assert tel["rows_written"] == run.n_ticks and tel["rows_lost"] == s["ticks"] - run.n_ticks
     line = [ln for ln in err.splitlines() if "No space left on device" in ln]
     assert line and all(ln.startswith("hilsim run: ") for ln in line)
-    tracebacks = [p for p in emu.out.iterdir() if "Traceback" in p.read_text(errors="replace")]
+    files = [p for p in emu.out.iterdir() if p.is_file()]  # (show_files/ holds the copies)
+    tracebacks = [p for p in files if "Traceback" in p.read_text(errors="replace")]
     assert [p.name for p in tracebacks if p.name != "summary.json"] == ["telemetry_error.txt"]
 
 

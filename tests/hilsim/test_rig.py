@@ -311,7 +311,7 @@ BAUDS = "9600, 57600, 115200, 1000000, 2000000, 3000000, 4000000, 4500000"
         (
             "[loop]",
             '[telemetry]\non_failure = "explode"\n[loop]',
-            r"telemetry\.on_failure: must be one of stop, continue; got 'explode'",
+            r"telemetry\.on_failure: must be one of stop, continue, auto; got 'explode'",
         ),
         # springs that cannot be integrated to finite numbers
         (
@@ -472,7 +472,7 @@ def test_tracking_and_telemetry_failure_keys(tmp_path):
     pan = rig.joints[0]
     assert pan.tracking_tolerance_rad == pytest.approx(math.radians(10.0))
     assert pan.tracking_time_s == pytest.approx(0.25)
-    assert rig.telemetry.on_failure is TelemetryFailurePolicy.STOP
+    assert rig.telemetry.on_failure is TelemetryFailurePolicy.AUTO  # stop unless endless
     text = BASE.replace(
         "max_deg = 60", "max_deg = 60\ntracking_tolerance_deg = 4.5\ntracking_time_ms = 120"
     ).replace("[loop]", '[telemetry]\non_failure = "continue"\n[loop]')

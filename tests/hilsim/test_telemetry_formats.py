@@ -333,7 +333,9 @@ def test_the_rig_key(tmp_path: Path) -> None:
         with pytest.raises(RigError, match=r"telemetry\.format: ") as info:
             load_rig(write(tmp_path, text))
         assert "\n" not in str(info.value)
-    with pytest.raises(RigError, match=r"must be one of auto, csv, csv\.gz, parquet; got 'xml'"):
+    with pytest.raises(
+        RigError, match=r"must be one of auto, csv, csv\.gz, parquet, none, off; got 'xml'"
+    ):
         load_rig(write(tmp_path, BASE.replace("[loop]", '[telemetry]\nformat = "xml"\n[loop]')))
 
 
