@@ -25,6 +25,8 @@ class ControlsPoll:
 
     values: dict[str, float] = field(default_factory=dict)
     triggers: list[str] = field(default_factory=list)
+    #: joints handed back to the show (their live value dropped), in the order asked
+    released: list[str] = field(default_factory=list)
 
 
 class Controls:
@@ -41,6 +43,7 @@ class Controls:
         self._lock = threading.Lock()
         self._values: dict[str, float] = {}
         self._cues: list[str] = []
+        self._released: list[str] = []
 
     def cue(self, name: str) -> None:
         """Fire cue ``name`` at the next tick. KeyError for a cue the show does not have."""
@@ -60,11 +63,26 @@ class Controls:
             raise ValueError(f"{joint}: {deg!r} is not a joint angle in degrees")
         with self._lock:
             self._values[joint] = value
+            if joint in self._released:
+                self._released.remove(joint)
+
+    def release(self, joint: str | None = None) -> None:
+        """Hand ``joint`` (None: every joint) back to the show from the next tick on: its
+        live value is dropped and it follows its cues, clips or idle again, through its
+        spring. KeyError for an unknown joint."""
+        if joint is not None and joint not in self.joints:
+            raise KeyError(f"no joint {joint!r} (joints: {', '.join(sorted(self.joints))})")
+        names = sorted(self.joints) if joint is None else [joint]
+        with self._lock:
+            for name in names:
+                self._values.pop(name, None)
+                if name not in self._released:
+                    self._released.append(name)
 
     def poll(self, t: float) -> ControlsPoll:
         """Everything set since the last poll (the latest value per joint); ``t`` is the show
         time (the inputs' common signature)."""
         with self._lock:
-            values, cues = self._values, self._cues
-            self._values, self._cues = {}, []
-        return ControlsPoll(values, [f"{API_CUE}{c}" for c in cues])
+            values, cues, released = self._values, self._cues, self._released
+            self._values, self._cues, self._released = {}, [], []
+        return ControlsPoll(values, [f"{API_CUE}{c}" for c in cues], released)

@@ -350,6 +350,10 @@ class Director:
         for joint, deg in (getattr(p, "values", None) or {}).items():
             if deg is not None:
                 self._set(joint, deg, t)
+        for joint in getattr(p, "released", ()):  # back to the show, through its spring
+            i = self.index.get(joint)
+            if i is not None and self.tracks[i].live is not None:
+                self.tracks[i].live = None
         if getattr(p, "stop", False):  # the part's own events say it (one line)
             what = getattr(p, "stop_reason", None) or f"{type(part).__name__} stop"
             self.counts["stops"] += 1

@@ -49,6 +49,7 @@ from hilsim.show.stop import StopFlag
 
 if TYPE_CHECKING:
     from drivers.dynamixel.bus import DynamixelBus
+    from hilsim.show.loop import HilLoop
 
 __all__ = ["Show", "ShowError", "ShowRefusedError", "ShowResult", "endless_in_virtual_time"]
 
@@ -84,6 +85,8 @@ class Show:
             ``<telemetry.out_dir>/<name>-<time>``.
         virtual_time: run on the emulator's virtual clock (same numbers, no waiting).
         show: a show file (clips, cues, live inputs); ``live``: OSC on 127.0.0.1.
+        controls: :meth:`set_joint` and :meth:`release` without a show file or ``live``
+            (no input of its own; the show ends with the rig's animation), e.g. for the panel.
         on_note: called with each thing the start-up found or changed (a line of text);
             default: logged on the ``hilsim.show`` logger.
 
@@ -101,6 +104,7 @@ class Show:
         virtual_time: bool = False,
         show: PathLike | None = None,
         live: bool = False,
+        controls: bool = False,
         on_note: Callable[[str], None] | None = None,
     ) -> None:
         if duration is not None and not (math.isfinite(duration) and duration > 0):
@@ -113,7 +117,7 @@ class Show:
             self.rig = select_bus(load_rigs(Path(rig), port=port), bus)
         self.port = port_for(self.rig, virtual_time)
         parts = build_parts(self.rig)
-        if show is not None or live:
+        if show is not None or live or controls:
             parts = with_show(
                 parts, None if show is None else str(show), live, virtual=virtual_time
             )
@@ -132,6 +136,7 @@ class Show:
         self._running = threading.Event()
         self._done = threading.Event()
         self._result: ShowResult | None = None
+        self._loop: HilLoop | None = None
         self._closed = False
 
     # ------------------------------------------------------------------ entering, leaving
@@ -253,18 +258,20 @@ class Show:
                 on_status=on_status,
                 start_at=start_at,
                 on_stop=on_stop,
+                on_loop=self._attach_loop,
             )
             self._result.run_dir = run_dir
             return self._result
         finally:
             self._done.set()
 
-    def stop(self, signum: int | None = None) -> None:
+    def stop(self, signum: int | None = None, *, what: str = "Show.stop()") -> None:
         """End the show through the rig's exit policy (exit code 5; with ``signum``, the
         signal's code: 130 for SIGINT, 143 for SIGTERM). Safe from any thread or a signal
-        handler; a stop before :meth:`run` makes the run end at once, nothing moved."""
+        handler; a stop before :meth:`run` makes the run end at once, nothing moved.
+        ``what``: who asked, for the summary's reason (``stopped by <what>``)."""
         if signum is None:
-            self._stop.request_command("Show.stop()")
+            self._stop.request_command(what)
         else:
             self._stop.request(signum)
 
@@ -292,6 +299,13 @@ class Show:
         not finite."""
         self._controls().set_joint(joint, deg)
 
+    def release(self, joint: str | None = None) -> None:
+        """Hand ``joint`` (None: every joint) back from its live value to the show's cues,
+        clips or idle, through its spring, from the next tick on. Thread-safe. Raises
+        ShowError without a show file, ``live=True`` or ``controls=True``, KeyError for an
+        unknown joint."""
+        self._controls().release(joint)
+
     def _controls(self) -> Controls:
         director = self.parts.director
         if director is None:
@@ -316,6 +330,15 @@ class Show:
     def result(self) -> ShowResult | None:
         """How the run ended, once it has."""
         return self._result
+
+    @property
+    def loop(self) -> HilLoop | None:
+        """The running loop, once :meth:`run` has built it (read-only use from other threads:
+        :mod:`hilsim.show.feed` copies its arrays)."""
+        return self._loop
+
+    def _attach_loop(self, loop: HilLoop) -> None:
+        self._loop = loop
 
     def _say(self, line: str) -> None:
         self._note(line)
