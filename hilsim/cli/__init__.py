@@ -33,6 +33,7 @@ SUBCOMMANDS: dict[str, str] = {
     "emulate": "hilsim.cli.emulate",
     "compare": "hilsim.cli.compare",
     "tracks": "hilsim.cli.tracks",
+    "panel": "hilsim.cli.panel",
 }
 
 

@@ -69,10 +69,12 @@ class PanelFeed:
     ``counts``: commands applied, refused, malformed, oversized; states skipped for slow
     clients; clients turned away at the cap."""
 
-    def __init__(self, show: Show, *, rate_hz: float = 25.0) -> None:
+    def __init__(self, show: Show, *, run_dir: Path | None = None, rate_hz: float = 25.0) -> None:
         if not (math.isfinite(rate_hz) and 1.0 <= rate_hz <= 200.0):
             raise ValueError(f"rate_hz = {rate_hz!r}: states a second, 1..200")
         self.show, self.period_s = show, 1.0 / rate_hz
+        #: the show's run directory (before the show is open: the one it will use)
+        self.run_dir = run_dir if run_dir is not None else show.run_dir
         self.counts = dict.fromkeys(
             ("commands", "refused", "malformed", "oversized", "slow", "turned_away", "internal"), 0
         )
@@ -88,11 +90,12 @@ class PanelFeed:
         self._sel = selectors.DefaultSelector()
 
     # ------------------------------------------------------------------ life cycle
-    def start(self) -> Path:
-        """Bind, write ``<run_dir>/panel.json``, start the thread. Returns the socket path."""
-        run_dir = self.show.run_dir
-        if run_dir is None:
-            raise RuntimeError("open the show first: the feed's address goes in its run dir")
+    def start(self, *, write_info: bool = True) -> Path:
+        """Bind, start the thread, write ``<run_dir>/panel.json`` (``write_info``; else call
+        :meth:`write_info` once the show is open: a run directory must be empty until then).
+        Returns the socket path."""
+        if self.run_dir is None:
+            raise RuntimeError("open the show first, or name its run directory")
         self._dir = Path(tempfile.mkdtemp(prefix="hilsim-panel-"))  # 0700: this user only
         self.socket_path = self._dir / "feed.sock"
         listener = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
@@ -101,11 +104,17 @@ class PanelFeed:
         listener.setblocking(False)
         self._listener = listener
         self._hello = self._line(self._hello_msg())
-        info = {"socket": str(self.socket_path), "pid": os.getpid(), "rig": self.show.rig.name}
-        (run_dir / FEED_FILE).write_text(json.dumps(info) + "\n", encoding="utf-8")
         self._thread = threading.Thread(target=self._run, name="panel-feed", daemon=True)
         self._thread.start()
+        if write_info:
+            self.write_info()
         return self.socket_path
+
+    def write_info(self) -> None:
+        """``<run_dir>/panel.json``: the socket and this process, for ``hilsim panel``."""
+        assert self.run_dir is not None and self.socket_path is not None
+        info = {"socket": str(self.socket_path), "pid": os.getpid(), "rig": self.show.rig.name}
+        (self.run_dir / FEED_FILE).write_text(json.dumps(info) + "\n", encoding="utf-8")
 
     def close(self, timeout_s: float = 1.0) -> None:
         """Send the end (if the show has one) and what is queued, then stop. Safe twice."""
@@ -121,10 +130,9 @@ class PanelFeed:
             with contextlib.suppress(OSError):
                 self.socket_path.unlink()
                 self._dir.rmdir()
-        run_dir = self.show.run_dir
-        if run_dir is not None:
+        if self.run_dir is not None:
             with contextlib.suppress(OSError):
-                (run_dir / FEED_FILE).unlink()
+                (self.run_dir / FEED_FILE).unlink()
 
     # ------------------------------------------------------------------ messages
     @staticmethod
@@ -153,7 +161,7 @@ class PanelFeed:
             "exit_policy": str(rig.safety.exit_policy),
             "cues": cues,
             "live": director is not None,
-            "run_dir": str(show.run_dir),
+            "run_dir": str(self.run_dir),
             "virtual": show.virtual_time,
             "pid": os.getpid(),
         }
