@@ -94,7 +94,7 @@ def _find_show(runs: Path) -> Path | None:
 
 def run(args: argparse.Namespace) -> int:
     try:
-        from hilsim.panel.server import PanelConfig, PanelServer
+        from hilsim.panel.server import PanelConfig, PanelServer, new_token
     except ImportError:
         _say(EXTRA_HINT)
         return int(ExitCode.USAGE)
@@ -105,9 +105,7 @@ def run(args: argparse.Namespace) -> int:
         host, port = parse_bind(args.panel_bind)
         allow = tuple(a for a in args.panel_allow.split(",") if a.strip())
         token = os.environ.pop(TOKEN_ENV, None) if args.child else None
-        config = PanelConfig(
-            host=host, port=port, allow=allow, **({"token": token} if token else {})
-        )
+        config = PanelConfig(host=host, port=port, allow=allow, token=token or new_token())
     except (ValueError, NetGuardError) as exc:
         _say(str(exc))
         return int(ExitCode.USAGE)

@@ -219,6 +219,8 @@ class PanelServer:
             counts["not_found"] += 1
             return _response(HTTPStatus.METHOD_NOT_ALLOWED)
         url = urlsplit(request.path)
+        if url.path == "/favicon.ico":  # a browser asks for it by itself, without the token
+            return _response(HTTPStatus.NOT_FOUND)
         token = parse_qs(url.query).get("token", [""])[0]
         if not secrets.compare_digest(token.encode(), self.config.token.encode()):
             counts["token"] += 1
