@@ -86,6 +86,7 @@ class PanelConfig:
     rate_per_s: float = 60.0
     burst: int = 120
     send_timeout_s: float = 5.0
+    write_limit: int = 64 * 1024  # bytes buffered for a browser before a send waits
 
     def __post_init__(self) -> None:
         # the network inputs' rule: another address than loopback needs an allow-list
@@ -176,7 +177,7 @@ class PanelServer:
             compression=None,
             max_size=cfg.max_message_bytes,
             max_queue=16,
-            write_limit=64 * 1024,
+            write_limit=cfg.write_limit,
             open_timeout=5,
             ping_interval=10,
             ping_timeout=10,
