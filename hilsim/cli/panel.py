@@ -65,14 +65,34 @@ def add_panel_options(p: argparse.ArgumentParser, bind_flag: str) -> None:
     )
 
 
-def parse_bind(text: str | None) -> tuple[str, int]:
+def parse_bind(text: str | None, flag: str = "--panel-bind") -> tuple[str, int]:
     """``ADDR:PORT`` -> (addr, port); ValueError with one line."""
     text = text or DEFAULT_BIND
     host, sep, port = text.rpartition(":")
     host = host.strip("[]")
     if not sep or not host or not port.isdigit() or int(port) > 65535:
-        raise ValueError(f"--panel-bind {text!r}: ADDR:PORT, e.g. 127.0.0.1:8080")
+        raise ValueError(f"{flag} {text!r}: ADDR:PORT, e.g. 127.0.0.1:8080")
     return host, int(port)
+
+
+def check_options(
+    bind: str | None, allow_text: str, flags: tuple[str, str] = ("--panel-bind", "--panel-allow")
+) -> tuple[str, int, tuple[str, ...]]:
+    """The panel's address and allow-list, checked as the server will; ValueError, one line."""
+    from hilsim.live.netguard import GuardConfig, NetGuardError
+
+    host, port = parse_bind(bind, flags[0])
+    allow = tuple(a.strip() for a in allow_text.split(",") if a.strip())
+    try:
+        GuardConfig(interface=host, allow=allow)
+    except NetGuardError as exc:
+        if "opens the input" in str(exc):
+            raise ValueError(
+                f"{flags[0]} {host}: the panel would be open to the network: name the clients "
+                f"allowed ({flags[1]} 192.168.1.23,10.0.0.0/24), or listen on 127.0.0.1"
+            ) from None
+        raise ValueError(f"{flags[1]}: {exc}") from None
+    return host, port, allow
 
 
 def _say(message: str) -> None:
@@ -102,8 +122,8 @@ def run(args: argparse.Namespace) -> int:
     from hilsim.live.netguard import NetGuardError
 
     try:
-        host, port = parse_bind(args.panel_bind)
-        allow = tuple(a for a in args.panel_allow.split(",") if a.strip())
+        flags = ("--panel-bind", "--panel-allow") if args.child else ("--bind", "--allow")
+        host, port, allow = check_options(args.panel_bind, args.panel_allow, flags)
         token = os.environ.pop(TOKEN_ENV, None) if args.child else None
         config = PanelConfig(host=host, port=port, allow=allow, token=token or new_token())
     except (ValueError, NetGuardError) as exc:
@@ -132,6 +152,8 @@ def _serve(server: object, child: bool) -> int:
     from hilsim.panel.server import PanelServer
 
     assert isinstance(server, PanelServer)
+    with contextlib.suppress(OSError):  # a viewer: it yields the CPU to the show
+        os.nice(10)
     loop = asyncio.new_event_loop()
 
     def closing(*_: object) -> None:

@@ -356,14 +356,19 @@ class _Panel:
 def _start_panel(args: argparse.Namespace, show: Show, run_dir: Path) -> _Panel | None:
     """The feed on its socket, the panel's process; its URL printed. None: it cannot listen
     (the panel said why, one line); nothing has moved."""
-    from hilsim.cli.panel import TOKEN_ENV, parse_bind
-    from hilsim.panel.server import new_token
+    import importlib.util
+    import secrets
+
+    from hilsim.cli.panel import EXTRA_HINT, TOKEN_ENV, check_options
     from hilsim.show.feed import PanelFeed
 
     try:
-        parse_bind(args.panel_bind)
+        check_options(args.panel_bind, args.panel_allow)
     except ValueError as exc:
         _say(str(exc))
+        return None
+    if importlib.util.find_spec("websockets") is None:
+        _say(EXTRA_HINT)
         return None
     feed = PanelFeed(show, run_dir=run_dir)
     sock = feed.start(write_info=False)
@@ -373,7 +378,7 @@ def _start_panel(args: argparse.Namespace, show: Show, run_dir: Path) -> _Panel 
         cmd,
         stdin=subprocess.PIPE,
         stdout=subprocess.PIPE,
-        env=dict(os.environ, **{TOKEN_ENV: new_token()}),
+        env=dict(os.environ, **{TOKEN_ENV: secrets.token_urlsafe(18)}),
         start_new_session=True,
     )
     assert proc.stdout is not None
