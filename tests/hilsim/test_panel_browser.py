@@ -73,16 +73,16 @@ def test_the_panel_shows_the_figure_moving_drives_it_and_stops_it(tmp_path: Path
         page.wait_for_function("() => !document.querySelector('#joint-tail .row span')"
                                ".textContent.startsWith('—')")  # fmt: skip
         first = {j: _present(page, j) for j in joints}
+        page.click("button[data-cue=scare]")  # the show file's cue, through the show
         moved: set[str] = set()
         deadline = time.monotonic() + 20
         while moved != set(joints) and time.monotonic() < deadline:
             page.wait_for_timeout(200)
             moved |= {j for j in joints if _present(page, j) != first[j]}
         assert moved == set(joints), f"present positions that never changed: {set(joints) - moved}"
-
-        page.click("button[data-cue=scare]")  # the show file's cue, through the show
         page.wait_for_function(
-            "() => document.querySelector('#events').textContent.includes('scare')", timeout=20000
+            "() => document.querySelector('#events').textContent.includes('cue scare')",
+            timeout=20000,
         )
 
         # live: head_pan driven by its slider, asked for beyond its limit (70 deg)
