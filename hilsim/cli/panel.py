@@ -177,6 +177,10 @@ def _serve(server: object, child: bool) -> int:
         return int(ExitCode.USAGE)
     finally:
         loop.close()
+    if child and server.run_dir is not None:  # the run's record keeps what it refused
+        with contextlib.suppress(OSError):
+            counts = {"clients_max": server.config.max_clients, "counts": server.counts}
+            (server.run_dir / "panel_counts.json").write_text(json.dumps(counts) + "\n")
     refused = {k: v for k, v in server.counts.items() if v and k not in ("requests", "commands")}
     said = ", ".join(f"{k} {v}" for k, v in refused.items()) or "nothing"
     _say(

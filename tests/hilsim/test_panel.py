@@ -160,6 +160,8 @@ def test_hilsim_run_panel_prints_its_url_first_survives_hostile_clients_and_stop
     assert counts["token"] >= 3 and counts["origin"] >= 2 and counts["clients"] == 12
     assert "hilsim panel: closed:" in rest and "malformed" in rest
     assert not (out / "panel.json").exists()  # the show is over: nothing to attach to
+    kept = json.loads((out / "panel_counts.json").read_text())["counts"]  # in the record too
+    assert kept["malformed"] + kept["flood"] == 10_000
 
 
 class _FakeFeed:
