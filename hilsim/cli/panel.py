@@ -152,8 +152,6 @@ def _serve(server: object, child: bool) -> int:
     from hilsim.panel.server import PanelServer
 
     assert isinstance(server, PanelServer)
-    with contextlib.suppress(OSError):  # a viewer: it yields the CPU to the show
-        os.nice(10)
     loop = asyncio.new_event_loop()
 
     def closing(*_: object) -> None:

@@ -15,8 +15,9 @@ cannot be skipped: a mismatch raises :class:`ShowRefusedError` before anything m
 :meth:`Show.run` runs the show once; every way out of it applies the rig's exit policy.
 Leaving the ``with`` block stops a show still running and closes the bus.
 
-While it runs, other threads talk to it through :meth:`Show.stop`, :meth:`Show.cue` and
-:meth:`Show.set_joint`, and read :attr:`Show.status`.
+While it runs, other threads talk to it through :meth:`Show.stop`, :meth:`Show.cue`,
+:meth:`Show.set_joint` and :meth:`Show.release`, and read :attr:`Show.status`; the browser
+panel's feed (:mod:`hilsim.show.feed`) reads :attr:`Show.loop`.
 """
 
 from __future__ import annotations

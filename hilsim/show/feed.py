@@ -16,8 +16,9 @@ whose path is written to ``<run_dir>/panel.json``:
   ``reply`` line; a malformed one is dropped and counted.
 
 The loop does no work for the feed: the thread copies the loop's own arrays (a snapshot may mix
-two ticks; it is a display). It runs SCHED_OTHER at nice 19, and a client that stops reading
-loses states (counted ``slow``), never blocks the thread. Measured cost: ``docs/performance.md``.
+two ticks; it is a display). It runs SCHED_OTHER (never the loop's SCHED_FIFO), not niced: a
+STOP arrives this way. A client that stops reading loses states (counted ``slow``), never
+blocks the thread. Measured cost: ``docs/performance.md``.
 """
 
 from __future__ import annotations
@@ -88,6 +89,8 @@ class PanelFeed:
         self._end_sent = False
         self._n = 0
         self._sel = selectors.DefaultSelector()
+        #: when the first stop command was handed to the show (``time.perf_counter``)
+        self.stop_at: float | None = None
 
     # ------------------------------------------------------------------ life cycle
     def start(self, *, write_info: bool = True) -> Path:
@@ -234,6 +237,8 @@ class PanelFeed:
                 show.release(None if joint is None else str(joint))
             elif op == "stop":
                 show.stop(what=str(cmd.get("who") or "the panel's STOP")[:80])
+                if self.stop_at is None:
+                    self.stop_at = time.perf_counter()
             else:
                 self.counts["malformed"] += 1
                 return None
@@ -246,11 +251,11 @@ class PanelFeed:
 
     # ------------------------------------------------------------------ the thread
     def _run(self) -> None:
-        with contextlib.suppress(AttributeError, OSError):  # never compete with the loop
+        # A thread inherits its creator's policy: never SCHED_FIFO beside the loop. Not niced
+        # either: a STOP comes this way, and a nice 19 thread waits for the CPU under load.
+        with contextlib.suppress(AttributeError, OSError):
             if os.sched_getscheduler(0) != os.SCHED_OTHER:
                 os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
-        with contextlib.suppress(AttributeError, OSError):
-            os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), 19)
         assert self._listener is not None
         self._sel.register(self._listener, selectors.EVENT_READ, None)
         try:

