@@ -2,13 +2,12 @@
 
 :func:`list_runs` reads each ``<root>/<name>/summary.json`` (a run without one is listed as
 unfinished); :func:`run_file` resolves a plot a page may show, refusing any path that leaves
-the run directory or is not a PNG or SVG plot.
+the run directory (or its ``plots/``) or is not a PNG or SVG plot.
 """
 
 from __future__ import annotations
 
 import json
-import os
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -17,6 +16,7 @@ __all__ = ["list_runs", "run_file"]
 
 MAX_RUNS = 200  # the newest first; older ones are not listed
 PLOT_SUFFIXES = (".png", ".svg")
+PLOTS_DIR = "plots"
 
 #: a completed show's one-line verdict from its summary (the CLI's), or None when healthy
 Verdict = Callable[[dict[str, Any], int], str | None]
@@ -50,8 +50,12 @@ def list_runs(root: Path, verdict: Verdict | None = None) -> list[dict[str, Any]
                     row["verdict"] = verdict(summary, int(summary.get("ticks") or 0))
                 except (TypeError, ValueError, KeyError):
                     row["verdict"] = None
-        plots = sorted(p.name for p in _files(d) if p.suffix in PLOT_SUFFIXES)
-        row["plots"] = plots
+        row["plots"] = [
+            str(p.relative_to(d))
+            for where in (d, d / PLOTS_DIR)  # `hilsim run` and `hilsim plot` write plots/
+            for p in sorted(_files(where))
+            if p.suffix in PLOT_SUFFIXES
+        ]
         out.append(row)
     return out
 
@@ -63,20 +67,32 @@ def _is_run(d: Path) -> bool:
 
 def _files(d: Path) -> list[Path]:
     try:
-        return [p for p in d.iterdir() if p.is_file()]
+        return [p for p in d.iterdir() if p.is_file() and not p.is_symlink()]
     except OSError:
         return []
 
 
 def run_file(root: Path, name: str, file: str) -> Path | None:
-    """``root/name/file`` when it is a plot inside that run directory, else None."""
-    if os.sep in name or os.sep in file or name.startswith(".") or file.startswith("."):
+    """``root/name/file`` when it is a plot in that run directory or its ``plots/``, else
+    None (no other directory, no way out of it)."""
+    parts = file.split("/")
+    if len(parts) == 2 and parts[0] == PLOTS_DIR:
+        sub, leaf = PLOTS_DIR, parts[1]
+    elif len(parts) == 1:
+        sub, leaf = "", parts[0]
+    else:
         return None
-    path = root / name / file
+    if "/" in name or name.startswith(".") or leaf.startswith(".") or not leaf or not name:
+        return None
     try:
-        resolved = path.resolve(strict=True)
+        run = (root / name).resolve(strict=True)
+        where = (run / sub).resolve(strict=True) if sub else run
+        resolved = (where / leaf).resolve(strict=True)
     except OSError:
         return None
-    if resolved.parent != (root / name).resolve() or resolved.suffix not in PLOT_SUFFIXES:
+    inside = run.parent == root.resolve() and (where == run or where.parent == run)
+    if not inside or resolved.parent != where:  # no link or name leads out of the run
         return None
-    return resolved if resolved.is_file() else None
+    if resolved.suffix not in PLOT_SUFFIXES or not resolved.is_file():
+        return None
+    return resolved

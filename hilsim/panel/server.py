@@ -246,8 +246,8 @@ class PanelServer:
             body = json.dumps({"root": str(self.runs), "runs": rows}).encode()
             return _response(HTTPStatus.OK, body, "application/json")
         if path.startswith("/runs/") and self.runs is not None:
-            parts = unquote(path[len("/runs/") :]).split("/")
-            found = run_file(self.runs, parts[0], parts[1]) if len(parts) == 2 else None
+            name, _, rest = unquote(path[len("/runs/") :]).partition("/")
+            found = run_file(self.runs, name, rest)
             if found is not None:
                 ctype = "image/png" if found.suffix == ".png" else "image/svg+xml"
                 return _response(HTTPStatus.OK, found.read_bytes(), ctype)

@@ -30,6 +30,7 @@ websockets = pytest.importorskip(
 )
 from websockets.asyncio.client import connect  # noqa: E402
 
+from hilsim.panel.runs import list_runs, run_file  # noqa: E402
 from hilsim.panel.server import PanelConfig, PanelServer  # noqa: E402
 
 
@@ -73,6 +74,25 @@ def test_a_panel_show_ends_with_its_animation_and_a_released_joint_goes_back(tmp
         result = show.run()
     assert result.exit_code == ExitCode.OK
     assert result.ticks == plain.parts.targets.duration * show.rig.loop.rate_hz + 1
+
+
+def test_past_runs_list_their_plots_and_serve_nothing_else(tmp_path: Path) -> None:
+    run = tmp_path / "demo-1"
+    (run / "plots").mkdir(parents=True)
+    (run / "summary.json").write_text('{"exit_code": 0, "exit_reason": "end of show"}')
+    (run / "plots" / "joints.png").write_bytes(b"png")
+    (run / "plots" / "notes.txt").write_text("not a plot")
+    (tmp_path / "elsewhere.png").write_bytes(b"png")
+    (run / "plots" / "link.png").symlink_to(tmp_path / "elsewhere.png")
+    (tmp_path / "not-a-run").mkdir()
+    rows = list_runs(tmp_path, lambda summary, ticks: "healthy?")
+    assert [r["name"] for r in rows] == ["demo-1"]
+    assert rows[0]["plots"] == ["plots/joints.png"] and rows[0]["verdict"] == "healthy?"
+    assert run_file(tmp_path, "demo-1", "plots/joints.png") == (run / "plots/joints.png").resolve()
+    for name, file in [("demo-1", "plots/notes.txt"), ("demo-1", "plots/link.png"),
+                       ("demo-1", "../elsewhere.png"), ("..", "elsewhere.png"),
+                       ("demo-1", "plots/../summary.json"), ("demo-1", "summary.json")]:  # fmt: skip
+        assert run_file(tmp_path, name, file) is None, (name, file)
 
 
 async def _hostile(base: str, token: str) -> dict[str, object]:
