@@ -3,6 +3,8 @@ emulator, in one run of this tool, in three ways taken in turn ``--rounds`` time
 
 * ``plain``: ``hilsim.Show`` alone (what ``hilsim run`` does without ``--panel``);
 * ``controls``: ``Show(controls=True)``: the director ``--panel`` adds (cues, live joints);
+* ``panel-ws``: that, its feed thread, a ``hilsim panel`` process and ``--browsers``
+  WebSocket clients reading every message (in a process of their own, no browser);
 * ``panel``: that, its feed thread, a ``hilsim panel`` process and ``--browsers`` headless
   Chromium pages (Debian's ``chromium``, through Playwright) showing it.
 
@@ -47,6 +49,22 @@ from hilsim.show.feed import PanelFeed  # noqa: E402
 CHROMIUM_ARGS = ["--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
                  "--disable-background-networking", "--disable-component-update",
                  "--disable-sync"]  # fmt: skip
+
+
+# ``panel-ws``: N WebSocket clients that read every message, in a process of their own
+WS_READERS = """
+import asyncio, sys
+from websockets.asyncio.client import connect
+url, n = sys.argv[1], int(sys.argv[2])
+base, token = url.split("/?token=")
+async def read():
+    async with connect(base.replace("http", "ws") + "/ws?token=" + token, origin=base) as ws:
+        async for _ in ws:
+            pass
+async def main():
+    await asyncio.gather(*(read() for _ in range(n)))
+asyncio.run(main())
+"""
 
 
 def _pct(values: list[float], q: float) -> float:
@@ -98,7 +116,7 @@ def _one(way: str, out: Path, seconds: float, browsers: int) -> dict[str, float]
                        controls=way != "plain")  # fmt: skip
     facts: dict[str, float] = {}
     with show, contextlib.ExitStack() as stack:
-        if way == "panel":
+        if way in ("panel", "panel-ws"):
             feed = PanelFeed(show)
             feed.start()
             stack.callback(feed.close)
@@ -110,6 +128,12 @@ def _one(way: str, out: Path, seconds: float, browsers: int) -> dict[str, float]
             stack.callback(proc.terminate)
             assert proc.stdout is not None
             url = proc.stdout.readline().decode().strip().removeprefix("panel: ")
+        if way == "panel-ws":  # the same feed and server; the browsers' part in a process
+            reader = subprocess.Popen([sys.executable, "-c", WS_READERS, url, str(browsers)],
+                                      cwd=REPO)  # fmt: skip
+            stack.callback(reader.wait)
+            stack.callback(reader.terminate)
+        if way == "panel":
             from playwright.sync_api import sync_playwright
 
             pw = stack.enter_context(sync_playwright())
@@ -120,6 +144,7 @@ def _one(way: str, out: Path, seconds: float, browsers: int) -> dict[str, float]
                 page = browser.new_page()
                 page.goto(url)
                 page.wait_for_selector("#joint-tail canvas")
+        if way in ("panel", "panel-ws"):  # the CPU from here on: the show's run alone
             panel_stat = Path(f"/proc/{proc.pid}/stat")
             panel0 = _cpu_s(panel_stat)
             chrome0 = _descendants_cpu_s(("chrom", "headless"))
@@ -128,7 +153,7 @@ def _one(way: str, out: Path, seconds: float, browsers: int) -> dict[str, float]
                                                   show.run()))  # fmt: skip
         wall0 = time.monotonic()
         runner.start()
-        if way == "panel":
+        if way in ("panel", "panel-ws"):
             feed_thread = feed._thread
             assert feed_thread is not None and feed_thread.native_id is not None
             feed_stat = Path(f"/proc/self/task/{feed_thread.native_id}/stat")
@@ -139,7 +164,7 @@ def _one(way: str, out: Path, seconds: float, browsers: int) -> dict[str, float]
         if result is not None and result.exit_code != 0:
             print(f"  ({way}: exit {result.exit_code}: {result.reason})", flush=True)
             facts["faulted"] = 1.0
-        if way == "panel":
+        if way in ("panel", "panel-ws"):
             facts["feed_cpu_pct"] = 100 * (_cpu_s(feed_stat) - feed0) / wall
             facts["panel_cpu_pct"] = 100 * (_cpu_s(panel_stat) - panel0) / wall
             chrome = _descendants_cpu_s(("chrom", "headless")) - chrome0
@@ -206,7 +231,9 @@ def main() -> None:
         line = "  ".join(f"{k} {statistics.median(r[k] for r in rows):.1f}" for k in rows[0])
         print(f"  {way:8s} {line}")
     print(f"load: {Path('/proc/loadavg').read_text().strip()}")
-    results: dict[str, list[dict[str, float]]] = {"plain": [], "controls": [], "panel": []}
+    results: dict[str, list[dict[str, float]]] = {
+        "plain": [], "controls": [], "panel-ws": [], "panel": []
+    }  # fmt: skip
     with tempfile.TemporaryDirectory(prefix="bench-panel-") as tmp:
         for r in range(args.rounds):
             for way in results:
@@ -225,7 +252,7 @@ def main() -> None:
             return statistics.fmean(r.get(key, float("nan")) for r in rows)
 
         cpu = (f"{mean('feed_cpu_pct'):.1f} / {mean('panel_cpu_pct'):.1f} / "
-               f"{mean('browsers_cpu_pct'):.0f}" if way == "panel" else "-")  # fmt: skip
+               f"{mean('browsers_cpu_pct'):.0f}" if way.startswith("panel") else "-")  # fmt: skip
         print(f"{way:9s} {mean('late_p50'):8.0f} / {mean('late_p99'):7.0f}"
               f"      {mean('work_p50'):7.1f} / {mean('work_p99'):7.1f}"
               f"     {mean('overruns'):6.0f}     {cpu}")  # fmt: skip
