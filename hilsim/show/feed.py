@@ -16,11 +16,9 @@ whose path is written to ``<run_dir>/panel.json``:
   ``reply`` line; a malformed one is dropped and counted.
 
 The loop does no work for the feed: the thread copies the loop's own arrays (a snapshot may mix
-two ticks; it is a display), at the middle of a tick's period, when the tick's work is done
-(the copy holds the interpreter some 30 µs; a loop waking into it would wait). The thread runs
-SCHED_OTHER (never the loop's SCHED_FIFO), not niced: a STOP arrives this way. A client that
-stops reading loses states (counted ``slow``), never blocks the thread. Measured cost:
-``docs/performance.md``.
+two ticks; it is a display). It runs SCHED_OTHER (never the loop's SCHED_FIFO), not niced: a
+STOP arrives this way. A client that stops reading loses states (counted ``slow``), never
+blocks the thread. Measured cost: ``docs/performance.md``.
 """
 
 from __future__ import annotations
@@ -51,22 +49,6 @@ FEED_FILE = "panel.json"  # in the run directory: where the socket is, whose it 
 MAX_LINE = 4096  # a command line longer than this is dropped (counted ``oversized``)
 MAX_OUT = 256 * 1024  # bytes queued to a client that does not read: then states are skipped
 MAX_CLIENTS = 4
-#: where in the loop's period a snapshot is taken: the tick's work is done by then (on the
-#: demo at 250 Hz it takes about a twentieth of the period), so the loop never waits for the
-#: interpreter while the feed copies its arrays
-QUIET_PHASE = 0.5
-
-
-def _quiet_in(loop: HilLoop) -> float:
-    """Seconds until the loop's next quiet instant (QUIET_PHASE of its period); 0 on a
-    virtual clock, before tick 0, or when that instant is now (within 0.2 ms)."""
-    t0 = getattr(loop, "_t0", None)
-    if t0 is None or loop.clock.virtual:
-        return 0.0
-    period, now = loop.period, loop.clock.now()
-    k = math.ceil((now - t0) / period - QUIET_PHASE)
-    wait = t0 + (k + QUIET_PHASE) * period - now
-    return wait if wait > 2e-4 else 0.0
 
 
 def _deg(values: list[float]) -> list[float | None]:
@@ -282,7 +264,7 @@ class PanelFeed:
             self._sel.close()
 
     def _serve(self) -> None:
-        next_state, waited = time.monotonic(), False
+        next_state = time.monotonic()
         while True:
             closing = self._closing.is_set()
             result = self.show.result
@@ -293,13 +275,9 @@ class PanelFeed:
                 self._flush_all()
                 return
             now = time.monotonic()
-            loop = self.show.loop
-            wait = 0.0 if loop is None or now < next_state or waited else _quiet_in(loop)
-            if now >= next_state and wait > 0.0:
-                next_state, waited = now + wait, True  # the loop's quiet part comes first
-            elif now >= next_state:
-                next_state = now + self.period_s - (0.0 if loop is None else loop.period / 2)
-                waited = False
+            if now >= next_state:
+                next_state = max(next_state + self.period_s, now)
+                loop = self.show.loop
                 if loop is not None and result is None and self._clients:
                     try:
                         line = self._line(self._state_msg(loop))
