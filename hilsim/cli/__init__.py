@@ -36,6 +36,7 @@ SUBCOMMANDS: dict[str, str] = {
     "tracks": "hilsim.cli.tracks",
     "service": "hilsim.cli.service",
     "sounds": "hilsim.cli.sounds",
+    "panel": "hilsim.cli.panel",
 }
 
 

@@ -20,6 +20,7 @@ import math
 import os
 import select
 import signal
+import subprocess
 import sys
 import threading
 import time
@@ -28,6 +29,7 @@ from typing import TYPE_CHECKING
 
 from hilsim.cli._args import add_port
 from hilsim.cli._report import StatusLine, print_stats, verdict
+from hilsim.cli.panel import add_panel_options
 from hilsim.exit_codes import ExitCode, for_signal
 from hilsim.show.run_dir import RunDir, RunDirError, make_run_dir
 from hilsim.show.stop import STOP_SIGNALS
@@ -35,6 +37,7 @@ from hilsim.show.stop import STOP_SIGNALS
 if TYPE_CHECKING:
     from hilsim.rig import Rig
     from hilsim.show import Show, ShowResult
+    from hilsim.show.feed import PanelFeed
     from hilsim.show.group import GroupResult
     from hilsim.targets import TargetSet
 
@@ -93,6 +96,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="a rig with several [buses.<name>]: run this bus's joints alone (default: every "
         "bus, one process each, started together)",
     )
+    p.add_argument(
+        "--panel",
+        action="store_true",
+        help="serve the browser control panel (live plots, cues, live joints, STOP) and print "
+        "its URL first; docs/panel.md",
+    )
+    add_panel_options(p, "--panel-bind")
     # a child of hilsim.show.group: "ready" on stdout once the servos are checked, then the
     # shared instant of tick 0 from stdin; "stopping ..." on stdout when its loop stops;
     # stdin closing stops it
@@ -118,9 +128,13 @@ def run(args: argparse.Namespace) -> int:
         return EXIT_USAGE
     try:
         rigs = load_rigs(args.config, port=args.port)
-        if len(rigs) > 1 and args.bus is None and (args.show is not None or args.live):
+        if (
+            len(rigs) > 1
+            and args.bus is None
+            and (args.show is not None or args.live or args.panel)
+        ):
             _say(
-                "--show/--live drive one bus for now: this rig has several buses; give "
+                "--show/--live/--panel drive one bus for now: this rig has several buses; give "
                 "--bus NAME (one process, one show)"
             )
             return EXIT_USAGE
@@ -135,6 +149,7 @@ def run(args: argparse.Namespace) -> int:
             virtual_time=args.virtual_time,
             show=args.show,
             live=args.live,
+            controls=args.panel,
             on_note=_say,
             status_file=args.status_file or True,
         )
@@ -279,6 +294,12 @@ def _run_show(args: argparse.Namespace, show: Show, made: RunDir, shown: list[bo
     rig, run_dir = show.rig, made.path
     show.out = run_dir
     previous = {s: signal.signal(s, lambda signum, _f: show.stop(signum)) for s in STOP_SIGNALS}
+    panel = None
+    if args.panel:  # its URL first, before the start-up check
+        panel = _start_panel(args, show, run_dir)
+        if panel is None:
+            made.remove_if_empty()
+            return EXIT_USAGE
     try:
         try:
             show.open()
@@ -286,6 +307,8 @@ def _run_show(args: argparse.Namespace, show: Show, made: RunDir, shown: list[bo
             _say(str(exc))
             made.remove_if_empty()
             return EXIT_USAGE
+        if panel is not None:
+            panel.feed.write_info()  # `hilsim panel` finds the show now
         with show:
             start_at = None
             if args.shared_start and not show.stopping:
@@ -321,14 +344,80 @@ def _run_show(args: argparse.Namespace, show: Show, made: RunDir, shown: list[bo
             finally:
                 if status is not None:
                     status.close()
+        if panel is not None:
+            panel.feed.close()  # the page has been told how the show ended
     finally:
         if not args.shared_start:  # a group's child keeps them: the parent's stop is late
             for s, handler in previous.items():
                 signal.signal(s, handler)
+        if panel is not None:
+            panel.close()
     try:
         return _report(args, rig, result, run_dir, virtual)
     except OSError:  # stderr gone (a hung-up terminal: SIGHUP): the record says it all
         return result.exit_code
+
+
+class _Panel:
+    """The show's feed and the panel's process (``hilsim panel --child``)."""
+
+    def __init__(self, feed: PanelFeed, proc: subprocess.Popen[bytes]) -> None:
+        self.feed, self.proc = feed, proc
+
+    def close(self) -> None:
+        self.feed.close()
+        with contextlib.suppress(OSError):
+            assert self.proc.stdin is not None
+            self.proc.stdin.close()  # the panel closes when its pipe does
+        try:
+            self.proc.wait(5.0)
+        except subprocess.TimeoutExpired:
+            self.proc.terminate()
+            self.proc.wait()
+
+
+def _start_panel(args: argparse.Namespace, show: Show, run_dir: Path) -> _Panel | None:
+    """The feed on its socket, the panel's process; its URL printed. None: it cannot listen
+    (the panel said why, one line); nothing has moved."""
+    import importlib.util
+    import secrets
+
+    from hilsim.cli.panel import EXTRA_HINT, TOKEN_ENV, check_options
+    from hilsim.show.feed import PanelFeed
+
+    try:
+        check_options(args.panel_bind, args.panel_allow)
+    except ValueError as exc:
+        _say(str(exc))
+        return None
+    if importlib.util.find_spec("websockets") is None:
+        _say(EXTRA_HINT)
+        return None
+    feed = PanelFeed(show, run_dir=run_dir)
+    sock = feed.start(write_info=False)
+    cmd = [sys.executable, "-m", "hilsim", "panel", str(run_dir), "--feed", str(sock), "--child"]
+    cmd += ["--bind", args.panel_bind or "127.0.0.1:8080", "--allow", args.panel_allow]
+    proc = subprocess.Popen(  # its own session: a Ctrl-C stops the show, the page sees it end
+        cmd,
+        stdin=subprocess.PIPE,
+        stdout=subprocess.PIPE,
+        env=dict(os.environ, **{TOKEN_ENV: secrets.token_urlsafe(18)}),
+        start_new_session=True,
+    )
+    assert proc.stdout is not None
+    line = b""
+    if select.select([proc.stdout], [], [], 15.0)[0]:
+        line = proc.stdout.readline()
+    if not line.startswith(b"panel: http"):
+        feed.close()
+        with contextlib.suppress(subprocess.TimeoutExpired):
+            proc.wait(5.0)
+        if proc.poll() is None:
+            proc.kill()
+            _say("the panel did not start within 15 s")
+        return None
+    print(line.decode().strip(), file=sys.stderr, flush=True)
+    return _Panel(feed, proc)
 
 
 def _report(

@@ -34,6 +34,9 @@ class ControlsPoll:
     releases: list[str | None] = field(default_factory=list)
 
 
+_NOTHING = ControlsPoll()  # shared, never changed: what a tick with nothing new polls
+
+
 class Controls:
     """The show's controls for the program running it.
 
@@ -85,6 +88,8 @@ class Controls:
     def poll(self, t: float) -> ControlsPoll:
         """Everything set since the last poll (the latest value per joint); ``t`` is the show
         time (the inputs' common signature)."""
+        if not (self._values or self._cues or self._releases):  # the usual tick: no lock
+            return _NOTHING
         with self._lock:
             values, cues, releases = self._values, self._cues, self._releases
             self._values, self._cues, self._releases = {}, [], []

@@ -16,9 +16,9 @@ cannot be skipped: a mismatch raises :class:`ShowRefusedError` before anything m
 Leaving the ``with`` block stops a show still running and closes the bus.
 
 While it runs, other threads talk to it through :meth:`Show.stop`, :meth:`Show.cue`,
-:meth:`Show.set_joint` and :meth:`Show.release`, and read :attr:`Show.status`. With
-``status_file``, a heartbeat file says how it is doing, for a monitor
-(:mod:`hilsim.show.heartbeat`, ``docs/service.md``).
+:meth:`Show.set_joint` and :meth:`Show.release`. With ``status_file``, a heartbeat file says
+how it is doing, for a monitor (:mod:`hilsim.show.heartbeat`, ``docs/service.md``); the
+browser panel's feed (:mod:`hilsim.show.feed`) reads :attr:`Show.loop`.
 """
 
 from __future__ import annotations
@@ -55,6 +55,7 @@ from hilsim.telemetry.format import TelemetryFormat
 
 if TYPE_CHECKING:
     from drivers.dynamixel.bus import DynamixelBus
+    from hilsim.show.loop import HilLoop
     from hilsim.telemetry import TelemetryWriter
 
 __all__ = ["Show", "ShowError", "ShowRefusedError", "ShowResult", "endless_in_virtual_time"]
@@ -102,6 +103,8 @@ class Show:
             ``<telemetry.out_dir>/<name>-<time>``.
         virtual_time: run on the emulator's virtual clock (same numbers, no waiting).
         show: a show file (clips, cues, live inputs); ``live``: OSC on 127.0.0.1.
+        controls: :meth:`set_joint` and :meth:`release` without a show file or ``live``
+            (no input of its own; the show ends with the rig's animation), e.g. for the panel.
         on_note: called with each thing the start-up found or changed (a line of text);
             default: logged on the ``hilsim.show`` logger.
         status_file: a heartbeat (``docs/service.md``): True writes ``status.json`` in the
@@ -122,6 +125,7 @@ class Show:
         virtual_time: bool = False,
         show: PathLike | None = None,
         live: bool = False,
+        controls: bool = False,
         on_note: Callable[[str], None] | None = None,
         status_file: PathLike | bool = False,
         status_every_s: float = 1.0,
@@ -138,7 +142,7 @@ class Show:
             self.rig = select_bus(load_rigs(Path(rig), port=port), bus)
         self.port = port_for(self.rig, virtual_time)
         parts = build_parts(self.rig)
-        if show is not None or live:
+        if show is not None or live or controls:
             parts = with_show(
                 parts, None if show is None else str(show), live, virtual=virtual_time
             )
@@ -159,6 +163,7 @@ class Show:
         self._running = threading.Event()
         self._done = threading.Event()
         self._result: ShowResult | None = None
+        self._loop: HilLoop | None = None
         self._closed = False
 
     # ------------------------------------------------------------------ entering, leaving
@@ -303,6 +308,7 @@ class Show:
                     on_status=on_status,
                     start_at=start_at,
                     on_stop=on_stop,
+                    on_loop=self._attach_loop,
                 )
             except BaseException as exc:
                 if beat is not None:
@@ -365,12 +371,13 @@ class Show:
             self.notes.append(f"warning: {problem}")
             self._say(self.notes[-1])
 
-    def stop(self, signum: int | None = None) -> None:
+    def stop(self, signum: int | None = None, *, what: str = "Show.stop()") -> None:
         """End the show through the rig's exit policy (exit code 5; with ``signum``, the
         signal's code: 130 for SIGINT, 143 for SIGTERM). Safe from any thread or a signal
-        handler; a stop before :meth:`run` makes the run end at once, nothing moved."""
+        handler; a stop before :meth:`run` makes the run end at once, nothing moved.
+        ``what``: who asked, for the summary's reason (``stopped by <what>``)."""
         if signum is None:
-            self._stop.request_command("Show.stop()")
+            self._stop.request_command(what)
         else:
             self._stop.request(signum)
 
@@ -404,7 +411,7 @@ class Show:
         goes there through its spring and the safety filter, never a jump. Whatever live
         input held it (``set_joint``, OSC, MIDI ...). Thread-safe. A ``live_release`` event
         says it (``release_ignored`` when no live input held it). Raises ShowError without a
-        show file or ``live=True``, KeyError for an unknown joint."""
+        show file, ``live=True`` or ``controls=True``, KeyError for an unknown joint."""
         self._controls().release(joint)
 
     def _controls(self) -> Controls:
@@ -431,6 +438,15 @@ class Show:
     def result(self) -> ShowResult | None:
         """How the run ended, once it has."""
         return self._result
+
+    @property
+    def loop(self) -> HilLoop | None:
+        """The running loop, once :meth:`run` has built it (read-only use from other threads:
+        :mod:`hilsim.show.feed` copies its arrays)."""
+        return self._loop
+
+    def _attach_loop(self, loop: HilLoop) -> None:
+        self._loop = loop
 
     def _say(self, line: str) -> None:
         self._note(line)

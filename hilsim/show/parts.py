@@ -117,14 +117,24 @@ def build_parts(rig: Rig, targets: TargetSet | None = None) -> Parts:
 
 def with_show(parts: Parts, show_path: str | None, live: bool, *, virtual: bool = False) -> Parts:
     """``parts`` with a :class:`~hilsim.live.director.Director` for the show file (and/or
-    ``--live``: OSC on 127.0.0.1 for every joint); its targets replace the rig's, which stay
+    ``--live``: OSC on 127.0.0.1 for every joint; neither: only ``Show.cue/set_joint/
+    release``, ending with the rig's animation); its targets replace the rig's, which stay
     under it; ``virtual``: sounds are scheduled and logged, not played. Raises RigError (one
     line) for a show file that cannot be used."""
     from hilsim.live.director import build_director
-    from hilsim.live.showfile import OscConfig, joint_ranges, live_spec, load_show
+    from hilsim.live.showfile import (
+        OscConfig,
+        RecordConfig,
+        ShowSpec,
+        joint_ranges,
+        live_spec,
+        load_show,
+    )
 
     rig = parts.rig
-    if show_path is None:
+    if show_path is None and not live:  # Show.cue/set_joint/release alone (the panel)
+        spec = ShowSpec(path=None, name=f"{rig.name} controls", record=RecordConfig())
+    elif show_path is None:
         spec = live_spec(rig)
     else:
         notes: list[str] = []
@@ -138,5 +148,8 @@ def with_show(parts: Parts, show_path: str | None, live: bool, *, virtual: bool 
         director = build_director(spec, rig.joint_names, parts.targets, silent=virtual)
     except (ValueError, OSError) as exc:
         raise RigError(f"{show_path or '--live'}: {exc}") from None
+    if show_path is None and not live:  # no inputs of its own: it ends with the animation
+        for track in director.tracks:
+            track.end = parts.targets.duration
     parts.director, parts.targets = director, director.targets
     return parts

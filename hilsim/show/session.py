@@ -323,13 +323,15 @@ def run_show(
     on_status: Callable[[JsonDict], None] | None = None,
     start_at: float | None = None,
     on_stop: Callable[[int, str], None] | None = None,
+    on_loop: Callable[[HilLoop], None] | None = None,
 ) -> ShowResult:
     """Run the show, then end its record (:func:`hilsim.show.end.end_show`: the outcome
     decided once, then ``summary.json``, ``docs/summary.md``, says it).
 
     ``start_at``: the real clock's time of tick 0 (``time.monotonic``; the buses of a figure
     share it); None: at once. A virtual clock ignores it (its show time is k·period).
-    ``on_stop``: told the code and reason as the loop stops (:class:`~hilsim.show.loop.HilLoop`)."""
+    ``on_stop``: told the code and reason as the loop stops (:class:`~hilsim.show.loop.HilLoop`).
+    ``on_loop``: given the loop once built, before it runs (the panel's feed reads its arrays)."""
     try:
         loop = HilLoop(
             parts,
@@ -341,6 +343,8 @@ def run_show(
             start_at=start_at,
             on_stop=on_stop,
         )
+        if on_loop is not None:
+            on_loop(loop)
         wall0 = time.perf_counter()
         result = loop.run()
         wall = time.perf_counter() - wall0
