@@ -47,6 +47,7 @@ if TYPE_CHECKING:  # each input's module is imported when a show uses that input
     from hilsim.live.gamepad import GamepadInput
     from hilsim.live.keyboard import KeyboardInput
     from hilsim.live.midi import MidiCcInput, MidiTriggerInput
+    from hilsim.live.multisync import MultiSyncRemote
     from hilsim.live.osc import OscInput
     from hilsim.live.show import ShowRuntime
     from hilsim.live.takes import Take
@@ -135,7 +136,7 @@ class Director:
         return any(
             x is not None
             for x in (spec.osc, spec.midi, spec.bottango, spec.gamepad, spec.keyboard, spec.teach,
-                      spec.sacn, spec.artnet)
+                      spec.sacn, spec.artnet, spec.multisync)
         )  # fmt: skip
 
     def _build_inputs(self, spec: ShowSpec, silent: bool) -> None:
@@ -195,6 +196,11 @@ class Director:
                 from hilsim.live.dmx_input import DmxInput
 
                 self.dmx.append(DmxInput(dmx_config))
+        self.multisync: MultiSyncRemote | None = None
+        if spec.multisync is not None:
+            from hilsim.live.multisync import MultiSyncRemote
+
+            self.multisync = MultiSyncRemote(spec.multisync)
         if spec.bottango is not None:
             from hilsim.live.bottango_live import BottangoLive
 
@@ -261,6 +267,15 @@ class Director:
                 groups = " (multicast)" if dmx.config.multicast else ""
                 say(f"{dmx.name} on {dmx.config.guard.bind_address}:{dmx.config.port}{groups}: "
                     f"universes {', '.join(map(str, dmx.config.universes))}")  # fmt: skip
+            if self.multisync is not None:
+                from hilsim.live.multisync import listen as sync_listen
+
+                rx = sync_listen(self.multisync, self.now)
+                self._closers.append(rx.close)
+                ms = self.multisync.config
+                say(f"FPP MultiSync on {ms.guard.bind_address}:{ms.port}"
+                    f"{' (multicast)' if ms.multicast else ''}: "
+                    f"following {ms.sequence or 'any sequence'}")  # fmt: skip
             sinks = [s for s in (self.midi, self.midi_triggers, self.chase) if s is not None]
             if sinks:
                 from hilsim.live.midi import open_midi_input
@@ -302,6 +317,15 @@ class Director:
             cp = chase.poll(t)
             events += cp.events
             self.offset = (0.0 if cp.show_time_s is None else cp.show_time_s) - t
+        sync = self.multisync
+        if sync is not None:  # an FPP master's time
+            for ev in sync.poll(t):
+                events.append(ev)
+                if sync.stop_requested and ev.kind in ("multisync_stop", "input_lost"):
+                    self.counts["stops"] += 1
+                    if self._stop is not None:
+                        self._stop.request_command(str(ev.detail["message"]))
+            self.offset = sync.show_time(t) - t
         t_show = t + self.offset
         osc = self.osc
         if osc is not None:
@@ -494,7 +518,8 @@ class Director:
             out["osc_drops"] = self.osc.guard.drops.snapshot()
         for dmx in self.dmx:
             out[dmx.source] = dmx.summary()
-        for name in ("midi", "chase", "bottango", "gamepad", "keyboard", "teach", "audio"):
+        parts = ("midi", "chase", "multisync", "bottango", "gamepad", "keyboard", "teach", "audio")
+        for name in parts:
             part = getattr(self, name)
             summary = getattr(part, "summary", None)
             if callable(summary):

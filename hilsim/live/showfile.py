@@ -4,8 +4,8 @@ A show file names the clips a figure plays, what starts them, and the live input
 drive it. The rig (its servos, limits and springs) stays in the rig file. Every section is
 optional; paths are relative to the show file. Sections: ``[show]``, ``[clips.*]``,
 ``[sounds]``, ``[idle]``, ``[cues.*]``, ``[[timeline]]``, ``[inputs.osc]``, ``[inputs.midi]``,
-``[inputs.mtc]``, ``[inputs.sacn]``, ``[inputs.artnet]``, ``[inputs.gamepad]``,
-``[inputs.keyboard]``, ``[inputs.bottango]``, ``[record]`` and
+``[inputs.mtc]``, ``[inputs.sacn]``, ``[inputs.artnet]``, ``[inputs.multisync]``,
+``[inputs.gamepad]``, ``[inputs.keyboard]``, ``[inputs.bottango]``, ``[record]`` and
 ``[teach]``. ``--live`` has a built-in one.
 
 Clips, sounds, idle, cues and the timeline are read by :mod:`hilsim.live.show_spec`. The
@@ -34,13 +34,15 @@ if TYPE_CHECKING:  # each section's reader is imported when a show file has that
     from hilsim.live.dmx_config import DmxConfig
     from hilsim.live.gamepad import GamepadConfig
     from hilsim.live.keyboard import KeyboardConfig
+    from hilsim.live.multisync import MultiSyncConfig
     from hilsim.live.show_spec import MakeTrack, RuntimeSpec
     from hilsim.live.teach import TeachConfig
 
 #: the default OSC port of ``hilsim run --live``
 DEFAULT_OSC_PORT = 9000
 TOP_KEYS = ("show", "clips", "sounds", "idle", "cues", "timeline", "inputs", "record", "teach")
-INPUT_KEYS = ("osc", "midi", "mtc", "sacn", "artnet", "bottango", "gamepad", "keyboard")
+INPUT_KEYS = ("osc", "midi", "mtc", "sacn", "artnet", "multisync", "bottango", "gamepad",
+              "keyboard")  # fmt: skip
 
 
 @dataclass(frozen=True)
@@ -93,6 +95,7 @@ class ShowSpec:
     mtc: MtcConfig | None = None
     sacn: DmxConfig | None = None
     artnet: DmxConfig | None = None
+    multisync: MultiSyncConfig | None = None
     bottango: BottangoConfig | None = None
     gamepad: GamepadConfig | None = None
     keyboard: KeyboardConfig | None = None
@@ -160,6 +163,10 @@ def load_show(path: str | Path, rig: Rig, make_track: MakeTrack) -> ShowSpec:
                 from hilsim.live.dmx_config import read_dmx
 
                 setattr(spec, proto, read_dmx(inputs.sub(proto), proto, joint_ranges(rig)))
+        if "multisync" in inputs.table:
+            from hilsim.live.multisync import read_multisync
+
+            spec.multisync = read_multisync(inputs.sub("multisync"))
         if "bottango" in inputs.table:
             from hilsim.live.bottango_live import from_table as bottango_table
 
