@@ -506,6 +506,8 @@ class Director:
             parts.append(playing)
         if self.chase is not None:
             parts.append(f"MTC {self.chase.state}")
+        if self.multisync is not None:
+            parts.append(f"MultiSync {self.multisync.state}")
         return "; ".join(parts)
 
     # ------------------------------------------------------------------ the end

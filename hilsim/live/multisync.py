@@ -127,7 +127,8 @@ class MultiSyncRemote:
         self._last_rx = -math.inf
         self._other: set[str] = set()
         self.stop_requested = False
-        self.counts = {"packets": 0, "syncs": 0, "seeks": 0, "other_sequence": 0}
+        self.counts = {"packets": 0, "syncs": 0, "seeks": 0, "other_sequence": 0,
+                       "other_packets": 0}  # fmt: skip
 
     def feed(self, t: float, data: bytes, sender: Address | str) -> None:
         """One datagram at show time ``t``. Never raises."""
@@ -140,10 +141,10 @@ class MultiSyncRemote:
             except MultiSyncError:
                 self.guard.drops.count("malformed")
                 return
-            if msg is None:
-                self.guard.drops.count("unknown")
-                return
             with self._lock:
+                if msg is None:  # a ping, a command: valid, not for a remote's time
+                    self.counts["other_packets"] += 1
+                    return
                 if len(self._inbox) == self._inbox.maxlen:
                     self.guard.drops.count("queue_full")
                 self._inbox.append((t, msg))

@@ -49,6 +49,9 @@ def test_the_packet_layout_and_our_builder_agree():
     assert build_multisync("sync", 12.5, SONG, 250) == raw
     assert parse_multisync(raw) == SyncMessage("sync", False, 250, 12.5, SONG)
     assert parse_multisync(b"FPPD\x04\x00\x00") is None  # a ping (type 4): not ours
+    remote = MultiSyncRemote(MultiSyncConfig())
+    remote.feed(0.0, b"FPPD\x04\x00\x00", SENDER)
+    assert remote.poll(0.0) == [] and remote.counts["other_packets"] == 1
     for bad in (b"FPPX\x01\x00\x00", raw[:-1], raw[:7] + b"\x09" + raw[8:]):
         with pytest.raises(MultiSyncError):
             parse_multisync(bad)
