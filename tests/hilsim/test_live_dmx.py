@@ -386,3 +386,17 @@ def test_multicast_joins_each_universes_group_on_the_interface():
     finally:
         s.close()
         rx.close()
+
+
+def test_release_after_s_is_read_for_sacn_and_artnet(tmp_path):
+    from hilsim.live.director import release_after
+    from hilsim.live.showfile import load_show
+
+    (tmp_path / "rig.toml").write_text(RIG)
+    text = SHOW.replace("[inputs.sacn]\n", "[inputs.sacn]\nrelease_after_s = 4\n")
+    text += SHOW.replace("sacn", "artnet").replace("universe = 1", "universe = 0")
+    (tmp_path / "show.toml").write_text(text)
+    spec = load_show(tmp_path / "show.toml", load_rig(tmp_path / "rig.toml"), lambda *a: None)
+    got = release_after(spec)
+    assert (got["sacn"], got["artnet"]) == (4.0, None)
+    assert spec.artnet is not None and spec.artnet.port == 6454 and not spec.artnet.multicast
