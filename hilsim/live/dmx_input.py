@@ -146,7 +146,7 @@ class DmxInput:
                 self.guard.drops.count("late")
                 return
         src.sequence, src.last_t, src.priority = p.sequence, t, p.priority
-        self._elect(u, t, f"priority {p.priority} from {src.label}")
+        self._elect(u, t, "the highest priority")
         if u.winner != p.source:
             return
         key = (p.source, p.sync_address if self.source == "sacn" else 0)

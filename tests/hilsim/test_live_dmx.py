@@ -400,3 +400,62 @@ def test_release_after_s_is_read_for_sacn_and_artnet(tmp_path):
     got = release_after(spec)
     assert (got["sacn"], got["artnet"]) == (4.0, None)
     assert spec.artnet is not None and spec.artnet.port == 6454 and not spec.artnet.multicast
+
+
+def test_two_sacn_senders_over_loopback_the_higher_priority_wins_and_its_end_hands_back():
+    """The sacn package's own senders (their CIDs, sequence numbers and stream-terminated
+    packets) unicast to 127.0.0.1:5568, where sacn always sends. No wall-clock figure."""
+    import time
+
+    sacn = pytest.importorskip("sacn")
+    from hilsim.live.netguard import NetGuardError
+
+    fed = threading.Condition()
+
+    class Signalled(DmxInput):
+        def feed(self, t, data, sender):
+            super().feed(t, data, sender)
+            with fed:
+                fed.notify_all()
+
+    inp = Signalled(DmxConfig("sacn", (joint16(),), port=5568))
+    try:
+        rx = listen(inp, lambda: 1.0)
+    except NetGuardError as exc:  # 5568 taken on this host
+        pytest.skip(str(exc))
+    got: dict[str, float] = {}
+    kinds: list[str] = []
+
+    def until(cond) -> bool:
+        end = time.monotonic() + 10.0
+        with fed:
+            while True:
+                p = inp.poll(1.0)
+                got.update({j: d for j, d, _ in p.values})
+                kinds.extend(e.kind for e in p.events)
+                if cond() or not fed.wait(timeout=max(0.0, end - time.monotonic())):
+                    return cond()
+
+    senders = []
+    try:
+        for prio, slots in ((100, (0x80, 0x00)), (150, (0xFF, 0xFF))):
+            s = sacn.sACNsender(bind_address="127.0.0.1", bind_port=0, source_name=f"p{prio}")
+            s.start()
+            s.activate_output(1)
+            s[1].multicast, s[1].destination, s[1].priority = False, "127.0.0.1", prio
+            s[1].dmx_data = slots
+            senders.append(s)
+            want = 10.0 if prio == 100 else 50.0
+            assert until(lambda w=want: got.get("head_pan") == w), got
+        assert kinds.count("dmx_source") == 1  # priority 150 took over
+        senders[1].deactivate_output(1)  # three "stream terminated" packets: it leaves at once
+        assert until(lambda: got.get("head_pan") == 10.0 and kinds.count("dmx_source") == 2), (
+            got,
+            kinds,
+            inp.counts,
+            inp.guard.drops.snapshot(),
+        )
+    finally:
+        for s in senders:
+            s.stop()
+        rx.close()
