@@ -90,6 +90,7 @@ class DmxInput:
         for j in config.joints:
             by_u.setdefault(j.universe, []).append(j)
         self._universes = {u: _Universe(u, tuple(js)) for u, js in by_u.items()}
+        self._joints = {j.joint: j for j in config.joints}
         self._sync_t: dict[tuple[str, int], float] = {}  # (source, sync address) -> last sync
         self._lock = threading.Lock()
         self._latest: dict[str, tuple[int, float]] = {}  # joint -> (raw value, t)
@@ -157,6 +158,8 @@ class DmxInput:
         self._apply(u, p, t)
 
     def _sync(self, t: float, s: DmxSync) -> None:
+        if len(self._sync_t) >= 4 * MAX_SOURCES and (s.source, s.sync_address) not in self._sync_t:
+            self._sync_t.clear()  # bounded: a flood of made-up sources forgets the old ones
         self._sync_t[(s.source, s.sync_address)] = t
         for u in self._universes.values():
             p = u.pending
@@ -225,9 +228,8 @@ class DmxInput:
                 self._expire(u, t)
             latest, self._latest = self._latest, {}
             out.events, self._events = self._events, []
-        joints = {j.joint: j for j in self.config.joints}
         for joint, (v, tm) in latest.items():
-            j = joints[joint]
+            j = self._joints[joint]
             deg = j.degrees(v)
             if deg is not None:
                 out.values.append((joint, deg, tm))
