@@ -459,3 +459,33 @@ def test_two_sacn_senders_over_loopback_the_higher_priority_wins_and_its_end_han
         for s in senders:
             s.stop()
         rx.close()
+
+
+def test_artnet_data_waits_for_artsync_once_the_sender_sends_it():
+    stupid = pytest.importorskip("stupidArtnet")
+    a = stupid.StupidArtnet("127.0.0.1", universe=0, packet_size=2, artsync=True)
+    a.close()
+
+    def artdmx(slots):
+        a.set(list(slots))
+        return bytes(a.packet_header) + bytes(a.buffer)
+
+    cfg = DmxConfig("artnet", (DmxJoint("head_pan", 0, 1, 16, -50.0, 10.0, 50.0),))
+    inp = DmxInput(cfg)
+    inp.feed(0.0, artdmx((0x80, 0)), SENDER)  # no ArtSync seen yet: applied as it comes
+    assert values(inp, 0.0) == {"head_pan": 10.0}
+    inp.feed(0.01, bytes(a.artsync_header), SENDER)
+    inp.feed(0.02, artdmx((0xFF, 0xFF)), SENDER)
+    assert values(inp, 0.02) == {}  # waits for the next ArtSync
+    inp.feed(0.03, bytes(a.artsync_header), SENDER)
+    assert values(inp, 0.03) == {"head_pan": 50.0}
+
+
+def test_a_flood_is_dropped_and_said_at_most_once_a_second():
+    inp = sacn_input()
+    for i in range(1000):  # 1000 packets in 0.1 s from one sender: over rate 1000/s, burst 200
+        inp.feed(i * 1e-4, e131(sequence=i % 256), SENDER)
+    lines = [e for t in (0.1, 0.5, 1.05, 1.2) for e in inp.poll(t).events
+             if e.kind == "input_dropped" and e.detail["reason"] == "flood"]  # fmt: skip
+    assert inp.guard.drops.by_kind["flood"] > 600
+    assert [round(e.t, 2) for e in lines] == [0.1]  # 0.5 s and 1.05 s: within its second
