@@ -210,3 +210,43 @@ def test_a_remote_plays_the_animation_at_the_masters_time_and_relocks_after_a_se
     held = remote[k_stop + 200 :]
     assert np.ptp(held) < 1e-6  # stopped: held where the master stopped
     assert np.max(np.abs(remote[: k0 - 10])) < 1e-6  # before the start: the first frame
+
+
+def test_a_timeline_clip_named_for_the_sequence_plays_at_the_masters_time(tmp_path):
+    """``[[timeline]] at_s = 0, clip = "song"``: the clip's targets are sampled at the master's
+    seconds (started at 1 s, synced at 4 Hz), and the show has no end of its own."""
+    show = (
+        SHOW
+        + """
+[clips.song]
+head_pan = { type = "sine", amplitude_deg = 20, frequency_hz = 0.5 }
+[[timeline]]
+at_s = 0
+clip = "song"
+"""
+    )
+    (tmp_path / "rig.toml").write_text(RIG)
+    (tmp_path / "show.toml").write_text(show)
+    rig = load_rig(tmp_path / "rig.toml")
+    parts = with_show(build_parts(rig), str(tmp_path / "show.toml"), False, virtual=True)
+    director, real_tick = parts.director, parts.director.tick
+    k0 = 250
+
+    def tick(k, t, present):
+        real_tick(k, t, present)
+        if k >= k0 and (k - k0) % 62 == 0:
+            director.multisync.feed(k * PERIOD, fpp_packet(0 if k == k0 else 2,
+                                                           (k - k0) * PERIOD, SONG), SENDER)  # fmt: skip
+
+    director.tick = tick
+    assert director.tracks[0].duration is None  # followed: no end of its own
+    bus = open_bus(rig, port_for(rig, True))
+    tel = open_telemetry(rig, tmp_path / "run", True)
+    try:
+        run_show(parts, bus, tel, duration_s=4.0, stop=StopFlag())
+    finally:
+        bus.close()
+    target = np.degrees(read_run(tmp_path / "run").joint("target")[:, 0])
+    k = np.arange(k0 + 1, 1000)
+    want = 20 * np.sin(2 * np.pi * 0.5 * (k - k0) * PERIOD)
+    assert np.max(np.abs(target[k] - want)) < 1e-4  # float32 seconds
