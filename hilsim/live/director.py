@@ -3,7 +3,8 @@
 ``hilsim run RIG --show SHOW.toml`` (or ``--live``) gives the loop a :class:`Director`. Per
 tick, before the loop samples the targets (:meth:`Director.tick`)::
 
-    timecode (MTC chase)         the show time: t_show = t_sim, or the chased timecode
+    timecode (MTC chase)         the show time: t_show = t_sim, or the chased timecode,
+    FPP MultiSync                or the master's time (hilsim.live.multisync)
     live inputs, polled          OSC, MIDI CC, gamepad, Bottango live, teach-by-hand: the
                                  latest value per joint; triggers (OSC, MIDI note/CC, keys)
     the show runtime             cues fired (lockout, windows, timers), clips started and

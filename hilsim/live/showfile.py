@@ -158,15 +158,7 @@ def load_show(path: str | Path, rig: Rig, make_track: MakeTrack) -> ShowSpec:
             spec.midi = _midi(inputs.sub("midi"), names)
         if "mtc" in inputs.table:
             spec.mtc = _mtc(inputs.sub("mtc"))
-        for proto in ("sacn", "artnet"):
-            if proto in inputs.table:
-                from hilsim.live.dmx_config import read_dmx
-
-                setattr(spec, proto, read_dmx(inputs.sub(proto), proto, joint_ranges(rig)))
-        if "multisync" in inputs.table:
-            from hilsim.live.multisync import read_multisync
-
-            spec.multisync = read_multisync(inputs.sub("multisync"))
+        _network_inputs(inputs, spec, rig)
         if "bottango" in inputs.table:
             from hilsim.live.bottango_live import from_table as bottango_table
 
@@ -201,6 +193,21 @@ def load_show(path: str | Path, rig: Rig, make_track: MakeTrack) -> ShowSpec:
     if spec.mtc is not None and spec.midi is None:
         spec.midi = MidiConfig()  # timecode comes in on a MIDI port
     return spec
+
+
+def _network_inputs(inputs: Reader, spec: ShowSpec, rig: Rig) -> None:
+    """``[inputs.sacn]``, ``[inputs.artnet]`` and ``[inputs.multisync]`` (after ``mtc``)."""
+    for proto in ("sacn", "artnet"):
+        if proto in inputs.table:
+            from hilsim.live.dmx_config import read_dmx
+
+            setattr(spec, proto, read_dmx(inputs.sub(proto), proto, joint_ranges(rig)))
+    if "multisync" in inputs.table:
+        from hilsim.live.multisync import read_multisync
+
+        spec.multisync = read_multisync(inputs.sub("multisync"))
+        if spec.mtc is not None:
+            raise inputs.fail("multisync", "inputs.mtc sets the show time too: keep one")
 
 
 def _osc(r: Reader, rig: Rig) -> OscConfig:

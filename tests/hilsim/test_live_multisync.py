@@ -250,3 +250,12 @@ clip = "song"
     k = np.arange(k0 + 1, 1000)
     want = 20 * np.sin(2 * np.pi * 0.5 * (k - k0) * PERIOD)
     assert np.max(np.abs(target[k] - want)) < 1e-4  # float32 seconds
+
+
+def test_mtc_and_multisync_together_are_one_line(tmp_path):
+    import hilsim
+
+    (tmp_path / "rig.toml").write_text(RIG)
+    (tmp_path / "show.toml").write_text(SHOW + "[inputs.mtc]\n")
+    with pytest.raises(hilsim.RigError, match=r"inputs\.mtc sets the show time too"):
+        hilsim.Show(tmp_path / "rig.toml", virtual_time=True, show=tmp_path / "show.toml")
