@@ -86,6 +86,7 @@ class DmxInput:
         self.source = config.protocol  # the live layer's holder name: "sacn" | "artnet"
         self.name = "sACN" if config.protocol == "sacn" else "Art-Net"
         self.guard = NetGuard(config.guard)
+        self.guard.drops.by_kind.setdefault("late", 0)  # listed in the summary even when none
         by_u: dict[int, list[DmxJoint]] = {}
         for j in config.joints:
             by_u.setdefault(j.universe, []).append(j)
