@@ -3,7 +3,8 @@
 ``hilsim run RIG --show SHOW.toml`` (or ``--live``) gives the loop a :class:`Director`. Per
 tick, before the loop samples the targets (:meth:`Director.tick`)::
 
-    timecode (MTC chase)         the show time: t_show = t_sim, or the chased timecode
+    timecode (MTC chase)         the show time: t_show = t_sim, or the chased timecode,
+    FPP MultiSync                or the master's time (hilsim.live.multisync)
     live inputs, polled          OSC, MIDI CC, gamepad, Bottango live, teach-by-hand: the
                                  latest value per joint; triggers (OSC, MIDI note/CC, keys)
     the show runtime             cues fired (lockout, windows, timers), clips started and
@@ -43,9 +44,11 @@ from hilsim.targets.tracks import TargetSet, Track
 if TYPE_CHECKING:  # each input's module is imported when a show uses that input
     from hilsim.live.audio_out import AudioOut
     from hilsim.live.bottango_live import BottangoLive
+    from hilsim.live.dmx_input import DmxInput
     from hilsim.live.gamepad import GamepadInput
     from hilsim.live.keyboard import KeyboardInput
     from hilsim.live.midi import MidiCcInput, MidiTriggerInput
+    from hilsim.live.multisync import MultiSyncRemote
     from hilsim.live.osc import OscInput
     from hilsim.live.show import ShowRuntime
     from hilsim.live.takes import Take
@@ -133,8 +136,9 @@ class Director:
     def _live_inputs(spec: ShowSpec) -> bool:
         return any(
             x is not None
-            for x in (spec.osc, spec.midi, spec.bottango, spec.gamepad, spec.keyboard, spec.teach)
-        )
+            for x in (spec.osc, spec.midi, spec.bottango, spec.gamepad, spec.keyboard, spec.teach,
+                      spec.sacn, spec.artnet, spec.multisync)
+        )  # fmt: skip
 
     def _build_inputs(self, spec: ShowSpec, silent: bool) -> None:
         """The inputs' state machines (no I/O yet); ``silent``: sounds scheduled and logged,
@@ -186,6 +190,18 @@ class Director:
 
             m = spec.mtc
             self.chase = MtcChase(freewheel_s=m.freewheel_s, jump_s=m.jump_s, offset_s=m.offset_s)
+        #: sACN and Art-Net in (hilsim.live.dmx_input)
+        self.dmx: list[DmxInput] = []
+        for dmx_config in (spec.sacn, spec.artnet):
+            if dmx_config is not None:
+                from hilsim.live.dmx_input import DmxInput
+
+                self.dmx.append(DmxInput(dmx_config))
+        self.multisync: MultiSyncRemote | None = None
+        if spec.multisync is not None:
+            from hilsim.live.multisync import MultiSyncRemote
+
+            self.multisync = MultiSyncRemote(spec.multisync)
         if spec.bottango is not None:
             from hilsim.live.bottango_live import BottangoLive
 
@@ -244,6 +260,23 @@ class Director:
                 say(f"OSC on {spec.osc.guard.bind_address}:{spec.osc.port}: "
                     f"/hilsim/joint/<{'|'.join(self.osc.ranges)}> 0..1, /hilsim/cue/<name>, "
                     "/hilsim/release[/<joint>], /hilsim/stop")  # fmt: skip
+            for dmx in self.dmx:
+                from hilsim.live.dmx_input import listen as dmx_listen
+
+                rx = dmx_listen(dmx, self.now, max_rx_per_s=dmx.config.max_rx_per_s)
+                self._closers.append(rx.close)
+                groups = " (multicast)" if dmx.config.multicast else ""
+                say(f"{dmx.name} on {dmx.config.guard.bind_address}:{dmx.config.port}{groups}: "
+                    f"universes {', '.join(map(str, dmx.config.universes))}")  # fmt: skip
+            if self.multisync is not None:
+                from hilsim.live.multisync import listen as sync_listen
+
+                rx = sync_listen(self.multisync, self.now)
+                self._closers.append(rx.close)
+                ms = self.multisync.config
+                say(f"FPP MultiSync on {ms.guard.bind_address}:{ms.port}"
+                    f"{' (multicast)' if ms.multicast else ''}: "
+                    f"following {ms.sequence or 'any sequence'}")  # fmt: skip
             sinks = [s for s in (self.midi, self.midi_triggers, self.chase) if s is not None]
             if sinks:
                 from hilsim.live.midi import open_midi_input
@@ -285,6 +318,15 @@ class Director:
             cp = chase.poll(t)
             events += cp.events
             self.offset = (0.0 if cp.show_time_s is None else cp.show_time_s) - t
+        sync = self.multisync
+        if sync is not None:  # an FPP master's time
+            for ev in sync.poll(t):
+                events.append(ev)
+                if sync.stop_requested and ev.kind in ("multisync_stop", "input_lost"):
+                    self.counts["stops"] += 1
+                    if self._stop is not None:
+                        self._stop.request_command(str(ev.detail["message"]))
+            self.offset = sync.show_time(t) - t
         t_show = t + self.offset
         osc = self.osc
         if osc is not None:
@@ -308,6 +350,13 @@ class Director:
             events += mp.events
             for tm, joint, deg in mp.samples:
                 self._set(joint, deg, tm, "midi", events)
+        for dmx in self.dmx:
+            dp = dmx.poll(t)
+            events += dp.events
+            for joint in dp.releases:
+                events += self.release(joint, t, f"{dmx.name} value 0 (zero = release)", dmx.source)
+            for joint, deg, tm in dp.values:
+                self._set(joint, deg, tm, dmx.source, events)
         if self.midi_triggers is not None:
             triggers += [key for _, key in self.midi_triggers.poll(t)]
         for part in (self.gamepad, self.bottango, self.api):
@@ -458,6 +507,8 @@ class Director:
             parts.append(playing)
         if self.chase is not None:
             parts.append(f"MTC {self.chase.state}")
+        if self.multisync is not None:
+            parts.append(f"MultiSync {self.multisync.state}")
         return "; ".join(parts)
 
     # ------------------------------------------------------------------ the end
@@ -468,7 +519,10 @@ class Director:
         out: JsonDict = {"show": self.spec.name, **self.counts, **self.layer.counts}
         if self.osc is not None:
             out["osc_drops"] = self.osc.guard.drops.snapshot()
-        for name in ("midi", "chase", "bottango", "gamepad", "keyboard", "teach", "audio"):
+        for dmx in self.dmx:
+            out[dmx.source] = dmx.summary()
+        parts = ("midi", "chase", "multisync", "bottango", "gamepad", "keyboard", "teach", "audio")
+        for name in parts:
             part = getattr(self, name)
             summary = getattr(part, "summary", None)
             if callable(summary):
@@ -500,7 +554,7 @@ class Director:
 def release_after(spec: ShowSpec) -> dict[str, float | None]:
     """Each live input's ``release_after_s`` (None: its joints are held until released)."""
     out: dict[str, float | None] = {}
-    for source in ("osc", "midi", "gamepad", "bottango"):
+    for source in ("osc", "midi", "gamepad", "bottango", "sacn", "artnet"):
         out[source] = getattr(getattr(spec, source), "release_after_s", None)
     return out
 

@@ -31,7 +31,7 @@ import sys
 import threading
 import time
 from collections import OrderedDict
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
 
 DEFAULT_BIND = "127.0.0.1"
@@ -254,7 +254,9 @@ class UdpReceiver:
     ``clock()`` (show time) and hands it to ``feed(t, data, sender)``, which must not raise
     (a raise is counted ``internal``). At most ``max_rx_per_s`` datagrams a second are read
     (bursts of ``rx_burst``); past that the thread waits and the kernel drops the rest (counted
-    ``socket_overflow`` on Linux). ``close()`` ends it within ``timeout_s``."""
+    ``socket_overflow`` on Linux). ``close()`` ends it within ``timeout_s``. ``groups``: IPv4
+    multicast groups joined on the bind address's interface; the socket is then bound to any
+    address (multicast reaches no other), so the allow-list alone decides who is heard."""
 
     def __init__(
         self,
@@ -267,6 +269,7 @@ class UdpReceiver:
         max_rx_per_s: float = 2000.0,
         rx_burst: int = 100,
         timeout_s: float = 0.2,
+        groups: Sequence[str] = (),
     ) -> None:
         self.guard, self.feed, self.clock, self.name = guard, feed, clock, name
         if not (isinstance(max_rx_per_s, int | float) and 0 < max_rx_per_s <= 1e7):
@@ -277,10 +280,18 @@ class UdpReceiver:
         host = guard.config.bind_address
         sock = socket.socket(socket.AF_INET6 if ":" in host else socket.AF_INET, socket.SOCK_DGRAM)
         try:
-            sock.bind((host, port))
+            if groups:  # multicast reaches a socket bound to any address, not to the interface's
+                sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+                sock.bind(("0.0.0.0", port))
+                for group in groups:
+                    mreq = socket.inet_aton(group) + socket.inet_aton(host)
+                    sock.setsockopt(socket.IPPROTO_IP, socket.IP_ADD_MEMBERSHIP, mreq)
+            else:
+                sock.bind((host, port))
         except OSError as exc:
             sock.close()
-            msg = f"{name}: cannot listen on {host} port {port}: {exc.strerror}"
+            joined = f" (joining {', '.join(groups)})" if groups else ""
+            msg = f"{name}: cannot listen on {host} port {port}{joined}: {exc.strerror}"
             raise NetGuardError(msg) from None
         self.overflow_counted = False
         with contextlib.suppress(OSError):

@@ -4,8 +4,9 @@ A show file names the clips a figure plays, what starts them, and the live input
 drive it. The rig (its servos, limits and springs) stays in the rig file. Every section is
 optional; paths are relative to the show file. Sections: ``[show]``, ``[clips.*]``,
 ``[sounds]``, ``[idle]``, ``[cues.*]``, ``[[timeline]]``, ``[inputs.osc]``, ``[inputs.midi]``,
-``[inputs.mtc]``, ``[inputs.gamepad]``, ``[inputs.keyboard]``, ``[inputs.bottango]``,
-``[record]`` and ``[teach]``. ``--live`` has a built-in one.
+``[inputs.mtc]``, ``[inputs.sacn]``, ``[inputs.artnet]``, ``[inputs.multisync]``,
+``[inputs.gamepad]``, ``[inputs.keyboard]``, ``[inputs.bottango]``, ``[record]`` and
+``[teach]``. ``--live`` has a built-in one.
 
 Clips, sounds, idle, cues and the timeline are read by :mod:`hilsim.live.show_spec`. The
 Bottango, gamepad, keyboard and teach sections are read by their own modules. Errors are one
@@ -30,15 +31,18 @@ from hilsim.rig.reader import Reader
 
 if TYPE_CHECKING:  # each section's reader is imported when a show file has that section
     from hilsim.live.bottango_config import BottangoConfig
+    from hilsim.live.dmx_config import DmxConfig
     from hilsim.live.gamepad import GamepadConfig
     from hilsim.live.keyboard import KeyboardConfig
+    from hilsim.live.multisync import MultiSyncConfig
     from hilsim.live.show_spec import MakeTrack, RuntimeSpec
     from hilsim.live.teach import TeachConfig
 
 #: the default OSC port of ``hilsim run --live``
 DEFAULT_OSC_PORT = 9000
 TOP_KEYS = ("show", "clips", "sounds", "idle", "cues", "timeline", "inputs", "record", "teach")
-INPUT_KEYS = ("osc", "midi", "mtc", "bottango", "gamepad", "keyboard")
+INPUT_KEYS = ("osc", "midi", "mtc", "sacn", "artnet", "multisync", "bottango", "gamepad",
+              "keyboard")  # fmt: skip
 
 
 @dataclass(frozen=True)
@@ -89,6 +93,9 @@ class ShowSpec:
     osc: OscConfig | None = None
     midi: MidiConfig | None = None
     mtc: MtcConfig | None = None
+    sacn: DmxConfig | None = None
+    artnet: DmxConfig | None = None
+    multisync: MultiSyncConfig | None = None
     bottango: BottangoConfig | None = None
     gamepad: GamepadConfig | None = None
     keyboard: KeyboardConfig | None = None
@@ -151,6 +158,7 @@ def load_show(path: str | Path, rig: Rig, make_track: MakeTrack) -> ShowSpec:
             spec.midi = _midi(inputs.sub("midi"), names)
         if "mtc" in inputs.table:
             spec.mtc = _mtc(inputs.sub("mtc"))
+        _network_inputs(inputs, spec, rig)
         if "bottango" in inputs.table:
             from hilsim.live.bottango_live import from_table as bottango_table
 
@@ -185,6 +193,21 @@ def load_show(path: str | Path, rig: Rig, make_track: MakeTrack) -> ShowSpec:
     if spec.mtc is not None and spec.midi is None:
         spec.midi = MidiConfig()  # timecode comes in on a MIDI port
     return spec
+
+
+def _network_inputs(inputs: Reader, spec: ShowSpec, rig: Rig) -> None:
+    """``[inputs.sacn]``, ``[inputs.artnet]`` and ``[inputs.multisync]`` (after ``mtc``)."""
+    for proto in ("sacn", "artnet"):
+        if proto in inputs.table:
+            from hilsim.live.dmx_config import read_dmx
+
+            setattr(spec, proto, read_dmx(inputs.sub(proto), proto, joint_ranges(rig)))
+    if "multisync" in inputs.table:
+        from hilsim.live.multisync import read_multisync
+
+        spec.multisync = read_multisync(inputs.sub("multisync"))
+        if spec.mtc is not None:
+            raise inputs.fail("multisync", "inputs.mtc sets the show time too: keep one")
 
 
 def _osc(r: Reader, rig: Rig) -> OscConfig:

@@ -311,7 +311,8 @@ def test_release_after_s_is_read_for_each_live_input(tmp_path):
         "[inputs.osc]\nrelease_after_s = 3\n[inputs.midi]\nrelease_after_s = 1.5\n"
     )
     spec = load_show(tmp_path / "show.toml", load_rig_text(tmp_path), lambda *a: None)
-    assert release_after(spec) == {"osc": 3.0, "midi": 1.5, "gamepad": None, "bottango": None}
+    assert release_after(spec) == {"osc": 3.0, "midi": 1.5, "gamepad": None, "bottango": None,
+                                   "sacn": None, "artnet": None}  # fmt: skip
     table = {"effectors": {"0": {"joint": "jaw", "degrees": [0, 20]}}, "release_after_s": 2}
     assert from_table(table, "b", ["jaw"]).release_after_s == 2.0
 
