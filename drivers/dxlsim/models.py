@@ -19,9 +19,10 @@ Units used throughout the emulator (e-Manual):
 from __future__ import annotations
 
 import difflib
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from functools import cached_property
+from typing import TypeVar
 
 # Protocol and control-table facts shared with the host-side driver live in one place.
 import drivers.protocol2.control_table as _ct
@@ -36,6 +37,8 @@ from .model_data import (
     Row,
 )
 from .model_spec import ModelSpec
+
+T = TypeVar("T")
 
 PULSES_PER_REV = 4096
 #: Present/Goal/Profile Velocity unit, rev/min.
@@ -297,23 +300,20 @@ def get_model(name_or_number: str | int | ServoModel) -> ServoModel:
     )
 
 
-def models_by_id(text: str, ids: Iterable[int]) -> dict[int, ServoModel]:
-    """ID -> model for every ID on a bus, from the ``model`` key of a ``dxlsim://`` URL or
-    ``hilsim emulate --model``. ``text`` is a model for all
-    (``XM430-W350``) and/or ``IDS:MODEL`` items (``1-2:2XL430-W250,3:XM540-W270``), comma
-    separated; a 2XL430-W250's axes are taken two by two in ID order, so their count is even.
-    Raises ValueError (one line) on an unknown model, an ID not on the bus or named twice, an
-    ID left without a model, or an odd number of dual-axis IDs."""
+def by_id(text: str, ids: Iterable[int], lookup: Callable[[str], T], example: str) -> dict[int, T]:
+    """ID -> whatever ``lookup`` makes of each model name in a ``model`` spec: a model for all
+    and/or ``IDS:MODEL`` items, comma separated. Raises ValueError (one line) on an unknown
+    model (``lookup``'s), an ID not on the bus or named twice, or an ID left without a model."""
     ids = tuple(ids)
-    default: ServoModel | None = None
-    named: dict[int, ServoModel] = {}
+    default: tuple[str, T] | None = None
+    named: dict[int, T] = {}
     for item in str(text).split(","):
         where, sep, name = item.strip().rpartition(":")
-        model = get_model(name.strip())
+        found = lookup(name.strip())
         if not sep:
             if default is not None:
-                raise ValueError(f"two models for all IDs: {default.name} and {model.name}")
-            default = model
+                raise ValueError(f"two models for all IDs: {default[0]} and {name.strip()}")
+            default = (name.strip(), found)
             continue
         for i in parse_ids(where):
             if i not in ids:
@@ -322,13 +322,21 @@ def models_by_id(text: str, ids: Iterable[int]) -> dict[int, ServoModel]:
                 )
             if i in named:
                 raise ValueError(f"ID {i} is given two models")
-            named[i] = model
+            named[i] = found
     missing = [i for i in ids if i not in named and default is None]
     if missing:
-        raise ValueError(f"no model for ID {format_ids(missing)}; add one for all, e.g. XM430-W350")
-    # (no default: every ID is named)
-    models = {i: named[i] if default is None else named.get(i, default) for i in ids}
-    dual = [i for i in sorted(ids) if models[i].axes == 2]
+        raise ValueError(f"no model for ID {format_ids(missing)}; add one for all, e.g. {example}")
+    return {i: named[i] if default is None else named.get(i, default[1]) for i in ids}
+
+
+def models_by_id(text: str, ids: Iterable[int]) -> dict[int, ServoModel]:
+    """ID -> model for every ID on a bus, from the ``model`` key of a ``dxlsim://`` URL or
+    ``hilsim emulate --model``. ``text`` is a model for all
+    (``XM430-W350``) and/or ``IDS:MODEL`` items (``1-2:2XL430-W250,3:XM540-W270``), comma
+    separated; a 2XL430-W250's axes are taken two by two in ID order, so their count is even.
+    Raises ValueError (one line) as :func:`by_id` does, or on an odd number of dual-axis IDs."""
+    models = by_id(text, ids, get_model, "XM430-W350")
+    dual = [i for i in sorted(models) if models[i].axes == 2]
     if len(dual) % 2:
         raise ValueError(
             f"a 2XL430-W250 has two axes, each with its own ID: give it an even number of IDs "

@@ -10,9 +10,9 @@ from __future__ import annotations
 
 from collections.abc import Iterable
 
-from drivers.dxlsim.models import get_model
+from drivers.dxlsim.models import by_id, get_model
 from drivers.protocol1.control_table import TABLES, ControlTable, is_protocol1_model, table_for
-from drivers.protocol2.ids import format_ids, parse_ids
+from drivers.protocol2.ids import format_ids
 
 
 def _names(text: str) -> list[str]:
@@ -56,29 +56,7 @@ def bus_protocol(text: str) -> str:
 def tables_by_id(text: str, ids: Iterable[int]) -> dict[int, ControlTable]:
     """ID -> control table for a Protocol 1.0 ``model`` spec; ValueError (one line) on an
     unknown model, an ID not on the bus or named twice, or an ID left without a model."""
-    ids = tuple(ids)
-    default: ControlTable | None = None
-    named: dict[int, ControlTable] = {}
-    for item in str(text).split(","):
-        where, sep, name = item.strip().rpartition(":")
-        table = table_for(name.strip())
-        if not sep:
-            if default is not None:
-                raise ValueError(f"two models for all IDs: {default.model} and {table.model}")
-            default = table
-            continue
-        for i in parse_ids(where):
-            if i not in ids:
-                raise ValueError(
-                    f"ID {i} ({item.strip()}) is not on the bus (ids={format_ids(ids)})"
-                )
-            if i in named:
-                raise ValueError(f"ID {i} is given two models")
-            named[i] = table
-    missing = [i for i in ids if i not in named and default is None]
-    if missing:
-        raise ValueError(f"no model for ID {format_ids(missing)}; add one for all, e.g. STS3215")
-    return {i: named.get(i) or default for i in ids}  # type: ignore[misc]
+    return by_id(text, ids, table_for, "STS3215")
 
 
 def format_tables(tables: dict[int, ControlTable]) -> str:
