@@ -162,6 +162,12 @@ class P1ServoBus(ServoBus):
             reads=self.per_tick,
         )
 
+    @property
+    def return_delay_s(self) -> float:
+        """The longest Return Delay Time on the bus (s): as read by :meth:`check`, else the
+        factory's."""
+        return max(self._rdt_s)
+
     def read_rate_hz(self, tick_hz: float) -> float:
         """How often each servo's position is read at ``tick_hz`` ticks a second."""
         return tick_hz * self.per_tick / self.n

@@ -65,13 +65,13 @@ def scan1(
                     link.ping1(sid)
                 except CommError:
                     continue
-                found.append(_identify(link, probe, protocol, baud, sid))
+                found.append(identify(link, probe, protocol, baud, sid))
     finally:
         link.close()
     return sorted(found)
 
 
-def _identify(link: P1Link, probe: Family, protocol: Protocol, baud: int, sid: int) -> Found1:
+def identify(link: P1Link, probe: Family, protocol: Protocol, baud: int, sid: int) -> Found1:
     reg = probe.model_number
     try:
         _, raw = link.read_bytes(probe, sid, reg.addr, reg.size)
