@@ -27,10 +27,9 @@ from dataclasses import dataclass
 from drivers.dynamixel.configure import Change, Found, Settings
 from drivers.dynamixel.errors import CommError, CommTimeout
 from drivers.p1bus.link import P1Link, StatusError
-from drivers.p1bus.scan import identify
+from drivers.p1bus.scan import broadcast_ping, identify
 from drivers.p1bus.startup import FEETECH_MODE, PHASE_WIDE_READINGS
 from drivers.p1bus.table import Family, Protocol, Reg
-from drivers.protocol1 import packet
 
 #: the rate each maker's servos leave the factory at (AX and Feetech 1 Mbit/s; MX 57600,
 #: tried second, as the factory rate of the other)
@@ -85,7 +84,7 @@ def find(
             link.set_baud(baud)
         except ValueError:  # a rate this port cannot set
             continue
-        answering = _broadcast_ping(link) if fam.protocol is Protocol.FEETECH else []
+        answering = broadcast_ping(link) if fam.protocol is Protocol.FEETECH else []
         for sid in wanted:
             if sid in answering:
                 continue
@@ -102,14 +101,6 @@ def find(
         if progress is not None:
             progress(baud, here)
     return found
-
-
-def _broadcast_ping(link: P1Link) -> list[int]:
-    """The IDs answering a Feetech broadcast Ping (each replies after the one before; the
-    wait allows a reply from every ID)."""
-    replies = link.transact(packet.ping(packet.BROADCAST_ID), range(253), 0, "broadcast Ping")
-    link.settle()
-    return sorted(replies.got)
 
 
 # ---------------------------------------------------------------------- read, plan

@@ -167,3 +167,21 @@ def test_a_silent_p1_servo_names_its_joint_and_who_answered(factory, tmp_path, c
     row = next(ln for ln in err.splitlines() if ln.startswith("3 "))
     assert "gripper" in row and "answers Ping" in row
     assert "rig IDs answering at 1000000: 1, 2; no answer at any other baud" in row
+
+
+def test_scan_of_an_emulated_sts_url_without_protocol_says_feetech(capsys):
+    assert main(["scan", "--port", "dxlsim://?ids=1-3&model=STS3215"]) == ExitCode.USAGE
+    err = capsys.readouterr().err
+    assert "emulates STS3215 servos" in err and "try --protocol feetech" in err
+    assert len(err.strip().splitlines()) == 1
+
+
+def test_scan_without_protocol_finds_feetech_servos_by_their_own_ping(factory, capsys):
+    path, _ = factory("STS3215", 1_000_000)
+    url = path.read_text().split('port = "')[1].split('"')[0]  # a named bus, as hardware is
+    assert main(["scan", "--port", url, "--ids", "0-3", "--baud", "1M"]) == ExitCode.NOTHING_FOUND
+    err = capsys.readouterr().err
+    assert (
+        "Feetech servos answer their own Ping (IDs 1, 2, 3 at 1000000 bit/s): try --protocol "
+        "feetech" in err
+    )
