@@ -96,7 +96,8 @@ def find(
         here = []
         for sid in sorted(answering):
             f = identify(link, fam, fam.protocol, baud, sid)
-            here.append(Found(sid, baud, f.model_number, f.model_name, f.firmware))
+            name = f.model_name if f.model_number >= 0 else "model unread: answers Ping only"
+            here.append(Found(sid, baud, f.model_number, name, f.firmware))
         found += here
         if progress is not None:
             progress(baud, here)

@@ -88,7 +88,7 @@ class P1ServoSetup:
         models: list[str] = []
         for sid, f in sorted(mine.items()):
             t = self.targets[sid]
-            if f.model_name != self.models[t.id]:
+            if f.model_number >= 0 and f.model_name != self.models[t.id]:
                 models.append(
                     f"servo {sid} ({self.names[t.id]}) is a {f.model_name}; the rig names "
                     f"{self.models[t.id]}"

@@ -121,6 +121,8 @@ def _problem(
         who = ", ".join(map(str, answered)) if answered else "none"
         found = f"{r.found}; rig IDs answering at {baud}: {who}; no answer at any other baud"
         fix = f"check ID, power and wiring (`hilsim setup ... --id OLD:{r.servo_id}` renames one)"
+    elif r.item == "registers" and "no reply" in r.found:
+        fix = f"it answers Ping but not Read (Status Return Level 0?): {setup_command(rig)}"
     elif r.item == "angle limits":
         fix = f"{setup_command(rig)} (widens the limits), or narrow joints[{i}].min_deg/max_deg"
     elif r.item in P1_SETUP_ITEMS:

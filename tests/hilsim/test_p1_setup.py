@@ -185,3 +185,21 @@ def test_scan_without_protocol_finds_feetech_servos_by_their_own_ping(factory, c
         "Feetech servos answer their own Ping (IDs 1, 2, 3 at 1000000 bit/s): try --protocol "
         "feetech" in err
     )
+
+
+@pytest.mark.parametrize("model", ["STS3215", "AX-12A"])
+def test_setup_fixes_a_quiet_status_level_and_wheel_mode(factory, tmp_path, capsys, model):
+    """Servos answering Ping only (Dynamixel Status Return Level 0; Feetech Response Status
+    Level 0: no reply to writes) in wheel mode (angle limits 0..0): the refusal says what to
+    run, setup writes them, the run runs."""
+    path, bus = factory(model, 57_600)
+    for s in bus.servos:
+        s.set_value("Status Return Level" if s.dxl else "Response Status Level", 0)
+        s.set_value("CW Angle Limit" if s.dxl else "Min Position Limit", 0)
+        s.set_value("CCW Angle Limit" if s.dxl else "Max Position Limit", 0)
+    assert _run(path, tmp_path / "a") == ExitCode.USAGE
+    err = capsys.readouterr().err
+    assert err.count("do not match") == 1 and f"hilsim setup {path}" in err
+    assert main(["setup", str(path), "--yes"]) == ExitCode.OK, capsys.readouterr().err
+    assert "is a model unread" not in capsys.readouterr().err
+    assert _run(path, tmp_path / "b") == ExitCode.OK, capsys.readouterr().err
