@@ -66,7 +66,8 @@ def check_everything_p1(
             )
         )
     notes: list[str] = []
-    cap = _capacity(rig, bus, budget_s, rdts, known=len(silent) == len(elsewhere))
+    baud_now = min(elsewhere.values(), default=bus.link.baud)  # the slowest servo's rate
+    cap = _capacity(rig, bus, budget_s, rdts, baud_now, known=len(silent) == len(elsewhere))
     if cap is not None:
         problems.append(cap[0])
         notes.append(cap[1])
@@ -131,11 +132,14 @@ def _problem(
 
 
 def _capacity(
-    rig: Rig, bus: P1ServoBus, budget_s: float, rdts: list[float], *, known: bool
+    rig: Rig, bus: P1ServoBus, budget_s: float, rdts: list[float], baud_now: int, *, known: bool
 ) -> tuple[Problem, str] | None:
     """The capacity row (None when the bus carries the rate): now, and after setup."""
     after = bus.model_cycle_s(return_delay_s=setup_return_delay_us(rig) * 1e-6)
-    now = bus.model_cycle_s(return_delay_s=max([bus.return_delay_s, *rdts])) if known else None
+    now = None
+    if known:
+        rdt_now = max([bus.return_delay_s, *rdts])
+        now = bus.model_cycle_s(return_delay_s=rdt_now, baud=baud_now)
     rate = rig.loop.rate_hz
     if after > budget_s:
         found = f"{after * 1e3:.2f} ms after setup" + (
