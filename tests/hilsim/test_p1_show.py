@@ -243,7 +243,7 @@ def test_row_13_a_torque_loss_is_a_safe_stop(emulated):
 
 
 def test_row_24_a_host_stall_longer_than_watchdog_ms_is_said_and_the_show_goes_on(
-    emulated, monkeypatch
+    emulated, monkeypatch, capsys
 ):
     """No Bus Watchdog: a 200 ms host stall (safety.watchdog_ms = 100) is the host's hiccup,
     not a fault: an event says the servos held their last goal that long, the summary counts
@@ -253,6 +253,7 @@ def test_row_24_a_host_stall_longer_than_watchdog_ms_is_said_and_the_show_goes_o
     emu = emulated()
     holder["clock"] = emu.stub.clock
     assert emu.run() == ExitCode.OK
+    assert "held their last goal through 1 host stall(s)" in capsys.readouterr().err
     run = emu.read()
     s = run.summary
     assert s["exit_reason"] == "end of show"
