@@ -14,16 +14,14 @@ from collections.abc import Callable, Mapping
 from drivers.dynamixel.configure import Change, Found
 from drivers.p1bus.configure import P1Target, probe_order
 from drivers.p1bus.link import P1Link
-from drivers.p1bus.table import Family, canonical, family_of
+from drivers.p1bus.table import canonical, family_of
 from hilsim.rig import Rig
 from hilsim.rig.joint_map import JointMap
 from hilsim.show.servo_check import setup_return_delay_us
 from hilsim.show.servo_setup import SetupPlan
 
 
-def p1_targets(
-    rig: Rig, fam: Family, renames: Mapping[int, int] | None = None
-) -> dict[int, P1Target]:
+def p1_targets(rig: Rig, renames: Mapping[int, int] | None = None) -> dict[int, P1Target]:
     """What each of the rig's servos should be, by the ID it has *now* (``renames``:
     ``{old: new}``; a rig ID not renamed is its own)."""
     jmap = JointMap.of(rig.joints)
@@ -31,6 +29,8 @@ def p1_targets(
     back = {new: old for old, new in renames.items()}
     out: dict[int, P1Target] = {}
     for i, j in enumerate(rig.joints):
+        fam = family_of(j.model)
+        assert fam is not None  # the rig's bus is of these families (the caller checked)
         lo, hi = jmap.servo_range(i, j.min_rad, j.max_rad)
         ticks = (
             round(lo * fam.ticks_per_rad) + fam.center_tick,
@@ -48,13 +48,17 @@ class P1ServoSetup:
     """One setup session of a Protocol 1.0-framed bus on an open :class:`P1Link`."""
 
     def __init__(self, rig: Rig, link: P1Link, renames: Mapping[int, int] | None = None) -> None:
-        fams = {family_of(j.model) for j in rig.joints}
-        fam = fams.pop()
-        if fam is None or fams:
-            raise ValueError("one Protocol 1.0 family per setup: the rig's joints name several")
-        self.rig, self.link, self.family = rig, link, fam
+        fams = [family_of(j.model) for j in rig.joints]
+        if None in fams or len({f.protocol for f in fams if f is not None}) != 1:
+            raise ValueError("not one Protocol 1.0-framed protocol: the rig's models")
+        by_rig_id = {j.servo_id: f for j, f in zip(rig.joints, fams, strict=True) if f}
+        self.rig, self.link = rig, link
         self.renaming = bool(renames)
-        self.targets = p1_targets(rig, fam, renames)
+        self.targets = p1_targets(rig, renames)
+        #: each servo's family, by the ID it has now (AX and MX may share a bus)
+        self.fams = {now: by_rig_id[t.id] for now, t in self.targets.items()}
+        #: the family that finds them (the protocol, the bauds: the same for the bus)
+        self.family = by_rig_id[rig.joints[0].servo_id]
         self.names = {j.servo_id: j.name for j in rig.joints}
         self.models = {j.servo_id: canonical(j.model) for j in rig.joints}
 
@@ -87,15 +91,15 @@ class P1ServoSetup:
         changes: list[Change] = []
         models: list[str] = []
         for sid, f in sorted(mine.items()):
-            t = self.targets[sid]
+            t, fam = self.targets[sid], self.fams[sid]
             if f.model_number >= 0 and f.model_name != self.models[t.id]:
                 models.append(
                     f"servo {sid} ({self.names[t.id]}) is a {f.model_name}; the rig names "
                     f"{self.models[t.id]}"
                 )
             self.link.set_baud(f.baud)
-            settings = read_settings(self.link, self.family, sid)
-            changes += plan(self.family, f, settings, t)
+            settings = read_settings(self.link, fam, sid)
+            changes += plan(fam, f, settings, t)
         missing = [sid for sid in self.targets if sid not in mine]
         return SetupPlan(mine, others, missing, changes, models)
 
@@ -103,8 +107,16 @@ class P1ServoSetup:
         """Write the plan (baud last), then read every target back at the rig's baud."""
         from drivers.p1bus.configure import apply, verify
 
-        problems = apply(self.link, self.family, the_plan.changes)
-        left, silent = verify(self.link, self.family, [self.targets[s] for s in the_plan.found])
+        problems: list[str] = []
+        left: list[Change] = []
+        silent: list[int] = []
+        for fam in dict.fromkeys(self.fams.values()):
+            mine = [c for c in the_plan.changes if self.fams[c.servo] is fam]
+            problems += apply(self.link, fam, mine)
+        for sid in the_plan.found:
+            more, quiet = verify(self.link, self.fams[sid], [self.targets[sid]])
+            left += more
+            silent += quiet
         return problems, left, silent
 
     def read_back(self, the_plan: SetupPlan) -> list[tuple[int, str, str]]:
@@ -114,9 +126,9 @@ class P1ServoSetup:
         rows = []
         self.link.set_baud(self.rig.bus.baud)
         for sid in the_plan.found:
-            t = self.targets[sid]
-            s = read_settings(self.link, self.family, t.id)
-            for key, reg in [*settings_registers(self.family), ("baud", self.family.baud)]:
+            t, fam = self.targets[sid], self.fams[sid]
+            s = read_settings(self.link, fam, t.id)
+            for key, reg in [*settings_registers(fam), ("baud", fam.baud)]:
                 if key in s.values:
-                    rows.append((t.id, reg.name, setting_text(self.family, key)(s.values[key])))
+                    rows.append((t.id, reg.name, setting_text(fam, key)(s.values[key])))
         return rows

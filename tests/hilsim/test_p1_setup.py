@@ -203,3 +203,21 @@ def test_setup_fixes_a_quiet_status_level_and_wheel_mode(factory, tmp_path, caps
     assert main(["setup", str(path), "--yes"]) == ExitCode.OK, capsys.readouterr().err
     assert "is a model unread" not in capsys.readouterr().err
     assert _run(path, tmp_path / "b") == ExitCode.OK, capsys.readouterr().err
+
+
+def test_setup_of_a_bus_mixing_ax_and_mx_servos(factory, tmp_path, capsys):
+    """AX and MX servos share a Protocol 1.0 bus (their limits in their own ticks)."""
+    path, _ = factory("AX-12A", 57_600)
+    text = path.read_text().replace('model = "AX-12A"', 'model = "MX-64"', 1)
+    path.write_text(text)
+    url = DxlsimUrl.parse("dxlsim://?ids=1-3&model=1:MX-64,AX-12A&baud=57600&rdt_us=500")
+    mixed = url.replace(clock="virtual").build_bus(host_baud=1_000_000)
+    register_bus(str(path.stem), mixed)  # the same name: the rig now opens the mixed bus
+    assert main(["setup", str(path), "--yes"]) == ExitCode.OK, capsys.readouterr().err
+    out = capsys.readouterr()
+    assert "57600 bit/s: 1 (MX-64), 2 (AX-12A), 3 (AX-12A)" in out.err
+    assert "done: 3 servo(s) read back" in out.err
+    mx, ax = mixed.servos[0], mixed.servos[1]
+    assert mx.raw("CCW Angle Limit") == 4095 and ax.raw("CCW Angle Limit") == 1023
+    assert all(s.baud == 1_000_000 and s.raw("Return Delay Time") == 0 for s in mixed.servos)
+    assert _run(path, tmp_path / "b") == ExitCode.OK, capsys.readouterr().err
