@@ -14,6 +14,8 @@ naming the servo and the cause, or into a recovery. The rules and their numbers 
   enough for a Bus Watchdog to trip: check every servo before sending goals; a trip that a
   host stall explains is recovered (cleared, goal = present, the joint rejoins through the
   safety filter's limits); one nothing explains is a fault.
+* **a long host stall without a Bus Watchdog** (:meth:`ServoWatch.held_on_stall`, Feetech,
+  Dynamixel Protocol 1.0): said in a ``held_last_goal`` event and counted; never a fault.
 * **limp joints** (:meth:`ServoWatch.set_limp`, teach-by-hand): torque off is expected there
   and the following error is not checked; an Alert bit, silence, a hardware error, a reset
   or a tripped watchdog still stop the show.
