@@ -144,10 +144,11 @@ class P1ServoBus(ServoBus):
             self.per_tick = max(1, min(self.n, int(room / self.read_s())))
         return self.per_tick
 
-    def model_cycle_s(self, return_delay_s: float | None = None) -> float:
+    def model_cycle_s(self, return_delay_s: float | None = None, baud: int | None = None) -> float:
         """The wire model's time of one tick (:mod:`drivers.protocol1.wire_time`): the Sync
         Write, this tick's reads, each reply's Return Delay Time (the longest on the bus, or
-        ``return_delay_s``) and turnaround, the adapter latency once per read transaction."""
+        ``return_delay_s``) and turnaround, the adapter latency once per read transaction; at
+        the link's baud, or ``baud``."""
         method = {
             ReadMethod.SYNC: wire_time.ReadMethod.SYNC_READ,
             ReadMethod.BULK: wire_time.ReadMethod.BULK_READ,
@@ -155,12 +156,18 @@ class P1ServoBus(ServoBus):
         }[self.method]
         return wire_time.cycle_time_s(
             self.n,
-            self.link.baud,
+            self.link.baud if baud is None else baud,
             method,
             return_delay_s=max(self._rdt_s) if return_delay_s is None else return_delay_s,
             latency_s=self.link.latency_timer_ms * 1e-3,
             reads=self.per_tick,
         )
+
+    @property
+    def return_delay_s(self) -> float:
+        """The longest Return Delay Time on the bus (s): as read by :meth:`check`, else the
+        factory's."""
+        return max(self._rdt_s)
 
     def read_rate_hz(self, tick_hz: float) -> float:
         """How often each servo's position is read at ``tick_hz`` ticks a second."""
@@ -276,7 +283,8 @@ class P1ServoBus(ServoBus):
             raise StartupMismatch(rows, port=self.link.name)
         notes.append(
             f"{', '.join(self.families)}: no Bus Watchdog: if this program dies the servos hold "
-            "their last goal (the host checks its own stalls instead)"
+            "their last goal (a host stall is measured and said: they hold their last goal "
+            "meanwhile)"
         )
         if self.method is ReadMethod.ROTATION:
             notes.append(

@@ -16,6 +16,7 @@ from drivers.clock import Clock
 from drivers.dynamixel.errors import CommError
 from drivers.p1bus.link import P1Link, StatusError
 from drivers.p1bus.table import AX, STS, Family, Protocol, model_by_number
+from drivers.protocol1 import packet
 
 #: the family whose registers a first read of an answering servo uses, per protocol
 _PROBE: dict[Protocol, Family] = {Protocol.DXL1: AX, Protocol.FEETECH: STS}
@@ -65,13 +66,13 @@ def scan1(
                     link.ping1(sid)
                 except CommError:
                     continue
-                found.append(_identify(link, probe, protocol, baud, sid))
+                found.append(identify(link, probe, protocol, baud, sid))
     finally:
         link.close()
     return sorted(found)
 
 
-def _identify(link: P1Link, probe: Family, protocol: Protocol, baud: int, sid: int) -> Found1:
+def identify(link: P1Link, probe: Family, protocol: Protocol, baud: int, sid: int) -> Found1:
     reg = probe.model_number
     try:
         _, raw = link.read_bytes(probe, sid, reg.addr, reg.size)
@@ -84,3 +85,38 @@ def _identify(link: P1Link, probe: Family, protocol: Protocol, baud: int, sid: i
             return Found1(baud, sid, number, known[0], known[1].name, firmware)
     number = int.from_bytes(raw, "little")
     return Found1(baud, sid, number, f"unknown model {number}", str(protocol), firmware)
+
+
+def broadcast_ping(link: P1Link) -> list[int]:
+    """The IDs answering a Feetech broadcast Ping at the link's baud (each replies after the
+    one before; the wait allows a reply from every ID). Dynamixel Protocol 1.0 servos do
+    not answer it."""
+    replies = link.transact(packet.ping(packet.BROADCAST_ID), range(253), 0, "broadcast Ping")
+    link.settle()
+    return sorted(replies.got)
+
+
+def feetech_answers(
+    port: str,
+    bauds: Sequence[int],
+    *,
+    clock: Clock | None = None,
+    latency_timer_ms: float | None = None,
+) -> list[tuple[int, list[int]]]:
+    """``(baud, IDs)`` for each of ``bauds`` at which Feetech servos answer a broadcast Ping:
+    a quick look (one Ping a baud) for a scan in another protocol that found nothing."""
+    hits: list[tuple[int, list[int]]] = []
+    link = P1Link.open(port, baud=bauds[0], clock=clock, latency_timer_ms=latency_timer_ms)
+    assert isinstance(link, P1Link)
+    try:
+        for baud in bauds:
+            try:
+                link.set_baud(baud)
+                ids = broadcast_ping(link)
+            except (ValueError, CommError):
+                continue
+            if ids:
+                hits.append((baud, ids))
+    finally:
+        link.close()
+    return hits

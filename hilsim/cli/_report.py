@@ -126,6 +126,13 @@ def print_stats(summary: JsonDict) -> None:
         + (f"; watchdog recoveries {loop['recoveries']}" if loop.get("recoveries") else ""),
         file=sys.stderr,
     )
+    if stalls.get("held_last_goal"):  # no Bus Watchdog on the bus: said, not a fault
+        print(
+            f"  the servos held their last goal through {stalls['held_last_goal']} host "
+            f"stall(s) of safety.watchdog_ms or longer (max {stalls.get('held_max_ms', 0):.0f} "
+            "ms; no Bus Watchdog on them): the host's, not a servo fault",
+            file=sys.stderr,
+        )
 
 
 def verdict(summary: JsonDict, ticks_run: int) -> str | None:

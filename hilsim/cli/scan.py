@@ -63,6 +63,14 @@ def run(args: argparse.Namespace) -> int:
     protocol = getattr(args, "protocol", "2.0")
     if protocol != "2.0" and not args.baud:
         bauds = P1_DEFAULT_BAUDS
+    if protocol == "2.0" and (other := _emulated_protocol(args.port)) is not None:
+        return usage_error(
+            "scan",
+            ValueError(
+                f"{args.port} emulates {other[0]} servos, which do not speak Protocol 2.0: "
+                f"try --protocol {other[1]}"
+            ),
+        )
     print(f"hilsim scan: {args.port} at {', '.join(str(b) for b in bauds)} bit/s", file=sys.stderr)
     n_ids = len(ids) if ids is not None else 253
     t0 = time.monotonic()
@@ -98,6 +106,9 @@ def run(args: argparse.Namespace) -> int:
         return int(ExitCode.FAULT)
     for f in found:
         print(f)
+    if not found and protocol == "2.0" and (hint := _feetech_hint(args.port)):
+        print(f"hilsim scan: no Protocol 2.0 servo answered; {hint}", file=sys.stderr)
+        return int(ExitCode.NOTHING_FOUND)
     if not found:
         print(
             "hilsim scan: no servo answered. Check power (the servos' LED blinks once at "
@@ -111,3 +122,39 @@ def run(args: argparse.Namespace) -> int:
         )
         return int(ExitCode.NOTHING_FOUND)
     return int(ExitCode.OK)
+
+
+def _emulated_protocol(port: str) -> tuple[str, str] | None:
+    """(model, ``--protocol`` value) when ``port`` is a ``dxlsim://?model=...`` URL of
+    Protocol 1.0-framed servos; None otherwise (a named bus, hardware, the X series)."""
+    if not port.lower().startswith("dxlsim://"):
+        return None
+    from drivers.dxlsim.p1_models import bus_protocol
+    from drivers.dxlsim.url import DxlsimUrl
+
+    try:
+        url = DxlsimUrl.parse(port)
+        if url.name:
+            return None
+        proto = bus_protocol(url.model)
+    except ValueError:
+        return None  # the scan says what is wrong with the URL
+    if proto == "2.0":
+        return None
+    return url.model, "feetech" if proto == "feetech" else "1.0"
+
+
+def _feetech_hint(port: str) -> str:
+    """When Feetech servos answer their own broadcast Ping (a quick look at their usual
+    rates): which, where, and the flag to use; else empty."""
+    from drivers.dynamixel.errors import DynamixelError
+    from drivers.p1bus.scan import feetech_answers
+
+    try:
+        hits = feetech_answers(port, P1_DEFAULT_BAUDS)
+    except (DynamixelError, ValueError, OSError):
+        return ""
+    if not hits:
+        return ""
+    where = "; ".join(f"IDs {', '.join(map(str, ids))} at {b} bit/s" for b, ids in hits)
+    return f"Feetech servos answer their own Ping ({where}): try --protocol feetech"

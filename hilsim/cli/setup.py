@@ -3,7 +3,9 @@
 Finds the rig's servos at any baud (the family's baud table, the rig's rate first; each
 baud is said as it is tried), reads each one, and prints ONE table - servo, register, now,
 wanted - of what differs: ID, Return Delay Time, Operating Mode, position limits, Shutdown,
-Status Return Level, baud. Writes only with ``--yes`` (torque off first; the baud last), then
+Status Return Level, baud (Feetech STS/SCS and Dynamixel Protocol 1.0 servos: their own
+registers, :mod:`hilsim.show.p1_setup`; a Feetech servo's Lock opened for the EEPROM writes and
+closed after). Writes only with ``--yes`` (torque off first; the baud last), then
 reads every value back at the rig's baud and says what it found. On a ``dxlsim://`` port
 the emulator lives in this process: the changes last until it exits (``hilsim emulate``
 keeps its servos' state while it runs).
@@ -23,7 +25,10 @@ from hilsim.cli._args import add_port, usage_error
 from hilsim.exit_codes import ExitCode
 
 if TYPE_CHECKING:
+    from hilsim.show.p1_setup import P1ServoSetup
     from hilsim.show.servo_setup import ServoSetup, SetupPlan
+
+    AnySetup = ServoSetup | P1ServoSetup
 
 HELP = "set the rig's servos up: IDs, baud, Return Delay, mode, limits (writes with --yes)"
 
@@ -78,7 +83,7 @@ def run(args: argparse.Namespace) -> int:
     from drivers.dynamixel.link import Link
     from hilsim.rig import RigError, load_rig
     from hilsim.show.servo_setup import ServoSetup
-    from hilsim.show.session import port_for, real_clock
+    from hilsim.show.session import p1_models, port_for, real_clock
 
     try:
         renames = parse_renames(args.id)
@@ -89,8 +94,14 @@ def run(args: argparse.Namespace) -> int:
     port = port_for(rig, virtual=emulated)
     if emulated:
         _say("an emulated bus in this process: its servos keep the changes until setup exits")
+    p1 = p1_models(rig) is not None  # Feetech or Dynamixel Protocol 1.0
+    opener = Link
+    if p1:
+        from drivers.p1bus.link import P1Link
+
+        opener = P1Link
     try:
-        link = Link.open(
+        link = opener.open(
             port,
             baud=rig.bus.baud,
             clock=None if emulated else real_clock(rig),
@@ -99,15 +110,24 @@ def run(args: argparse.Namespace) -> int:
     except (DynamixelError, ValueError) as exc:
         return usage_error("setup", exc)
     try:
-        return _setup(ServoSetup(rig, link, renames), args.yes)
-    except DynamixelError as exc:
+        setup: AnySetup
+        if p1:
+            from drivers.p1bus.link import P1Link
+            from hilsim.show.p1_setup import P1ServoSetup
+
+            assert isinstance(link, P1Link)
+            setup = P1ServoSetup(rig, link, renames)
+        else:
+            setup = ServoSetup(rig, link, renames)
+        return _setup(setup, args.yes)
+    except (DynamixelError, ValueError) as exc:
         _say(f"{exc} (nothing more written)")
         return int(ExitCode.FAULT)
     finally:
         link.close()
 
 
-def _missing_code(setup: ServoSetup, the_plan: SetupPlan) -> int:
+def _missing_code(setup: AnySetup, the_plan: SetupPlan) -> int:
     """Exit 2 when a rig servo answered nowhere, unless ``--id`` renames servos connected one
     at a time (then the others are expected to be absent) and one was found."""
     if the_plan.missing and not (setup.renaming and the_plan.found):
@@ -115,7 +135,7 @@ def _missing_code(setup: ServoSetup, the_plan: SetupPlan) -> int:
     return int(ExitCode.OK)
 
 
-def _setup(setup: ServoSetup, yes: bool) -> int:
+def _setup(setup: AnySetup, yes: bool) -> int:
     from drivers.dynamixel.configure import Found
 
     names = setup.names

@@ -320,7 +320,8 @@ class HilLoop:
             self.log.safety_limits(k, k * self.period)
         self.loop_stats.update(
             recoveries=self.watch.recoveries,
-            host_stalls=self.stalls.as_dict(),
+            host_stalls=self.stalls.as_dict()
+            | ({} if self.bus.has_watchdog else self.watch.held_as_dict()),
             health_reads=self.watch.health.reads,
             health_deferred=self.watch.health.deferred,
             health_forced=self.watch.health.forced,
@@ -480,7 +481,7 @@ class HilLoop:
             self.log.host_stall(stall, k, t_sim)
             if stall >= WATCHDOG_GAP_FRACTION * watch.watchdog_s:
                 watch.last_long_gap_t = t_read  # explains a watchdog trip found later
-            watch.check_stall(stall)
+            watch.held_on_stall(stall, k, t_sim)
         watch.check_reads(reading, t_read, self.stalls.total_s, stall > 0.0, all_ok)
         watch.check_following(present, cmd)
         # -- advance the springs to the next tick (target held over each step)

@@ -14,6 +14,8 @@ naming the servo and the cause, or into a recovery. The rules and their numbers 
   enough for a Bus Watchdog to trip: check every servo before sending goals; a trip that a
   host stall explains is recovered (cleared, goal = present, the joint rejoins through the
   safety filter's limits); one nothing explains is a fault.
+* **a long host stall without a Bus Watchdog** (:meth:`ServoWatch.held_on_stall`, Feetech,
+  Dynamixel Protocol 1.0): said in a ``held_last_goal`` event and counted; never a fault.
 * **limp joints** (:meth:`ServoWatch.set_limp`, teach-by-hand): torque off is expected there
   and the following error is not checked; an Alert bit, silence, a hardware error, a reset
   or a tripped watchdog still stop the show.
@@ -56,6 +58,8 @@ HEALTH_COST_MEMORY_S = 2.0
 #: torque cut or a tripped watchdog is found, late, rather than never), at the price of a
 #: tick that may run late; counted as forced in the summary
 HEALTH_FLOOR_S = 1.0
+#: a ``held_last_goal`` event at most this often (clock time); the rest counted into the next
+HELD_EVENT_INTERVAL_S = 1.0
 
 
 class LoopFaultError(RuntimeError):
@@ -107,6 +111,10 @@ class ServoWatch:
         self._last_health_t: float | None = None  # clock time of the last health read
         self.comm_errors = 0  # reads that were not OK, cumulative
         self.recoveries = 0
+        self.held_stalls = 0  # no Bus Watchdog: host stalls >= watchdog_ms (servos held)
+        self.held_max_s = 0.0
+        self._held_event_t = -math.inf
+        self._held_unreported = 0
         self.last_bus_t = -math.inf  # clock time of the last packet sent to the servos
         self.last_long_gap_t = -math.inf  # when the bus last went quiet for a watchdog's while
         self._last_health_ok = [-math.inf] * n
@@ -197,17 +205,39 @@ class ServoWatch:
                     f"last read {ReadStatus(s).name}"
                 )
 
-    def check_stall(self, stall_s: float) -> None:
-        """A bus without a Bus Watchdog (Feetech, Dynamixel Protocol 1.0): a host stall
-        longer than ``safety.watchdog_ms`` stops the show, as the servos' own watchdog would
-        have stopped them; the host does what they cannot."""
-        if not self.bus.has_watchdog and self.watchdog_s and stall_s >= self.watchdog_s:
-            raise LoopFaultError(
-                f"host stall of {stall_s * 1e3:.0f} ms, longer than safety.watchdog_ms "
-                f"({self.watchdog_s * 1e3:g} ms): these servos have no Bus Watchdog to stop on "
-                "their own, so the host stops the show (they held their last goal meanwhile; "
-                "not a servo fault)"
-            )
+    def held_on_stall(self, stall_s: float, k: int, t_sim: float) -> None:
+        """A bus without a Bus Watchdog (Feetech, Dynamixel Protocol 1.0): a host stall of
+        ``safety.watchdog_ms`` or longer (one a watchdog would have acted on) is said and
+        counted: the servos held their last goal meanwhile. Not a fault: the show goes on
+        (a host hiccup is never a servo's failure, nor a reason to stop the show)."""
+        if self.bus.has_watchdog or not self.watchdog_s or stall_s < self.watchdog_s:
+            return
+        self.held_stalls += 1
+        self.held_max_s = max(self.held_max_s, stall_s)
+        now = self.clock.now()
+        if now - self._held_event_t < HELD_EVENT_INTERVAL_S:
+            self._held_unreported += 1
+            return
+        more, self._held_unreported, self._held_event_t = self._held_unreported, 0, now
+        self._event(
+            "held_last_goal",
+            f"the host stalled {stall_s * 1e3:.0f} ms at tick {k} (t = {t_sim:.2f} s): the "
+            f"servos held their last goal for {stall_s * 1e3:.0f} ms (no Bus Watchdog on "
+            f"these servos; safety.watchdog_ms = {self.watchdog_s * 1e3:g}); the host's "
+            "stall, not a servo fault; the show goes on"
+            + (f" ({more} more such stalls since the last report)" if more else ""),
+            tick=k,
+            t=t_sim,
+            held_ms=round(stall_s * 1e3, 3),
+            unreported=more,
+        )
+
+    def held_as_dict(self) -> dict[str, float | int]:
+        """The summary's count of those stalls (``loop.host_stalls``)."""
+        return {
+            "held_last_goal": self.held_stalls,
+            "held_max_ms": round(self.held_max_s * 1e3, 3),
+        }
 
     def check_following(
         self, present: FloatArray | list[float], cmd: FloatArray | list[float]

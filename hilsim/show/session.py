@@ -175,35 +175,36 @@ def check_bus(rig: Rig, bus: DynamixelBus, say: Callable[[str], None]) -> list[s
 
 def check_p1_bus(rig: Rig, bus: DynamixelBus, say: Callable[[str], None]) -> list[str]:
     """:func:`check_bus` for the Protocol 1.0-framed families (no Bus Watchdog): the reads
-    fitted to the tick, the start-up check in the family's terms, the bus's capacity."""
-    from drivers.dynamixel.errors import DynamixelError, StartupMismatch
+    fitted to the tick, then every problem in one refusal as for the X series
+    (:func:`hilsim.show.servo_check_p1.check_everything_p1`: the servos in the family's
+    terms, silent ones looked for at the other bauds, the bus's capacity)."""
+    from drivers.dynamixel.errors import DynamixelError
     from drivers.p1bus.bus import P1ServoBus
+    from hilsim.show.servo_check import render
+    from hilsim.show.servo_check_p1 import check_everything_p1
 
     assert isinstance(bus, P1ServoBus)
     bus.plan(rig.loop.period_s)
+    budget = BUS_SHARE_OF_TICK * rig.loop.period_s
     try:
-        report = bus.check(p1_expectations(rig, bus))
-    except StartupMismatch as exc:
-        raise ShowRefusedError(
-            f"the servos on {rig.bus.port} do not match {rig.path}:\n{exc}"
-        ) from None
+        report, problems, why = check_everything_p1(rig, bus, p1_expectations(rig, bus), budget)
     except (DynamixelError, ValueError) as exc:
         raise ShowRefusedError(f"start-up check failed on {rig.bus.port}: {exc}") from None
+    if problems or report is None:
+        ids = sorted({p.servo_id for p in problems if p.servo_id is not None})
+        lines = [
+            f"the servos on {rig.bus.port} do not match {rig.path}: {len(problems)} problem(s)"
+            + (f" on servo(s) {ids}" if ids else "")
+            + "; nothing moved",
+            render(problems),
+            *why,
+        ]
+        raise ShowRefusedError("\n".join(lines))
     notes = list(report.notes)
     rate = bus.read_rate_hz(rig.loop.rate_hz)
     notes.append(f"each servo's position is read {rate:.4g} times a second ({bus.read_mode})")
     for note in notes:
         say(f"note: {note}")
-    cycle = bus.model_cycle_s()
-    budget = BUS_SHARE_OF_TICK * rig.loop.period_s
-    if cycle > budget:
-        raise ShowRefusedError(
-            f"{rig.path}: the bus cannot carry {rig.loop.rate_hz:g} Hz: one tick's Sync Write + "
-            f"{bus.read_mode} takes {cycle * 1e3:.2f} ms against {budget * 1e3:.2f} ms "
-            f"({BUS_SHARE_OF_TICK:.0%} of a {rig.loop.period_s * 1e3:g} ms tick). Lower "
-            f"loop.rate_hz to {BUS_SHARE_OF_TICK / cycle:.0f} or less, or shorten the cycle: "
-            "Return Delay Time 0, a 1 ms latency timer (`hilsim bench` shows each)."
-        )
     return notes
 
 
@@ -264,6 +265,8 @@ def p1_expectations(rig: Rig, bus: object) -> list[P1Expectation]:
     from drivers.p1bus.startup import P1Expectation
 
     rdt_max = p1_return_delay_budget_us(rig, bus)
+    if rig.bus.return_delay_us is not None:
+        rdt_max = min(rdt_max, rig.bus.return_delay_us)
     jmap = JointMap.of(rig.joints)
     return [
         P1Expectation(j.servo_id, j.model, jmap.servo_range(i, j.min_rad, j.max_rad), rdt_max)

@@ -16,8 +16,7 @@ from tests.hilsim.test_servo_setup import RIG
 pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="a Linux pty")
 
 
-@pytest.fixture
-def factory_pty():
+def _emulate(model: str, baud: int):
     proc = subprocess.Popen(
         [
             sys.executable,
@@ -27,9 +26,9 @@ def factory_pty():
             "--ids",
             "1-3",
             "--model",
-            "XL430-W250",
+            model,
             "--baud",
-            "57600",
+            str(baud),
             "--rdt-us",
             "500",
         ],
@@ -48,6 +47,16 @@ def factory_pty():
     except subprocess.TimeoutExpired:
         proc.kill()
         raise
+
+
+@pytest.fixture
+def factory_pty():
+    yield from _emulate("XL430-W250", 57_600)
+
+
+@pytest.fixture
+def factory_sts_pty():
+    yield from _emulate("STS3215", 115_200)
 
 
 def _hilsim(*args: str) -> subprocess.CompletedProcess[str]:
@@ -70,6 +79,30 @@ def test_refused_once_then_setup_on_the_pty_then_the_show_runs(factory_pty, tmp_
     setup = _hilsim("setup", str(rig), "--port", factory_pty, "--yes")
     assert setup.returncode == 0, setup.stderr + setup.stdout
     assert "57600 bit/s: 1 (XL430-W250), 2 (XL430-W250), 3 (XL430-W250)" in setup.stderr
+    assert "read back at 1000000 bit/s" in setup.stdout
+
+    second = _hilsim(*run, str(tmp_path / "b"))
+    assert second.returncode == 0, second.stderr
+
+
+def test_feetech_refused_once_then_setup_on_the_pty_then_the_show_runs(factory_sts_pty, tmp_path):
+    """The same day with three STS3215 at 115200 bit/s: found by Feetech's broadcast Ping."""
+    from tests.hilsim.test_p1_setup import RIG as P1RIG
+
+    rig = tmp_path / "arm.toml"
+    text = P1RIG.replace("PORT", factory_sts_pty).replace("MODEL", "STS3215")
+    rig.write_text(text.replace("RATE", "50"))
+    run = ["run", str(rig), "--duration", "1", "--no-plots", "--out"]
+    first = _hilsim(*run, str(tmp_path / "a"))
+    assert first.returncode == 2, first.stderr
+    assert first.stderr.count("do not match") == 1
+    for item in ("baud", "Return Delay Time"):
+        assert first.stderr.count(f"  {item} ") == 3, first.stderr
+    assert f"hilsim setup {rig} --port {factory_sts_pty} --yes" in first.stderr
+
+    setup = _hilsim("setup", str(rig), "--port", factory_sts_pty, "--yes")
+    assert setup.returncode == 0, setup.stderr + setup.stdout
+    assert "115200 bit/s: 1 (STS3215), 2 (STS3215), 3 (STS3215)" in setup.stderr
     assert "read back at 1000000 bit/s" in setup.stdout
 
     second = _hilsim(*run, str(tmp_path / "b"))
