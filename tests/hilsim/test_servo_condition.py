@@ -129,3 +129,38 @@ def test_a_failed_read_leaves_the_last_figure_with_its_time(x_show):
     _tick(x_show, 2 * ticks)  # the next condition rounds all fail
     assert rec.value["temperature_c"][0] == temp  # not 60, not NaN, not 0
     assert rec.read_t["temperature_c"][0] == t_read  # its age grows
+
+
+def test_the_panel_feed_state_carries_the_figures(tmp_path):
+    """The feed's state message: each servo's figures and ages with the run's facts (JSON:
+    null where never read)."""
+    import json
+
+    import numpy as np
+
+    import hilsim
+    from drivers.clock import VirtualClock
+    from drivers.servo_bus import ConditionRecord, ServoCondition
+    from hilsim.show.feed import PanelFeed
+    from tests.hilsim.panel_helpers import REPO
+
+    show = hilsim.Show(REPO / "configs/demo.toml", virtual_time=True, out=tmp_path / "run")
+    feed = PanelFeed(show, run_dir=tmp_path / "run")
+    record = ConditionRecord(2)
+    record.update(1, ServoCondition(44.0, 11.8, 7.5), t=2.0)
+    clock = VirtualClock()
+    clock.advance(3.0)
+    zeros = np.zeros(2)
+    loop = SimpleNamespace(
+        rec=SimpleNamespace(tick=5, t_sched=0.02),
+        u=zeros, cmd=zeros, present=zeros,
+        reading=SimpleNamespace(status=np.zeros(2, dtype=np.uint8)),
+        director=None, overruns=0, stalls=SimpleNamespace(count=0),
+        watch=SimpleNamespace(comm_errors=0, condition=record),
+        stop=SimpleNamespace(command=None, signum=None), clock=clock,
+    )  # fmt: skip
+    msg = json.loads(feed._line(feed._state_msg(loop)))
+    first, second = msg["condition"]
+    assert first["temperature_c"] is None and first["temperature_c_age_s"] is None
+    assert second["temperature_c"] == 44.0 and second["voltage_v"] == 11.8
+    assert second["load_pct"] == 7.5 and second["load_pct_age_s"] == 1.0
