@@ -186,6 +186,79 @@ class HealthPart(StrEnum):
     STATE = "state"  # torque and hardware error
     WATCHDOG = "watchdog"  # the Bus Watchdog
     ALL = "all"
+    CONDITION = "condition"  # temperature, input voltage and load alone (no judgement)
+
+
+@dataclass(frozen=True, slots=True)
+class ServoCondition:
+    """A servo's temperature, input voltage and load (or current) as one read found them.
+    NaN where the read did not measure it: a servo whose load register is a current reports
+    ``current_a`` and a NaN ``load_pct``, and the other way round."""
+
+    temperature_c: float
+    voltage_v: float
+    load_pct: float  # % of the servo's maximum torque, signed
+    current_a: float = float("nan")
+
+
+#: the figures a :class:`ConditionRecord` keeps, in the order it shows them
+CONDITION_FIELDS = ("temperature_c", "voltage_v", "load_pct", "current_a")
+
+
+class ConditionRecord:
+    """Each servo's last temperature, voltage, load and current, and when each was read.
+
+    Lists shaped ``(n,)`` in the bus's order: ``value[field][i]``, NaN if never read, and
+    ``read_t[field][i]``, the clock time (s) of the read it came from. A failed read
+    changes nothing (the last figure stays, with its time): a missing reading is never the
+    servo's figure. ``max_temperature_c`` and ``min_voltage_v`` are the run's extremes.
+    Written by the loop's thread only; element reads from another thread are safe.
+    """
+
+    def __init__(self, n: int) -> None:
+        nan = float("nan")
+        self.value = {f: [nan] * n for f in CONDITION_FIELDS}
+        self.read_t = {f: [nan] * n for f in CONDITION_FIELDS}
+        self.max_temperature_c = [nan] * n
+        self.min_voltage_v = [nan] * n
+
+    def update(self, i: int, cond: ServoCondition, t: float) -> None:
+        """Servo ``i``'s figures from a read made at clock time ``t``; NaN ones are skipped."""
+        for f in CONDITION_FIELDS:
+            x = float(getattr(cond, f))
+            if x == x:  # not NaN
+                self.value[f][i] = x
+                self.read_t[f][i] = t
+        temp, volts = cond.temperature_c, cond.voltage_v
+        if temp == temp and not temp <= self.max_temperature_c[i]:
+            self.max_temperature_c[i] = float(temp)
+        if volts == volts and not volts >= self.min_voltage_v[i]:
+            self.min_voltage_v[i] = float(volts)
+
+    def extremes(self, names: Sequence[str]) -> dict[str, dict[str, float | None]]:
+        """Per servo (keyed by ``names``, bus order): the run's ``max_temperature_c`` and
+        ``min_voltage_v``, None where never read."""
+        return {
+            name: {
+                "max_temperature_c": None if hi != hi else hi,
+                "min_voltage_v": None if lo != lo else lo,
+            }
+            for name, hi, lo in zip(names, self.max_temperature_c, self.min_voltage_v, strict=True)
+        }
+
+    def views(self, now: float) -> list[dict[str, float | None]]:
+        """:meth:`view` of every servo, bus order."""
+        return [self.view(i, now) for i in range(len(self.max_temperature_c))]
+
+    def view(self, i: int, now: float) -> dict[str, float | None]:
+        """Servo ``i`` as JSON-ready figures: each field (None if never read) and
+        ``<field>_age_s``, how long ago it was read (s, by the clock of ``now``)."""
+        out: dict[str, float | None] = {}
+        for f in CONDITION_FIELDS:
+            x, t = self.value[f][i], self.read_t[f][i]
+            out[f] = None if x != x else round(x, 3)
+            out[f + "_age_s"] = None if t != t else round(max(0.0, now - t), 3)
+        return out
 
 
 @dataclass(frozen=True, slots=True)
@@ -194,6 +267,7 @@ class ServoHealth:
 
     ``problem`` is None when the servo can follow goals; otherwise the worst
     :class:`HealthProblem` and ``detail`` says it in words (decoded error bits, registers).
+    ``condition``: its temperature, voltage and load when this read covered them.
     """
 
     servo_id: int
@@ -203,6 +277,7 @@ class ServoHealth:
     watchdog_armed: bool | None
     problem: HealthProblem | None = None
     detail: str = ""
+    condition: ServoCondition | None = None  # temperature, voltage, load, when read
 
     @property
     def ok(self) -> bool:
@@ -354,7 +429,9 @@ class ServoBus(ABC):
         over ticks with time to spare). ``part`` picks what is read: STATE (torque and
         hardware error, short), WATCHDOG (the Bus Watchdog alone, shorter) or ALL (both);
         what was not read is None in the result. When torque is off or a hardware error is
-        set, the watchdog is read as well to name the cause.
+        set, the watchdog is read as well to name the cause. CONDITION reads temperature,
+        voltage and load alone (``condition``; nothing judged). A backend whose one read
+        covers them fills ``condition`` for every part.
 
         Raises a :class:`ServoBusError` if the servo does not answer properly.
         """
@@ -367,11 +444,23 @@ class ServoBus(ABC):
     #: host dies its servos hold their last goal; :meth:`arm_watchdog` then arms nothing
     has_watchdog: bool = True
 
+    #: True for a backend whose every :meth:`read_health` fills ``condition`` (one read
+    #: covers torque through temperature): the loop then never asks for CONDITION alone
+    condition_with_health: bool = False
+
     @property
     def health_read_s(self) -> float:
         """Expected bus time of a :meth:`read_health` of STATE (s), the longer of the two
         periodic parts: the loop schedules health reads only where a tick has that much time
         to spare."""
+        return self._health_read_s()
+
+    @property
+    def condition_read_s(self) -> float:
+        """Expected bus time of a :meth:`read_health` of CONDITION (s), for the same rule."""
+        return self._condition_read_s()
+
+    def _condition_read_s(self) -> float:
         return self._health_read_s()
 
     #: the raw bytes of the latest corrupt reply to a read, for diagnosis (None if none yet);

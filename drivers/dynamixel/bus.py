@@ -120,6 +120,7 @@ class DynamixelBus(ServoBus):
         self._views: tuple[Packed, ...] = (Packed(), Packed(), Packed())  # a reading's arrays
         self._rdt_s = np.full(n, FACTORY_RETURN_DELAY_S)
         self._watchdog_units: int | None = None
+        self._models: dict[int, str] = {}  # servo ID -> model name, from check()
         #: the bytes of the latest corrupt reply to a tick's read (None until one comes); the
         #: loop samples it into events.jsonl so a noisy line can be diagnosed afterwards
         self.corrupt_sample: bytes | None = None
@@ -366,6 +367,7 @@ class DynamixelBus(ServoBus):
                 self._rdt_s[k] = found.return_delay_s
             if found.state is not None:
                 states.append(found.state)
+                self._models[sid] = found.state.model_name
         fast_ok = len(states) == self.n and all(s.fast_read for s in states)
         if self._requested is ReadMode.AUTO:
             self._fast = fast_ok
@@ -418,10 +420,18 @@ class DynamixelBus(ServoBus):
 
     # -- health (spread over ticks by the loop) -----------------------------------
     def _read_health(self, servo_id: int, part: HealthPart) -> ServoHealth:
-        return health.read_health(self.link, servo_id, part, self._watchdog_units)
+        model = self._models.get(servo_id)
+        return health.read_health(self.link, servo_id, part, self._watchdog_units, model)
 
     def _health_read_s(self) -> float:
-        n_bytes = wire_time.read_bytes(ct.HEALTH_BLOCK.size)  # Read instruction + status
+        return self._read_s(ct.HEALTH_BLOCK.size)
+
+    def _condition_read_s(self) -> float:
+        return self._read_s(ct.CONDITION_BLOCK.size)
+
+    def _read_s(self, size: int) -> float:
+        """Expected bus time (s) of one Read of ``size`` bytes from the slowest servo."""
+        n_bytes = wire_time.read_bytes(size)  # Read instruction + status
         return (
             self._port.tx_time_per_byte * 1e-3 * n_bytes
             + float(self._rdt_s.max())

@@ -26,7 +26,14 @@ from drivers.dynamixel.errors import (
 from drivers.dynamixel.startup import retry
 from drivers.protocol2 import control_table as ct
 from drivers.protocol2.control_table import Item
-from drivers.servo_bus import ExitPolicy, ExitReport, HealthPart, HealthProblem, ServoHealth
+from drivers.servo_bus import (
+    ExitPolicy,
+    ExitReport,
+    HealthPart,
+    HealthProblem,
+    ServoCondition,
+    ServoHealth,
+)
 
 if TYPE_CHECKING:
     from drivers.dynamixel.link import Link
@@ -40,11 +47,43 @@ class _UnconfirmedError(Exception):
 
 
 # ----------------------------------------------------------------------- health
+def read_condition(link: Link, servo_id: int, model: str | None) -> ServoCondition:
+    """Temperature, input voltage and load of one servo in one read of Present Load ..
+    Present Temperature. ``model`` says what register 126 holds (see
+    :data:`~drivers.protocol2.control_table.LOAD_REGISTER_MA`): a current on most
+    models, Present Load on a few; an unknown model leaves both NaN rather than guess."""
+    item = ct.CONDITION_BLOCK
+    block = link.read(servo_id, item.addr, item.size)
+    raw = ct.PRESENT_LOAD.decode(block, item.addr)
+    nan = float("nan")
+    load = current = nan
+    if model in ct.LOAD_REGISTER_MA:
+        unit_ma = ct.LOAD_REGISTER_MA[model]
+        if unit_ma is None:
+            load = raw / 10.0
+        else:
+            current = raw * unit_ma * 1e-3
+    return ServoCondition(
+        float(ct.PRESENT_TEMPERATURE.decode(block, item.addr)),
+        ct.PRESENT_INPUT_VOLTAGE.decode(block, item.addr) / 10.0,
+        load,
+        current,
+    )
+
+
 def read_health(
-    link: Link, servo_id: int, part: HealthPart, watchdog_units: int | None
+    link: Link,
+    servo_id: int,
+    part: HealthPart,
+    watchdog_units: int | None,
+    model: str | None = None,
 ) -> ServoHealth:
     """Read ``part`` of one servo's health and name what is wrong, if anything (see
     :meth:`~drivers.servo_bus.ServoBus.read_health`)."""
+    if part is HealthPart.CONDITION:
+        return ServoHealth(
+            servo_id, None, None, None, None, condition=read_condition(link, servo_id, model)
+        )
     torque = hw = wd = None
     if part is HealthPart.WATCHDOG:
         wd = link.read_item(servo_id, ct.BUS_WATCHDOG)

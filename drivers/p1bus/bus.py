@@ -53,6 +53,7 @@ class P1ServoBus(ServoBus):
     positions are rad in the servo frame (the family's centre tick is 0 rad)."""
 
     has_watchdog = False
+    condition_with_health = True  # its health read covers load, voltage and temperature
 
     def __init__(
         self, link: P1Link, ids: Sequence[int], models: Sequence[str], retries: int

@@ -21,6 +21,7 @@ from drivers.servo_bus import (
     ExitReport,
     HealthPart,
     HealthProblem,
+    ServoCondition,
     ServoHealth,
 )
 
@@ -43,7 +44,8 @@ def health_block(fam: Family) -> tuple[int, int]:
 
 def read_health(link: P1Link, fam: Family, servo_id: int, part: HealthPart) -> ServoHealth:
     """Torque, the status ERR bits, load, voltage and temperature of one servo, in one read.
-    ``part`` WATCHDOG (a limp joint's) reads the same: there is no watchdog to read."""
+    ``part`` WATCHDOG (a limp joint's) and CONDITION read the same: there is no watchdog
+    to read, and every read fills ``condition``."""
     addr, size = health_block(fam)
     err, data = link.read_bytes(fam, servo_id, addr, size)
     torque = bool(decode(fam, fam.torque_enable, data, addr))
@@ -52,6 +54,7 @@ def read_health(link: P1Link, fam: Family, servo_id: int, part: HealthPart) -> S
     temp = decode(fam, fam.present_temperature, data, addr)
     hw = err & fam.hardware_bits
     figures = f"{temp} °C, {volts:.1f} V, load {load / 10:+.1f} %"
+    cond = ServoCondition(float(temp), volts, load / 10.0)
     if hw:
         problem: HealthProblem | None = HealthProblem.HARDWARE_ERROR
         detail = f"status error bits: {fam.describe_error(hw)} ({figures})"
@@ -59,7 +62,7 @@ def read_health(link: P1Link, fam: Family, servo_id: int, part: HealthPart) -> S
         problem, detail = HealthProblem.TORQUE_OFF, f"Torque Enable reads 0 ({figures})"
     else:
         problem, detail = None, figures
-    return ServoHealth(servo_id, torque, hw, None, None, problem, detail)
+    return ServoHealth(servo_id, torque, hw, None, None, problem, detail, cond)
 
 
 def write_all(

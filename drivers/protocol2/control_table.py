@@ -101,7 +101,8 @@ HEALTH_BLOCK = Item(
 HEALTH_WATCHDOG_BLOCK = Item(
     "health block with watchdog", TORQUE_ENABLE.addr, BUS_WATCHDOG.end - TORQUE_ENABLE.addr
 )
-#: Present Load .. Present Temperature: what a hardware-error stop records
+#: Present Load .. Present Temperature (21 bytes): what a hardware-error stop records, and
+#: the periodic condition read (temperature, voltage, load)
 CONDITION_BLOCK = Item(
     "condition block", PRESENT_LOAD.addr, PRESENT_TEMPERATURE.end - PRESENT_LOAD.addr
 )
@@ -263,6 +264,30 @@ NO_LOAD_SPEED_RPM: dict[str, float] = {
     "XC330-M288": 81.0,
     "XC330-T181": 104.0,
     "XC330-T288": 65.0,
+}
+
+#: What Present Load (126) holds per model: the current in this many mA per unit (signed),
+#: or None where it is Present Load proper (0.1 % of the maximum torque, signed); the
+#: e-Manual's figures, as the emulator's MODEL_DATA has them (a test holds the two equal)
+LOAD_REGISTER_MA: dict[str, float | None] = {
+    "XM430-W350": 2.69,
+    "XM430-W210": 2.69,
+    "XH430-W350": 2.69,
+    "XH430-W210": 2.69,
+    "XH430-V350": 1.34,
+    "XH430-V210": 1.34,
+    "XL430-W250": None,
+    "2XL430-W250": None,
+    "XC430-W150": None,
+    "XC430-W240": None,
+    "XM540-W270": 2.69,
+    "XM540-W150": 2.69,
+    "XL330-M288": 1.0,
+    "XL330-M077": 1.0,
+    "XC330-M181": 1.0,
+    "XC330-M288": 1.0,
+    "XC330-T181": 1.0,
+    "XC330-T288": 1.0,
 }
 
 

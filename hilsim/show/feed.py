@@ -190,6 +190,8 @@ class PanelFeed:
             if recent is not None:
                 recent = recent[: min(k, len(recent))]
             stop = loop.stop
+            # each servo's temperature, voltage, load (or current) and their ages (s)
+            msg["condition"] = loop.watch.condition.views(loop.clock.now())
             msg["facts"] = {
                 "overruns": loop.overruns,
                 "comm_errors": loop.watch.comm_errors,

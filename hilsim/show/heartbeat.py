@@ -28,7 +28,7 @@ from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
-from drivers.servo_bus import ReadStatus
+from drivers.servo_bus import CONDITION_FIELDS, ReadStatus
 from hilsim._types import JsonDict
 
 __all__ = ["STATUS_FILE", "STATUS_SCHEMA_VERSION", "Heartbeat"]
@@ -44,6 +44,13 @@ END_TIMEOUT_S = 2.0
 def _now() -> tuple[str, float]:
     t = time.time()
     return datetime.fromtimestamp(t, UTC).isoformat(timespec="milliseconds"), t
+
+
+def _condition(c: JsonDict | None) -> JsonDict:
+    """One servo's figures from the loop's ``condition`` (every key, None where unknown)."""
+    c = c or {}
+    keys = [k for f in CONDITION_FIELDS for k in (f, f + "_age_s")]
+    return {k: _finite(c.get(k)) for k in keys}
 
 
 def _finite(x: Any) -> float | None:
@@ -139,6 +146,7 @@ class Heartbeat:
         reads = st.get("read") or ()
         present = st.get("present_rad") or ()
         limp = set(st.get("limp") or ())
+        conditions = st.get("condition") or ()
         servos = []
         for i, (joint, sid) in enumerate(self._joints):
             code = reads[i] if i < len(reads) else None
@@ -150,6 +158,9 @@ class Heartbeat:
                     "read": None if code is None else ReadStatus(int(code)).name.lower(),
                     "present_deg": None if rad is None else round(math.degrees(rad), 3),
                     "limp": i in limp,
+                    # temperature_c, voltage_v, load_pct, current_a and each one's age (s):
+                    # null where never read; a failed read leaves the last figure
+                    **_condition(conditions[i] if i < len(conditions) else None),
                 }
             )
         return {

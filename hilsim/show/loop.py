@@ -325,6 +325,7 @@ class HilLoop:
             health_reads=self.watch.health.reads,
             health_deferred=self.watch.health.deferred,
             health_forced=self.watch.health.forced,
+            servo_condition=self.watch.condition.extremes(self.watch.names),
         )
         if interrupted is not None:
             raise interrupted
@@ -541,6 +542,7 @@ class HilLoop:
                     "read": self.reading.status.tolist(),  # each servo's last (ReadStatus)
                     "present_rad": self.present.tolist(),
                     "limp": list(self.watch.limp),
+                    "condition": self.watch.condition.views(t_end),  # temperature, voltage, load
                     "layers": None if self.director is None else self.director.layers,
                 }
             )

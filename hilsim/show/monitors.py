@@ -34,6 +34,10 @@ STALL_EVENT_INTERVAL_S = 1.0
 #: a round of health reads (one per servo) takes about this (s) when ticks have time to
 #: spare; rounds alternate state and watchdog, so a cut torque is found within two rounds
 HEALTH_PERIOD_S = 0.04
+#: every this many rounds, the second of them is a round of condition reads (temperature,
+#: voltage, load: each servo's about once a second, the first within the show's first
+#: 0.1 s), inserted between the others
+CONDITION_EVERY_ROUNDS = 25
 #: a gap on the bus of at least this fraction of the Bus Watchdog period makes the loop check
 #: every servo before it sends the next goals (the servo's 20 ms timer is coarse)
 WATCHDOG_GAP_FRACTION = 0.5
@@ -223,11 +227,18 @@ class HealthSchedule:
     waits for the next tick that has.
     """
 
-    def __init__(self, n: int, period_s: float = HEALTH_PERIOD_S) -> None:
+    def __init__(
+        self,
+        n: int,
+        period_s: float = HEALTH_PERIOD_S,
+        condition_every: int = CONDITION_EVERY_ROUNDS,
+    ) -> None:
         self.n = n
         self.interval_s = period_s / n
+        self.condition_every = condition_every  # 0: no condition rounds
         self._next = 0
         self._round = 0
+        self._checks = 0  # rounds of state or watchdog reads so far
         self._due = -math.inf
         self.reads = 0
         self.deferred = 0  # due reads put off: the tick had not the time to spare
@@ -236,14 +247,26 @@ class HealthSchedule:
     def due(self, t: float) -> bool:
         return t >= self._due
 
-    def take(self, t: float) -> tuple[int, HealthPart]:
+    def next_part(self, condition: bool = True) -> HealthPart:
+        """What the next read reads (see :meth:`take`)."""
+        every = self.condition_every
+        if condition and every and self._round % every == 1:
+            return HealthPart.CONDITION
+        return HealthPart.STATE if self._checks % 2 == 0 else HealthPart.WATCHDOG
+
+    def take(self, t: float, condition: bool = True) -> tuple[int, HealthPart]:
         """The servo to read now (its index) and what to read: rounds alternate between its
         state (torque, hardware error) and its Bus Watchdog, each short enough to fit in
-        the spare part of a tick. Schedules the next read."""
+        the spare part of a tick; every ``condition_every`` rounds a round of temperature,
+        voltage and load is inserted. ``condition`` False (the longer read does not fit
+        this tick): the servo's read in a condition round is a state or watchdog read
+        instead, so the checks never wait on the figures. Schedules the next read."""
         i = self._next
-        part = HealthPart.STATE if self._round % 2 == 0 else HealthPart.WATCHDOG
+        part = self.next_part(condition)
         self._next = (i + 1) % self.n
         if self._next == 0:
+            if self.next_part() is not HealthPart.CONDITION:
+                self._checks += 1
             self._round += 1
         self._due = t + self.interval_s
         self.reads += 1

@@ -30,6 +30,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from drivers.servo_bus import (
+    ConditionRecord,
     HealthPart,
     HealthProblem,
     PresentReading,
@@ -105,7 +106,12 @@ class ServoWatch:
             [j.tracking_time_s for j in self.joints],
             period_s,
         )
+        # a backend whose health read covers temperature and the rest needs no reads of them
         self.health = HealthSchedule(n)
+        if bus.condition_with_health:
+            self.health.condition_every = 0
+        #: each servo's last temperature, voltage and load, with when each was read
+        self.condition = ConditionRecord(n)
         self._health_took: list[tuple[float, float]] = []  # the last reads: (when, took)
         self._health_cost_s = 0.0  # their median time
         self._last_health_t: float | None = None  # clock time of the last health read
@@ -277,8 +283,11 @@ class ServoWatch:
         took = self._health_took
         if took and t - took[0][0] > HEALTH_COST_MEMORY_S:
             self._health_cost_s = self._forget(t)
-        need = max(self.bus.health_read_s, self._health_cost_s)
-        if spare_s < HEALTH_MARGIN * need + HEALTH_SPARE_S:
+        bus = self.bus
+        margin = HEALTH_SPARE_S + HEALTH_MARGIN * self._health_cost_s  # the measured cost
+        # the figures (a longer read) only where they fit; the checks never wait on them
+        fits = spare_s >= max(HEALTH_MARGIN * bus.condition_read_s + HEALTH_SPARE_S, margin)
+        if spare_s < max(HEALTH_MARGIN * bus.health_read_s + HEALTH_SPARE_S, margin):
             last = self._last_health_t
             if last is None:
                 self._last_health_t = t  # the floor counts from the first read that was due
@@ -287,8 +296,8 @@ class ServoWatch:
                 return
             sched.forced += 1
         self._last_health_t = t
-        i, part = sched.take(t)
-        if i in self.limp:
+        i, part = sched.take(t, condition=fits)
+        if i in self.limp and part is not HealthPart.CONDITION:
             part = HealthPart.WATCHDOG
         sent = self.clock.now()
         try:
@@ -301,6 +310,10 @@ class ServoWatch:
                 del took[0]
             self._health_cost_s = self._forget(t)
         self.last_bus_t = max(self.last_bus_t, sent)
+        if health.condition is not None:
+            self.condition.update(i, health.condition, sent)
+        if part is HealthPart.CONDITION:
+            return  # figures only: nothing judged
         self._handle(i, health, k, explained=self.last_long_gap_t > self._last_health_ok[i])
 
     def _forget(self, t: float) -> float:
@@ -328,6 +341,8 @@ class ServoWatch:
                 health = self.bus.read_health(self.ids[i], HealthPart.ALL)
             except ServoBusError:
                 continue  # silent now: the per-tick reads and the budget decide
+            if health.condition is not None:
+                self.condition.update(i, health.condition, self.clock.now())
             self._handle(i, health, k, explained=True, gap_s=gap_s)
         self.last_bus_t = self.clock.now()
 

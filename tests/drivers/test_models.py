@@ -212,3 +212,10 @@ def test_the_hosts_items_and_the_emulators_table_agree():
             assert rows[key] == (item.addr, item.size), item.name
             matched += 1
     assert matched >= 20  # every single field the host uses; the blocks are spans, not fields
+
+
+def test_the_driver_knows_what_register_126_holds_as_the_emulator_does():
+    """Present Current (its mA unit) or Present Load (None), per model."""
+    import drivers.protocol2.control_table as ct
+
+    assert {m.name: m.current_unit_ma for m in MODELS.values()} == ct.LOAD_REGISTER_MA

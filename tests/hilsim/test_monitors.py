@@ -106,10 +106,17 @@ def test_health_reads_go_round_robin_alternating_state_and_watchdog():
     sched = HealthSchedule(3, period_s=0.03)
     taken = []
     t = 0.0
-    while len(taken) < 6:
+    while len(taken) < 9:
         if sched.due(t):
             taken.append(sched.take(t))
         t += 0.001
-    assert [i for i, _ in taken] == [0, 1, 2, 0, 1, 2]
-    assert [p for _, p in taken] == [HealthPart.STATE] * 3 + [HealthPart.WATCHDOG] * 3
+    assert [i for i, _ in taken] == [0, 1, 2] * 3
+    # the second round (of every CONDITION_EVERY_ROUNDS) reads temperature, voltage, load:
+    # inserted, the state and watchdog rounds still alternate
+    parts = [HealthPart.STATE, HealthPart.CONDITION, HealthPart.WATCHDOG]
+    assert [p for _, p in taken] == [p for p in parts for _ in range(3)]
     assert sched.interval_s == pytest.approx(0.01)
+    plain = HealthSchedule(3, period_s=0.03, condition_every=0)  # a P1 bus: none of them
+    assert [plain.take(0.0)[1] for _ in range(6)] == [HealthPart.STATE] * 3 + [
+        HealthPart.WATCHDOG
+    ] * 3

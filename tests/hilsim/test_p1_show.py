@@ -385,3 +385,17 @@ def test_an_ax_joint_beyond_300_degrees_is_refused_at_load(tmp_path):
     with pytest.raises(RigError, match=r"joints\[0\]\.max_deg: .*160 deg is beyond what a AX-12A "
                        r"turns \(-150\.\.150 deg around tick 512\)"):  # fmt: skip
         load_rig(path)
+
+
+def test_feetech_health_reads_fill_the_same_condition_record(emulated):
+    """The Protocol 1.0 health read covers load, voltage and temperature: the loop keeps them
+    in the record the X-series condition reads fill, and the summary has the extremes."""
+    emu = emulated()
+    emu.stub.servos[2].set("Present Temperature", 52)
+    emu.stub.servos[3].set("Present Voltage", 74)  # 7.4 V
+    assert emu.run() == ExitCode.OK
+    cond = emu.read().summary["loop"]["servo_condition"]
+    assert cond["pan"] == {"max_temperature_c": 31.0, "min_voltage_v": cond["pan"]["min_voltage_v"]}
+    assert cond["tilt"]["max_temperature_c"] == 52.0
+    assert cond["jaw"]["min_voltage_v"] == 7.4
+    assert all(5.0 <= c["min_voltage_v"] <= 13.0 for c in cond.values())

@@ -22,6 +22,7 @@ from pathlib import Path
 import pytest
 
 import hilsim
+from drivers.servo_bus import CONDITION_FIELDS, ConditionRecord, ServoCondition
 from hilsim.cli import main
 from hilsim.rig import load_rigs
 from hilsim.show import heartbeat as hb
@@ -245,10 +246,33 @@ def test_a_full_disk_is_said_once_and_again_when_it_writes(tmp_path, monkeypatch
     assert said[1:] == [f"status file {tmp_path / 'status.json'} written again"]
     st = _status(tmp_path / "status.json")
     assert st["state"] == "ended" and st["tick"] == 20 and st["rig"] == "r"
+    never_read = {k: None for f in CONDITION_FIELDS for k in (f, f + "_age_s")}
     assert st["servos"] == [
-        {"id": 1, "joint": "a", "read": "ok", "present_deg": 0.0, "limp": False},
-        {"id": 2, "joint": "b", "read": "stale", "present_deg": None, "limp": True},
+        {"id": 1, "joint": "a", "read": "ok", "present_deg": 0.0, "limp": False, **never_read},
+        {"id": 2, "joint": "b", "read": "stale", "present_deg": None, "limp": True, **never_read},
     ]
+
+
+def test_status_json_carries_each_servos_temperature_voltage_and_load(tmp_path):
+    said: list[str] = []
+    beat = _beat(tmp_path, said)
+    beat.start()
+    record = ConditionRecord(2)
+    record.update(0, ServoCondition(41.0, 11.9, float("nan"), 0.25), t=1.0)
+    record.update(1, ServoCondition(38.0, 12.1, -12.5), t=1.5)
+    st = {"tick": 10, "t": 0.04, "read": [0, 0], "present_rad": [0.0, 0.0], "limp": []}
+    beat.offer({**st, "condition": record.views(2.0)})
+    _wait_for(beat, 1)
+    beat.end({"exit_code": 0, "exit_reason": "end of show"})
+    a, b = _status(tmp_path / "status.json")["servos"]
+    assert (a["temperature_c"], a["voltage_v"], a["load_pct"], a["current_a"]) == (
+        41.0, 11.9, None, 0.25
+    )  # fmt: skip
+    assert a["temperature_c_age_s"] == 1.0 and a["load_pct_age_s"] is None
+    assert (b["temperature_c"], b["voltage_v"], b["load_pct"], b["current_a"]) == (
+        38.0, 12.1, -12.5, None
+    )  # fmt: skip
+    assert b["voltage_v_age_s"] == 0.5
 
 
 def test_the_loop_never_waits_for_the_status_disk(tmp_path, monkeypatch):

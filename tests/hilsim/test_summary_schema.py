@@ -25,6 +25,7 @@ DATA_OBJECTS = {
     "safety_limits",
     "safety_ticks",
     "loop.host_stalls",
+    "loop.servo_condition",
     "live",
 }
 #: sections only some runs have (documented, absent from the demo's summary)
@@ -93,3 +94,12 @@ def test_no_fact_in_two_books(demo_summary):
     for gone in ("overruns", "exit_policy", "exit_policy_confirmed", "safety"):
         assert gone not in demo_summary["loop"]
     assert comm_errors(demo_summary) == 0
+
+
+def test_the_summary_has_each_servos_max_temperature_and_min_voltage(demo_summary):
+    """The demo's emulated XM430s: about room temperature, on a 12 V supply."""
+    cond = demo_summary["loop"]["servo_condition"]
+    assert sorted(cond) == sorted(demo_summary["servo_ids"])
+    for joint, figures in cond.items():
+        assert 10.0 <= figures["max_temperature_c"] <= 45.0, joint
+        assert figures["min_voltage_v"] == 12.0, joint
