@@ -186,9 +186,8 @@ class PanelFeed:
         self._n += 1
         if self._n % 5 == 1:  # the run's facts, five times a second
             k = int(rec.tick)
-            recent = getattr(loop, "_recent", None)  # lateness of the last ticks (us)
-            if recent is not None:
-                recent = recent[: min(k, len(recent))]
+            recent = loop.recent_lateness_us  # lateness of the last ticks (us)
+            recent = recent[: min(k, len(recent))]
             stop = loop.stop
             # each servo's temperature, voltage, load (or current) and their ages (s)
             msg["condition"] = loop.watch.condition.views(loop.clock.now())
@@ -196,9 +195,7 @@ class PanelFeed:
                 "overruns": loop.overruns,
                 "comm_errors": loop.watch.comm_errors,
                 "host_stalls": loop.stalls.count,
-                "lateness_p99_us": (
-                    round(float(np.percentile(recent, 99)), 1) if recent is not None and k else None
-                ),
+                "lateness_p99_us": (round(float(np.percentile(recent, 99)), 1) if k else None),
                 "playing": None if director is None else director.now_playing,
                 "stopping": stop.command
                 if stop.command is not None

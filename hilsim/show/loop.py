@@ -51,6 +51,7 @@ from hilsim.show.monitors import STALL_EVENT_S, WATCHDOG_GAP_FRACTION, HostStall
 from hilsim.show.parts import Parts
 from hilsim.show.realtime import REALTIME_SWITCH_INTERVAL_S, realtime
 from hilsim.show.servo_watch import LoopFaultError, ServoWatch, failed_reads
+from hilsim.show.status import status_figures
 from hilsim.show.stepper import Stepper, TickBuffers
 from hilsim.show.stop import StopFlag, signal_name
 from hilsim.show.warm_up import warm_up
@@ -368,7 +369,7 @@ class HilLoop:
         """The books the ticks keep, started at tick 0 (``hilsim bench`` starts them too, to
         time :meth:`_tick` as the show runs it). Returns the clock time of tick 0."""
         clock, period = self.clock, self.period
-        self._recent = np.zeros(512)  # lateness ring for the live status line
+        self.recent_lateness_us = np.zeros(512)  # lateness ring for the live status line
         if self.start_at is not None and not self._stopping():
             clock.wait_until(self.start_at)  # at once if the start-up took longer: late, said
         t0 = self._t0 = clock.now()
@@ -507,7 +508,7 @@ class HilLoop:
             rec.overrun = late
             self.telemetry.amend(rec)
         self._check_integration_keeps_up(self._integ_share, t_end)
-        self._recent[k % 512] = (t_actual - t_sched) * 1e6
+        self.recent_lateness_us[k % 512] = (t_actual - t_sched) * 1e6
         if late:
             self.overruns += 1
             if self.rig.loop.overrun_policy is OverrunPolicy.STOP:
@@ -529,23 +530,7 @@ class HilLoop:
             self.log.corrupt_reply(k - 1, t_sim)
         if self.on_status is not None and time.perf_counter() >= self._next_status:
             self._next_status += 0.5
-            self.on_status(
-                {
-                    "tick": k,
-                    "t": t_sim,
-                    "duration": self.duration_s,
-                    "comm_errors": self.watch.comm_errors,
-                    "overruns": self.overruns,
-                    "host_stalls": self.stalls.count,
-                    "lateness_p99_us": float(np.percentile(self._recent[: min(k, 512)], 99)),
-                    "cue": None if self.director is None else self.director.now_playing,
-                    "read": self.reading.status.tolist(),  # each servo's last (ReadStatus)
-                    "present_rad": self.present.tolist(),
-                    "limp": list(self.watch.limp),
-                    "condition": self.watch.condition.views(t_end),  # temperature, voltage, load
-                    "layers": None if self.director is None else self.director.layers,
-                }
-            )
+            self.on_status(status_figures(self, k, t_sim, t_end))
         return k
 
     # ------------------------------------------------------------------ per-tick parts

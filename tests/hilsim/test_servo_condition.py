@@ -155,7 +155,7 @@ def test_the_panel_feed_state_carries_the_figures(tmp_path):
         rec=SimpleNamespace(tick=5, t_sched=0.02),
         u=zeros, cmd=zeros, present=zeros,
         reading=SimpleNamespace(status=np.zeros(2, dtype=np.uint8)),
-        director=None, overruns=0, stalls=SimpleNamespace(count=0),
+        director=None, overruns=0, stalls=SimpleNamespace(count=0), recent_lateness_us=np.zeros(512),
         watch=SimpleNamespace(comm_errors=0, condition=record),
         stop=SimpleNamespace(command=None, signum=None), clock=clock,
     )  # fmt: skip
