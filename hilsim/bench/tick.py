@@ -204,7 +204,7 @@ name = "j{i}"
 servo_id = {sid}
 min_deg = -90
 max_deg = 90
-max_speed_deg_s = 400
+max_speed_deg_s = 270  # within the XM430-W350 default model (276 deg/s)
 max_accel_deg_s2 = 8000
 spring = {{ frequency_hz = 3.0, damping_ratio = 0.7, response = 0.3 }}
 target = {{ type = "sine", amplitude_deg = 3, frequency_hz = 0.5, phase_deg = {phase} }}
