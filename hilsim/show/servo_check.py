@@ -62,6 +62,24 @@ def setup_command(rig: Rig) -> str:
     )
 
 
+def baud_problems(
+    rig: Rig, names: dict[int, tuple[int, str]], elsewhere: dict[int, int]
+) -> list[Problem]:
+    """A row for each servo that answers at another baud than the rig's (``elsewhere``: ID ->
+    the baud it answered at); the fix is the setup command."""
+    return [
+        Problem(
+            sid,
+            names[sid][1],
+            "baud",
+            f"{rig.bus.baud} bit/s",
+            f"{baud} bit/s (answers there, not at {rig.bus.baud})",
+            setup_command(rig),
+        )
+        for sid, baud in sorted(elsewhere.items())
+    ]
+
+
 def check_everything(
     rig: Rig,
     bus: DynamixelBus,
@@ -90,17 +108,7 @@ def check_everything(
         states += _states_of_the_rest(bus, exps, rows, states)
     names = {j.servo_id: (i, j.name) for i, j in enumerate(rig.joints)}
     problems = [_problem(rig, r, names, answered, bus.link.baud) for r in rows]
-    for sid, baud in sorted(elsewhere.items()):
-        problems.append(
-            Problem(
-                sid,
-                names[sid][1],
-                "baud",
-                f"{rig.bus.baud} bit/s",
-                f"{baud} bit/s (answers there, not at {rig.bus.baud})",
-                setup_command(rig),
-            )
-        )
+    problems += baud_problems(rig, names, elsewhere)
     notes: list[str] = []
     baud_now = min((elsewhere.get(s.id, bus.link.baud) for s in states), default=bus.link.baud)
     cap = _capacity(rig, bus, states, baud_now, budget_s, latency_ms)

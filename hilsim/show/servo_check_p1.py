@@ -15,7 +15,7 @@ from typing import TYPE_CHECKING
 
 from drivers.dynamixel.errors import CommError, Mismatch, StartupMismatch
 from hilsim.rig import Rig
-from hilsim.show.servo_check import Problem, setup_command, setup_return_delay_us
+from hilsim.show.servo_check import Problem, baud_problems, setup_command, setup_return_delay_us
 
 if TYPE_CHECKING:
     from drivers.p1bus.bus import P1ServoBus
@@ -54,17 +54,7 @@ def check_everything_p1(
     names = {j.servo_id: (i, j.name) for i, j in enumerate(rig.joints)}
     answered = [sid for sid in rig.servo_ids if sid not in silent]
     problems = [_problem(rig, r, names, answered, bus.link.baud) for r in rows]
-    for sid, baud in sorted(elsewhere.items()):
-        problems.append(
-            Problem(
-                sid,
-                names[sid][1],
-                "baud",
-                f"{rig.bus.baud} bit/s",
-                f"{baud} bit/s (answers there, not at {rig.bus.baud})",
-                setup_command(rig),
-            )
-        )
+    problems += baud_problems(rig, names, elsewhere)
     notes: list[str] = []
     baud_now = min(elsewhere.values(), default=bus.link.baud)  # the slowest servo's rate
     cap = _capacity(rig, bus, budget_s, rdts, baud_now, known=len(silent) == len(elsewhere))
