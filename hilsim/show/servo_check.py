@@ -11,6 +11,7 @@ leave them. Each row names its joint; the fix column names the rig key to change
 from __future__ import annotations
 
 import shlex
+from collections.abc import Collection
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
@@ -107,7 +108,7 @@ def check_everything(
     if report is None:
         states += _states_of_the_rest(bus, exps, rows, states)
     names = {j.servo_id: (i, j.name) for i, j in enumerate(rig.joints)}
-    problems = [_problem(rig, r, names, answered, bus.link.baud) for r in rows]
+    problems = [problem_row(rig, r, names, answered, bus.link.baud) for r in rows]
     problems += baud_problems(rig, names, elsewhere)
     notes: list[str] = []
     baud_now = min((elsewhere.get(s.id, bus.link.baud) for s in states), default=bus.link.baud)
@@ -177,21 +178,32 @@ def _states_of_the_rest(
     return out
 
 
-def _problem(
-    rig: Rig, r: Mismatch, names: dict[int, tuple[int, str]], answered: list[int], baud: int
+def problem_row(
+    rig: Rig,
+    r: Mismatch,
+    names: dict[int, tuple[int, str]],
+    answered: list[int],
+    baud: int,
+    *,
+    range_item: str = "position range",
+    setup_items: Collection[str] = SETUP_ITEMS,
+    who: str = "IDs",
 ) -> Problem:
+    """One table row from a start-up mismatch: its joint, and a fix that names the rig key or
+    the setup command. A family names its range item and the items setup writes; ``who``
+    names the IDs listed as answering when a servo is silent."""
     i, joint = names.get(r.servo_id, (-1, ""))
     fix, found = r.fix, r.found
     if r.item == "model":
         model = r.found.split(" (")[0]
         fix = f'joints[{i}].model = "{model}" (or the servo the rig names)'
     elif r.item == "answers Ping":
-        who = ", ".join(map(str, answered)) if answered else "none"
-        found = f"{r.found}; IDs answering at {baud}: {who}; no answer at any other baud"
+        listed = ", ".join(map(str, answered)) if answered else "none"
+        found = f"{r.found}; {who} answering at {baud}: {listed}; no answer at any other baud"
         fix = f"check ID, power and wiring (`hilsim setup ... --id OLD:{r.servo_id}` renames one)"
-    elif r.item == "position range":
+    elif r.item == range_item:
         fix = f"{setup_command(rig)} (widens the limits), or narrow joints[{i}].min_deg/max_deg"
-    elif r.item in SETUP_ITEMS:
+    elif r.item in setup_items:
         fix = setup_command(rig)
     return Problem(r.servo_id, joint, r.item, r.expected, found, fix)
 

@@ -15,7 +15,13 @@ from typing import TYPE_CHECKING
 
 from drivers.dynamixel.errors import CommError, Mismatch, StartupMismatch
 from hilsim.rig import Rig
-from hilsim.show.servo_check import Problem, baud_problems, setup_command, setup_return_delay_us
+from hilsim.show.servo_check import (
+    Problem,
+    baud_problems,
+    problem_row,
+    setup_command,
+    setup_return_delay_us,
+)
 
 if TYPE_CHECKING:
     from drivers.p1bus.bus import P1ServoBus
@@ -103,22 +109,14 @@ def _look_elsewhere(
 def _problem(
     rig: Rig, r: Mismatch, names: dict[int, tuple[int, str]], answered: list[int], baud: int
 ) -> Problem:
-    i, joint = names.get(r.servo_id, (-1, ""))
-    fix, found = r.fix, r.found
-    if r.item == "model":
-        model = r.found.split(" (")[0]
-        fix = f'joints[{i}].model = "{model}" (or the servo the rig names)'
-    elif r.item == "answers Ping":
-        who = ", ".join(map(str, answered)) if answered else "none"
-        found = f"{r.found}; rig IDs answering at {baud}: {who}; no answer at any other baud"
-        fix = f"check ID, power and wiring (`hilsim setup ... --id OLD:{r.servo_id}` renames one)"
-    elif r.item == "registers" and "no reply" in r.found:
+    if r.item == "registers" and "no reply" in r.found:
         fix = f"it answers Ping but not Read (Status Return Level 0?): {setup_command(rig)}"
-    elif r.item == "angle limits":
-        fix = f"{setup_command(rig)} (widens the limits), or narrow joints[{i}].min_deg/max_deg"
-    elif r.item in P1_SETUP_ITEMS:
-        fix = setup_command(rig)
-    return Problem(r.servo_id, joint, r.item, r.expected, found, fix)
+        return Problem(r.servo_id, names.get(r.servo_id, (-1, ""))[1], r.item, r.expected,
+                       r.found, fix)  # fmt: skip
+    return problem_row(
+        rig, r, names, answered, baud,
+        range_item="angle limits", setup_items=P1_SETUP_ITEMS, who="rig IDs",
+    )  # fmt: skip
 
 
 def _capacity(
