@@ -18,7 +18,7 @@ from drivers.p1bus.table import canonical, family_of
 from hilsim.rig import Rig
 from hilsim.rig.joint_map import JointMap
 from hilsim.show.servo_check import setup_return_delay_us
-from hilsim.show.servo_setup import SetupPlan
+from hilsim.show.servo_setup import SetupPlan, split_found
 
 
 def p1_targets(rig: Rig, renames: Mapping[int, int] | None = None) -> dict[int, P1Target]:
@@ -81,13 +81,7 @@ class P1ServoSetup:
         """Compare every rig servo found with its target (read-only)."""
         from drivers.p1bus.configure import plan, read_settings
 
-        mine: dict[int, Found] = {}
-        others: list[Found] = []
-        for f in found:
-            if f.id in self.targets and f.id not in mine:
-                mine[f.id] = f
-            else:
-                others.append(f)
+        mine, others = split_found(found, self.targets)
         changes: list[Change] = []
         models: list[str] = []
         for sid, f in sorted(mine.items()):

@@ -9,7 +9,7 @@ at every baud of the family, plans the writes (:meth:`ServoSetup.plan`), writes 
 
 from __future__ import annotations
 
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Collection, Mapping
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
@@ -61,6 +61,21 @@ class SetupPlan:
     models: list[str] = field(default_factory=list)  # model mismatches, one line each
 
 
+def split_found(
+    found: list[Found], targets: Collection[int]
+) -> tuple[dict[int, Found], list[Found]]:
+    """The rig's servos among those found (by current ID, the first answer of each) and the
+    others (not the rig's, or the same ID answering again at another baud)."""
+    mine: dict[int, Found] = {}
+    others: list[Found] = []
+    for f in found:
+        if f.id in targets and f.id not in mine:
+            mine[f.id] = f
+        else:
+            others.append(f)
+    return mine, others
+
+
 class ServoSetup:
     """One setup session on an open link (``family``: the servos' register table)."""
 
@@ -101,13 +116,7 @@ class ServoSetup:
         from drivers.dynamixel.configure import plan, read_settings
         from drivers.protocol2.control_table import model_number
 
-        mine: dict[int, Found] = {}
-        others: list[Found] = []
-        for f in found:
-            if f.id in self.targets and f.id not in mine:
-                mine[f.id] = f
-            else:
-                others.append(f)
+        mine, others = split_found(found, self.targets)
         changes: list[Change] = []
         models: list[str] = []
         for sid, f in sorted(mine.items()):
