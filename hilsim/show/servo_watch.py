@@ -285,8 +285,11 @@ class ServoWatch:
             self._health_cost_s = self._forget(t)
         bus = self.bus
         margin = HEALTH_SPARE_S + HEALTH_MARGIN * self._health_cost_s  # the measured cost
-        # the figures (a longer read) only where they fit; the checks never wait on them
-        fits = spare_s >= max(HEALTH_MARGIN * bus.condition_read_s + HEALTH_SPARE_S, margin)
+        # the figures (a longer read, one round in CONDITION_EVERY_ROUNDS) only where they
+        # fit; the checks never wait on them
+        fits = sched.next_part() is HealthPart.CONDITION and spare_s >= max(
+            HEALTH_MARGIN * bus.condition_read_s + HEALTH_SPARE_S, margin
+        )
         if spare_s < max(HEALTH_MARGIN * bus.health_read_s + HEALTH_SPARE_S, margin):
             last = self._last_health_t
             if last is None:
