@@ -31,7 +31,13 @@ from hilsim.cli._args import add_port
 from hilsim.cli._report import StatusLine, print_stats, verdict
 from hilsim.cli.panel import add_panel_options
 from hilsim.exit_codes import ExitCode, for_signal
-from hilsim.show.run_dir import RunDir, RunDirError, make_run_dir
+from hilsim.show.run_dir import (
+    RunDir,
+    RunDirError,
+    cap_removal_line,
+    make_run_dir,
+    prune_under_caps,
+)
 from hilsim.show.stop import STOP_SIGNALS
 
 if TYPE_CHECKING:
@@ -150,6 +156,7 @@ def run(args: argparse.Namespace) -> int:
             show=args.show,
             live=args.live,
             controls=args.panel,
+            runs_dir=args.runs_dir,
             on_note=_say,
             status_file=args.status_file or True,
         )
@@ -207,6 +214,7 @@ def _run_group(args: argparse.Namespace, rigs: tuple[Rig, ...]) -> int:
         _say(str(exc))
         return EXIT_USAGE
     run_dir = made.path
+    removed = _prune_group_runs(args, rig, run_dir)
     names = [str(r.bus_name) for r in rigs]  # several buses: each is named ([buses.<name>])
     _say(
         f"{rig.name}: {len(rigs)} buses ({', '.join(names)}), one process each, "
@@ -221,12 +229,29 @@ def _run_group(args: argparse.Namespace, rigs: tuple[Rig, ...]) -> int:
             print(line, file=sys.stderr, flush=True)  # keep reading the child's pipe
 
     status = None if args.status_file is None else Path(args.status_file).expanduser()
-    result = run_group(args.config, names, run_dir, extra, echo=echo, status_file=status)
+    result = run_group(
+        args.config, names, run_dir, extra, echo=echo, status_file=status, runs_removed=removed
+    )
     with contextlib.suppress(OSError):  # stderr gone (a hung-up terminal): buses.json says it
         _report_group(args, result, run_dir)
     if not any(run_dir.iterdir()):
         made.remove_if_empty()
     return result.exit_code
+
+
+def _prune_group_runs(args: argparse.Namespace, rig: Rig, run_dir: Path) -> list[dict[str, object]]:
+    """The runs root's caps, applied once for the figure (its buses' runs are inside its
+    directory): each run removed said; a failure is a warning, never a stop."""
+    tel = rig.telemetry
+    root = args.runs_dir or tel.out_dir
+    try:
+        removed = prune_under_caps(root, run_dir, tel.runs_max_mb, tel.runs_max_age_days)
+    except (OSError, RunDirError) as exc:
+        _say(f"warning: old runs under {root} not removed: {exc}")
+        return []
+    for rec in removed:
+        _say(cap_removal_line(rec, tel.runs_max_mb, tel.runs_max_age_days))
+    return removed
 
 
 def _report_group(args: argparse.Namespace, result: GroupResult, run_dir: Path) -> None:

@@ -39,7 +39,13 @@ from hilsim.rig import Rig, TelemetryFailurePolicy, load_rigs, select_bus
 from hilsim.show.end import ShowResult, crashed
 from hilsim.show.heartbeat import STATUS_FILE, Heartbeat
 from hilsim.show.parts import Parts, build_parts, with_show
-from hilsim.show.run_dir import RunDir, RunDirError, make_run_dir, prune_runs
+from hilsim.show.run_dir import (
+    RunDir,
+    RunDirError,
+    cap_removal_line,
+    make_run_dir,
+    prune_under_caps,
+)
 from hilsim.show.session import (
     ShowRefusedError,
     check_bus,
@@ -100,7 +106,9 @@ class Show:
         bus: which of a rig's ``[buses.<name>]`` (a rig with several needs it).
         duration: stop after this much show time (s); None: the animation's length.
         out: the run directory (new, or an existing empty one); None:
-            ``<telemetry.out_dir>/<name>-<time>``.
+            ``<runs_dir>/<name>-<time>``.
+        runs_dir: where runs are made and the runs root's caps prune old ones (default: the
+            rig's ``telemetry.out_dir``); a run put elsewhere by ``out`` leaves it alone.
         virtual_time: run on the emulator's virtual clock (same numbers, no waiting).
         show: a show file (clips, cues, live inputs); ``live``: OSC on 127.0.0.1.
         controls: :meth:`set_joint` and :meth:`release` without a show file or ``live``
@@ -122,6 +130,7 @@ class Show:
         bus: str | None = None,
         duration: float | None = None,
         out: PathLike | None = None,
+        runs_dir: PathLike | None = None,
         virtual_time: bool = False,
         show: PathLike | None = None,
         live: bool = False,
@@ -152,6 +161,7 @@ class Show:
         self.duration = duration
         self.virtual_time = virtual_time
         self.out = out
+        self.runs_dir = runs_dir
         self.status_file, self.status_every_s = status_file, status_every_s
         self._note = on_note or (lambda line: log.info("%s", line))
         #: what the start-up check found and changed, in order
@@ -198,7 +208,8 @@ class Show:
     def _open(self) -> Self:
         rig = self.rig
         try:
-            self._run_dir = make_run_dir(self.out, rig.telemetry.out_dir, rig.name, what="out")
+            runs = self.runs_dir if self.runs_dir is not None else rig.telemetry.out_dir
+            self._run_dir = make_run_dir(self.out, runs, rig.name, what="out")
         except RunDirError as exc:
             raise ShowRefusedError(str(exc)) from None
         try:
@@ -328,14 +339,10 @@ class Show:
         """The caps on the runs root: its oldest runs removed (a run made elsewhere, by
         ``out``, leaves the root alone); a failure is a warning, never a stop."""
         tel = self.rig.telemetry
-        root = Path(tel.out_dir).expanduser()
-        if run_dir.resolve().parent != root.resolve():
-            return []
-        max_bytes = None if tel.runs_max_mb is None else int(tel.runs_max_mb * 1e6)
-        max_age = None if tel.runs_max_age_days is None else tel.runs_max_age_days * 86400.0
+        root = self.runs_dir if self.runs_dir is not None else tel.out_dir
         try:
-            return prune_runs(root, run_dir, max_bytes, max_age)
-        except OSError as exc:
+            return prune_under_caps(root, run_dir, tel.runs_max_mb, tel.runs_max_age_days)
+        except (OSError, RunDirError) as exc:
             self.notes.append(f"warning: old runs under {root} not removed: {exc}")
             self._say(self.notes[-1])
             return []
@@ -344,17 +351,8 @@ class Show:
         """Each run removed under the runs root's caps: an event; their count in the summary."""
         tel = self.rig.telemetry
         for rec in pruned:
-            cap = (
-                f"telemetry.runs_max_mb = {tel.runs_max_mb:g}"
-                if rec["why"] == "size"
-                else f"telemetry.runs_max_age_days = {tel.runs_max_age_days:g}"
-            )
-            telemetry.event(
-                "run_removed",
-                f"{cap}: removed the oldest run {rec['run']} ({rec['bytes'] / 1e6:.1f} MB, "
-                f"last written {rec['last_write']})",
-                **rec,
-            )
+            line = cap_removal_line(rec, tel.runs_max_mb, tel.runs_max_age_days)
+            telemetry.event("run_removed", line, **rec)
         if tel.runs_max_mb is not None or tel.runs_max_age_days is not None:
             telemetry.runs_removed = {
                 "runs": len(pruned),

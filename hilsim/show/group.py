@@ -341,10 +341,12 @@ def run_group(  # noqa: C901, PLR0912 (the group's life: start, watch, stop, rec
     *,
     echo: Callable[[str], None],
     status_file: Path | None = None,
+    runs_removed: Sequence[dict[str, object]] = (),
 ) -> GroupResult:
     """Start one child per bus, start their shows at one instant, stop them together; returns
     each bus's outcome (``RUN/buses.json`` holds them too). ``status_file``: each bus's
-    heartbeat at :func:`bus_status_file` of it (None: in its run directory)."""
+    heartbeat at :func:`bus_status_file` of it (None: in its run directory). ``runs_removed``:
+    old runs the runs root's caps removed as the figure started, kept in the record."""
     pending: list[int] = []
     previous = {
         s: signal.signal(s, lambda signum, _f: pending.append(signum)) for s in STOP_SIGNALS
@@ -432,6 +434,8 @@ def run_group(  # noqa: C901, PLR0912 (the group's life: start, watch, stop, rec
         "stop": stop,
         "buses": rows,
     }
+    if runs_removed:
+        record["runs_removed"] = list(runs_removed)
     with contextlib.suppress(OSError):
         (run_dir / GROUP_FILE).write_text(json.dumps(record, indent=2) + "\n")
     return result

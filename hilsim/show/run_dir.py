@@ -15,7 +15,14 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-__all__ = ["RunDir", "RunDirError", "make_run_dir", "prune_runs"]
+__all__ = [
+    "RunDir",
+    "RunDirError",
+    "cap_removal_line",
+    "make_run_dir",
+    "prune_runs",
+    "prune_under_caps",
+]
 
 
 class RunDirError(ValueError):
@@ -146,3 +153,28 @@ def prune_runs(
             }
         )
     return removed
+
+
+def prune_under_caps(
+    root: str | os.PathLike[str], run_dir: Path, max_mb: float | None, max_age_days: float | None
+) -> list[dict[str, object]]:
+    """The runs root's caps (``telemetry.runs_max_mb``, ``runs_max_age_days``) applied as a
+    run starts: nothing unless ``run_dir`` was made under ``root`` (a run put elsewhere leaves
+    the root alone). Returns :func:`prune_runs`' records; an OSError is the caller's to say."""
+    path = _home(Path(root))
+    if run_dir.resolve().parent != path.resolve():
+        return []
+    max_bytes = None if max_mb is None else int(max_mb * 1e6)
+    max_age = None if max_age_days is None else max_age_days * 86400.0
+    return prune_runs(path, run_dir, max_bytes, max_age)
+
+
+def cap_removal_line(rec: dict[str, object], max_mb: float | None, max_age: float | None) -> str:
+    """One removal of :func:`prune_runs`, said: the cap that removed it, the run, its size."""
+    cap = (
+        f"telemetry.runs_max_mb = {max_mb:g}"
+        if rec["why"] == "size"
+        else f"telemetry.runs_max_age_days = {max_age:g}"
+    )
+    mb, last = float(rec["bytes"]) / 1e6, rec["last_write"]  # type: ignore[arg-type]
+    return f"{cap}: removed the old run {rec['run']} ({mb:.1f} MB, last written {last})"

@@ -250,3 +250,40 @@ def test_a_run_made_elsewhere_leaves_the_runs_root_alone(tmp_path) -> None:
     with hilsim.Show(rig, virtual_time=True, duration=0.2, out=tmp_path / "mine") as show:
         assert show.run().exit_code == 0
     assert all(d.exists() for d in runs)
+
+
+def test_runs_dir_is_the_root_the_caps_prune_as_the_service_unit_runs_it(tmp_path, capsys) -> None:
+    """`hilsim service print` runs `hilsim run --runs-dir DIR`: the caps prune DIR, not the
+    rig's telemetry.out_dir (which a unit's working directory makes meaningless)."""
+    from hilsim.cli import main
+
+    root = tmp_path / "var-runs"
+    runs = _old_runs(root)
+    rig = _rig(tmp_path, 'out_dir = "elsewhere"\nruns_max_age_days = 3')
+    code = main(
+        ["run", str(rig), "--virtual-time", "--no-plots", "--duration", "0.2",
+         "--runs-dir", str(root)]
+    )  # fmt: skip
+    assert code == 0, capsys.readouterr().err
+    assert [d.name for d in runs if not d.exists()] == ["demo-a", "demo-b"]
+    (mine,) = [d for d in root.iterdir() if d.name.startswith("rig-")]
+    said = [e["run"] for e in read_run(mine).events if e["kind"] == "run_removed"]
+    assert said == ["demo-a", "demo-b"]
+    assert not (tmp_path / "elsewhere").exists()
+
+
+def test_a_figure_of_several_buses_prunes_its_runs_root_once(tmp_path, capsys) -> None:
+    from hilsim.cli import main
+    from tests.hilsim.test_multibus_run import group_record, rig
+
+    root = tmp_path / "runs"
+    runs = _old_runs(root)
+    path = rig(tmp_path)
+    path.write_text(path.read_text() + f'\n[telemetry]\nout_dir = "{root}"\nruns_max_mb = 0.5\n')
+    code = main(["run", str(path), "--virtual-time", "--no-plots", "--duration", "0.2"])
+    err = capsys.readouterr().err
+    assert code == 0, err
+    assert [d.name for d in runs if not d.exists()] == ["demo-a", "demo-b"]
+    assert "telemetry.runs_max_mb = 0.5: removed the old run demo-a" in err
+    (mine,) = [d for d in root.iterdir() if d.name.startswith("pair-")]
+    assert [r["run"] for r in group_record(mine)["runs_removed"]] == ["demo-a", "demo-b"]
