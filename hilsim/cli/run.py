@@ -468,6 +468,8 @@ def _report(
     )
     if tel.get("format") == "off":
         how, run_dir_said = "", "off (telemetry.format = 'off': nothing kept)"
+        if show.run_dir is not None:  # a take the show recorded is never thrown away
+            run_dir_said = f"{show.run_dir} (telemetry.format = 'off': only the recorded take)"
     elif tel.get("format") == "none":
         how, run_dir_said = " (summary only: telemetry.format = 'none')", str(run_dir)
     else:

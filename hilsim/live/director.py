@@ -59,6 +59,11 @@ if TYPE_CHECKING:  # each input's module is imported when a show uses that input
 _RESERVED = frozenset(("kind", "message", "t", "event", "tick"))
 
 
+#: the run directory's folders a show's takes go in (the recorded live input, a teach
+#: session): kept even when ``telemetry.format = "off"`` keeps nothing else
+TAKE_DIRS = ("take", "teach")
+
+
 class StopRequest(Protocol):
     """Where a stop command goes (the show's stop flag): the show ends by its exit policy."""
 
@@ -536,16 +541,15 @@ class Director:
 
     def _write_takes(self, run_dir: Path) -> JsonDict:
         written: JsonDict = {}
+        take_dir, teach_dir = (run_dir / name for name in TAKE_DIRS)
         try:
             if self.take is not None and any(len(self.take.raw(j)[0]) for j in self.take.joints):
                 from hilsim.live.takes import write_take
 
                 assert self.spec.record is not None  # the take is made from it
-                written["live"] = write_take(
-                    self.take, run_dir / "take", self.spec.record.tolerance_deg
-                )
+                written["live"] = write_take(self.take, take_dir, self.spec.record.tolerance_deg)
             if self.teach is not None:
-                written["teach"] = self.teach.finish(run_dir / "teach")
+                written["teach"] = self.teach.finish(teach_dir)
         except Exception as exc:  # a full disk: the show is over; say what was lost
             written["error"] = f"the take could not be written: {exc}"
         return written

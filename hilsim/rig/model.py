@@ -251,8 +251,8 @@ class TelemetryConfig:
         "stops the show (`on_failure`), and a Parquet run then keeps only the parts written "
         "before it (up to 2 s of rows are lost, and the failure is noticed at the next part). "
         "`none`: no per-tick rows, only `events.jsonl`, `summary.json` and the copies (a "
-        "summary-only record); `off`: nothing kept (the run directory is removed at the end; "
-        "the terminal still says the outcome).",
+        "summary-only record); `off`: nothing kept (the run directory is removed at the end, "
+        "but for a take the show recorded; the terminal still says the outcome).",
         default=TelemetryFormat.AUTO,
     )
     max_mb: float | None = rig_key(

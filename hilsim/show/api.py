@@ -23,6 +23,7 @@ browser panel's feed (:mod:`hilsim.show.feed`) reads :attr:`Show.loop`.
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import math
 import os
@@ -328,9 +329,8 @@ class Show:
             self._result.run_dir = run_dir
             if beat is not None:
                 beat.end(_outcome(self._result, self.rig.loop.period_s))
-            if self.rig.telemetry.format is TelemetryFormat.OFF:  # nothing kept, as asked
-                shutil.rmtree(run_dir, ignore_errors=True)
-                self._result.run_dir = None
+            if self.rig.telemetry.format is TelemetryFormat.OFF:  # nothing kept, as asked,
+                self._result.run_dir = _keep_only_takes(run_dir)  # but the takes recorded
             return self._result
         finally:
             self._done.set()
@@ -494,3 +494,23 @@ def _outcome(result: ShowResult, period_s: float) -> JsonDict:
         "show_time_s": max(result.ticks - 1, 0) * period_s,  # its last tick
         "summary_written": result.summary_error is None,
     }
+
+
+def _keep_only_takes(run_dir: Path) -> Path | None:
+    """``telemetry.format = "off"``: the run directory removed, but for the takes the show
+    recorded (asked for by its ``[record]`` or a teach session: never lost silently). Returns
+    the directory if a take is kept in it."""
+    from hilsim.live.director import TAKE_DIRS  # (loaded with a show's director anyway)
+
+    kept = False
+    for entry in list(run_dir.iterdir()) if run_dir.is_dir() else []:
+        if entry.name in TAKE_DIRS and entry.is_dir() and not entry.is_symlink():
+            kept = True
+        elif entry.is_dir() and not entry.is_symlink():
+            shutil.rmtree(entry, ignore_errors=True)
+        else:
+            with contextlib.suppress(OSError):
+                entry.unlink()
+    if not kept:
+        shutil.rmtree(run_dir, ignore_errors=True)
+    return run_dir if kept else None

@@ -287,3 +287,40 @@ def test_a_figure_of_several_buses_prunes_its_runs_root_once(tmp_path, capsys) -
     assert "telemetry.runs_max_mb = 0.5: removed the old run demo-a" in err
     (mine,) = [d for d in root.iterdir() if d.name.startswith("pair-")]
     assert [r["run"] for r in group_record(mine)["runs_removed"]] == ["demo-a", "demo-b"]
+
+
+def test_off_keeps_a_recorded_take_and_the_summary_says_where(tmp_path: Path) -> None:
+    """A show that records its live input keeps the take with format "off" (it was removed
+    with the rest while the summary still named its files)."""
+    import socket
+
+    from tests.hilsim.test_live_run import PERIOD, RIG, osc
+
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    (tmp_path / "rig.toml").write_text(RIG + '\n[telemetry]\nformat = "off"\n')
+    show_file = tmp_path / "show.toml"
+    show_file.write_text(
+        f"[inputs.osc]\nport = {port}\njoints = {{ jaw = [0, 20] }}\n[record]\ntolerance_deg = 0.5\n"
+    )
+    out = tmp_path / "run"
+    with hilsim.Show(
+        tmp_path / "rig.toml", show=show_file, virtual_time=True, duration=1.0, out=out
+    ) as show:
+        director = show.parts.director
+        assert director is not None and director.osc is not None
+        tick = director.tick
+
+        def fed(k, t, present):
+            tick(k, t, present)
+            if k in (50, 100, 150):
+                director.osc.feed(k * PERIOD, osc("/hilsim/joint/jaw", k / 200), ("127.0.0.1", 1))
+
+        director.tick = fed
+        result = show.run()
+    assert result.exit_code == 0 and result.run_dir == out
+    assert sorted(p.name for p in out.iterdir()) == ["take"]  # the take, nothing else
+    take = result.summary["live"]["takes"]["live"]
+    assert Path(take["raw_csv"]).is_file() and Path(take["take_toml"]).is_file()
+    assert take["raw_samples"] == {"jaw": 3}
