@@ -28,6 +28,7 @@ from __future__ import annotations
 from collections.abc import Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 
@@ -44,10 +45,10 @@ DEFAULT_TEMPO_US = 500_000
 #: SMPTE division: the header's high byte (negative) -> frames per second
 SMPTE_FPS = {-24: 24.0, -25: 25.0, -29: 30000 / 1001, -30: 30.0}
 NOTE_OFF, NOTE_ON, CONTROL_CHANGE = 0x80, 0x90, 0xB0
+_KEPT = frozenset((NOTE_OFF, NOTE_ON, CONTROL_CHANGE))
 
 
-@dataclass(frozen=True)
-class ChannelEvent:
+class ChannelEvent(NamedTuple):
     """A note or a control change: ``tick`` (absolute), ``kind`` (status high nibble),
     ``channel`` 1-16, ``number`` (note or controller), ``value`` (velocity or value)."""
 
@@ -182,8 +183,12 @@ class _Reader:
     def bad(self, pos: int, message: str) -> FormatError:
         return FormatError(self.path, f"byte {pos}", message)
 
-    def vlq(self, pos: int, end: int, what: str) -> tuple[int, int]:
-        """A variable-length quantity at ``pos`` (at most 4 bytes) -> (value, next pos)."""
+    def vlq(self, pos: int, end: int, track: int, what: str) -> tuple[int, int]:
+        """A variable-length quantity at ``pos`` (at most 4 bytes) -> (value, next pos);
+        ``what`` names it in an error (``a delta time``) of ``track``."""
+        if pos < end and self.data[pos] < 0x80:  # one byte: most delta times
+            return self.data[pos], pos + 1
+        what = f"track {track}: {what}"
         value = 0
         for i in range(4):
             if pos + i >= end:
@@ -260,7 +265,7 @@ def _read_track(
     data, tick, status, n = r.data, 0, 0, 0
     where = f"track {track}"
     while pos < end:
-        delta, pos = r.vlq(pos, end, f"{where}: a delta time")
+        delta, pos = r.vlq(pos, end, track, "a delta time")
         tick += delta
         if pos >= end:
             raise r.bad(pos, f"{where}: an event cut short by the end of the track")
@@ -271,7 +276,7 @@ def _read_track(
             if pos + 1 >= end:
                 raise r.bad(pos, f"{where}: a meta event cut short by the end of the track")
             meta = data[pos + 1]
-            length, body = r.vlq(pos + 2, end, f"{where}: a meta event's length")
+            length, body = r.vlq(pos + 2, end, track, "a meta event's length")
             if body + length > end:
                 raise r.bad(pos, f"{where}: a meta event of {length} bytes runs past the track")
             if meta == 0x51:
@@ -286,7 +291,7 @@ def _read_track(
                 return tick
             continue
         if b in (0xF0, 0xF7):  # SysEx (or its continuation): length, data
-            length, body = r.vlq(pos + 1, end, f"{where}: a SysEx length")
+            length, body = r.vlq(pos + 1, end, track, "a SysEx length")
             if body + length > end:
                 raise r.bad(pos, f"{where}: a SysEx of {length} bytes runs past the track")
             pos = body + length
@@ -297,15 +302,15 @@ def _read_track(
             status, pos = b, pos + 1
         elif not status:
             raise r.bad(pos, f"{where}: data byte 0x{b:02X} with no status before it")
-        size = 1 if status & 0xF0 in (0xC0, 0xD0) else 2
+        kind = status & 0xF0
+        size = 1 if kind in (0xC0, 0xD0) else 2
         if pos + size > end:
             raise r.bad(pos, f"{where}: an event cut short by the end of the track")
-        fields = data[pos : pos + size]
-        if any(x & 0x80 for x in fields):
+        a = data[pos]
+        b = data[pos + size - 1]
+        if (a | b) & 0x80:
             raise r.bad(pos, f"{where}: a data byte over 127 in a 0x{status:02X} event")
-        kind = status & 0xF0
-        if kind in (NOTE_OFF, NOTE_ON, CONTROL_CHANGE):
-            ev = ChannelEvent(tick, kind, (status & 0x0F) + 1, fields[0], fields[1])
-            found.append((tick, track, n, ev))
+        if kind in _KEPT:
+            found.append((tick, track, n, ChannelEvent(tick, kind, (status & 0x0F) + 1, a, b)))
         pos, n = pos + size, n + 1
     return tick  # no End of Track: the chunk's end is the track's
