@@ -344,7 +344,7 @@ def _lipsync(
 
 
 def _midi(
-    spec: Spec, path: Path, _spring: Spring | None, cache: FileCache | None, _notes: Notes
+    spec: Spec, path: Path, _spring: Spring | None, cache: FileCache | None, notes: Notes
 ) -> Track:
     """A controller or a note of a Standard MIDI File, in live MIDI's words."""
     from hilsim.targets.formats.midi_file import read_midi_file
@@ -367,6 +367,7 @@ def _midi(
     if degrees[0] == degrees[1]:
         raise SourceError("degrees", f"the two angles are equal ({degrees[0]:g})")
     seq = _cached(cache, ("midi", path), lambda: read_midi_file(path))
+    _note(notes, f"{path.name}: {seq.describe()}")
     if key == "note":
         if "interpolation" in spec:
             raise SourceError("interpolation", "a note is a step: it is always held")

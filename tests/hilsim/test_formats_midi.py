@@ -105,7 +105,12 @@ def test_the_shipped_sample_is_the_generator_and_gives_the_hand_numbers(capsys, 
     assert sample.read_bytes() == (tmp_path / "ramps.mid").read_bytes()
     assert main(["tracks", str(ROOT / "configs" / "midi.toml"), "--at", "1,3,7,0.6,3.6",
                  "--json"]) == 0  # fmt: skip
-    out = json.loads(capsys.readouterr().out)
+    got = capsys.readouterr()
+    out = json.loads(got.out)
+    assert got.err == (  # one note a file, on stderr: the timing hilsim read
+        "hilsim tracks: note: ramps.mid: format 1, 3 tracks, 480 ticks per quarter note, "
+        "120 bpm, 60 bpm from 2.000 s; 10.000 s\n"
+    )
     assert out["head"] == pytest.approx([cc(32), cc(80), cc(95), cc(19), cc(89)], abs=1e-9)
     assert out["jaw"] == [2.0, 20.0, 2.0, 20.0, 2.0]
     assert read_midi_file(sample).duration_s == 10.0  # End of Track at tick 5760
@@ -154,6 +159,9 @@ def test_smpte_division_is_absolute_time(tmp_path):
     (tmp_path / "s.mid").write_bytes(bytes(data))
     seq = read_midi_file(tmp_path / "s.mid")
     assert seq.division == (25.0, 40)
+    assert seq.describe() == (
+        "format 0, 1 track, SMPTE 25 fps x 40 ticks (tempo events move nothing); 2.500 s"
+    )
     t = seq.cc_track(1, 7, (-30, 30), interpolation="linear")
     assert deg(t, 2.5) == pytest.approx(30.0) and deg(t, 1.25) == pytest.approx(0.0, abs=1e-12)
     data[12] = 256 - 29  # 29.97 fps (30 drop-frame): 30000/1001 frames a second

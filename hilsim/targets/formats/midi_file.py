@@ -75,6 +75,7 @@ class MidiSequence:
     events: list[ChannelEvent]
     tempos: list[tuple[int, int]] = field(default_factory=list)
     end_tick: int = 0
+    tracks: int = 1
 
     def seconds(self, ticks: Iterable[int]) -> np.ndarray:
         """Ticks -> show seconds through the tempo map (or the SMPTE rate)."""
@@ -93,6 +94,26 @@ class MidiSequence:
     def duration_s(self) -> float:
         """The file's length: its last End of Track, in s."""
         return float(self.seconds([self.end_tick])[0])
+
+    def describe(self) -> str:
+        """The file's timing in one line, for the rig's notes: ``format 1, 3 tracks, 480 ticks
+        per quarter note, 120 bpm, 60 bpm from 2.000 s; 10.000 s``."""
+        tracks = f"{self.tracks} track{'s' * (self.tracks != 1)}"
+        if isinstance(self.division, tuple):
+            fps, per_frame = self.division
+            timing = f"SMPTE {fps:.5g} fps x {per_frame} ticks (tempo events move nothing)"
+        else:
+            changes = [(t, u) for t, u in self.tempos if t > 0]
+            first = next((u for t, u in self.tempos if t == 0), DEFAULT_TEMPO_US)
+            at = self.seconds([t for t, _ in changes])
+            bpm = [f"{6e7 / first:.6g} bpm"] + [
+                f"{6e7 / u:.6g} bpm from {s:.3f} s"
+                for (_, u), s in zip(changes[:3], at, strict=False)
+            ]
+            if len(changes) > 3:
+                bpm.append(f"{len(changes) - 3} more tempo changes")
+            timing = f"{self.division} ticks per quarter note, " + ", ".join(bpm)
+        return f"format {self.format}, {tracks}, {timing}; {self.duration_s:.3f} s"
 
     def contents(self) -> str:
         """What the file has, for a message: ``ch1 cc 7, 10; ch10 notes 36, 38``."""
@@ -229,7 +250,7 @@ def read_midi_file(path: str | Path) -> MidiSequence:
         raise r.bad(12, "0 ticks per quarter note")
     else:
         division = div
-    seq = MidiSequence(str(path), fmt, division, [])
+    seq = MidiSequence(str(path), fmt, division, [], tracks=ntrks)
     found: list[tuple[int, int, int, ChannelEvent]] = []
     tempos: list[tuple[int, int, int, int]] = []
     pos = 8 + size
