@@ -15,7 +15,7 @@ import sys
 from pathlib import Path
 
 TOOLS = Path(__file__).resolve().parent
-FORMATS = ("bottango", "blender_servo", "fseq", "audio_jaw", "lipsync")
+FORMATS = ("bottango", "blender_servo", "fseq", "audio_jaw", "lipsync", "midi")
 
 
 def main() -> int:

@@ -160,6 +160,14 @@ TARGET_TYPES: dict[str, tuple[str, str]] = {
         '{ type = "lipsync", file = "line.tsv", degrees = [0, 20], shapes = { X = 0, A = 0, '
         "B = 0.2, C = 0.5, D = 1, E = 0.6, F = 0.3, G = 0.1, H = 0.4 } }",
     ),
+    "midi": (
+        "A controller or a note of a Standard MIDI File (`.mid`, format 0 or 1), in live "
+        "MIDI's words: value 0 -> `degrees[0]`, 127 -> `degrees[1]`; a note is `degrees[1]` "
+        "from note-on to note-off. Ticks become seconds through the file's tempo map (every "
+        "Set Tempo, 120 bpm before the first) or its SMPTE rate; the value is held until the "
+        "next (or joined), and the last until the file's end.",
+        '{ type = "midi", file = "show.mid", channel = 1, control = 7, degrees = [-30, 30] }',
+    ),
 }
 
 #: what each target key means (the same key means the same in every type that has it)
@@ -197,7 +205,8 @@ TARGET_KEYS: dict[str, Key] = {
         "list",
         "The joint angles the file's two reference values map to, linearly: the signal range's "
         "ends (bottango), the two `position`s (blender_servo), the two DMX `values` (fseq), a "
-        "shut and a wide-open jaw (audio, lipsync: opening 0 and 1).",
+        "shut and a wide-open jaw (audio, lipsync: opening 0 and 1), MIDI value 0 and 127 "
+        "(16383 with `fine`) or a note off and on (midi).",
         unit="deg",
         allowed="two finite numbers",
     ),
@@ -231,7 +240,7 @@ TARGET_KEYS: dict[str, Key] = {
     ),
     "interpolation": Key(
         "text",
-        "Frames held until the next, or joined linearly.",
+        "Frames (midi: controller values) held until the next, or joined linearly.",
         default="hold",
         allowed='`"hold"` | `"linear"`',
     ),
@@ -245,12 +254,28 @@ TARGET_KEYS: dict[str, Key] = {
         "integer",
         "fseq: the channel, 1-based as xLights shows it (16-bit: the coarse one). Absolute in "
         "a sparse file too: the channel's number in the show, not its place among the "
-        "channels the file stores (a file holding only 501-548 has channel 501, not 1).",
+        "channels the file stores (a file holding only 501-548 has channel 501, not 1). "
+        "midi: the MIDI channel, 1-16 as a user sees it.",
     ),
     "fine": Key(
         "integer",
-        "fseq: the fine channel of a 16-bit pair (1-based, absolute as `channel`).",
-        default_doc="none: an 8-bit channel",
+        "fseq: the fine channel of a 16-bit pair (1-based, absolute as `channel`). midi: "
+        "`true` makes `control` (0-31) the MSB of a 14-bit pair whose LSB is `control` + 32 "
+        "(0 -> `degrees[0]`, 16383 -> `degrees[1]`), as live MIDI's `fine`.",
+        default_doc="none: an 8-bit channel (midi: false, 7-bit)",
+    ),
+    "control": Key(
+        "integer",
+        "midi: the controller number (e.g. 7, volume); give it or `note`.",
+        default_doc="none: give `note`",
+        allowed="0-127 (0-31 with `fine`)",
+    ),
+    "note": Key(
+        "integer",
+        "midi: the note number (60 = middle C); the joint is at `degrees[1]` while it "
+        "sounds, `degrees[0]` else; always held.",
+        default_doc="none: give `control`",
+        allowed="0-127",
     ),
     "audio_channel": Key(
         "text",

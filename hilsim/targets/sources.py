@@ -11,11 +11,14 @@
      threshold?, full?, band_hz?, lead_ms? = 0 | "auto"}
     {type = "lipsync", file, degrees, shapes, preston_blair?, fps? (Moho .dat), voice?,
      names? = "auto"}
+    {type = "midi", file, channel, degrees, control? | note?, fine? = false,
+     interpolation? = "hold"}
 
 ``degrees`` is the pair of joint angles the file's two reference values map to: the signal
 range's ends (``signal``, default the effector's registered range), the positions
 (``position``), the DMX values (``values``), a shut and a wide-open jaw (audio: opening 0 and
-1; lip-sync: shape values 0 and 1). The files never say their units, so the rig always does.
+1; lip-sync: shape values 0 and 1), a MIDI value 0 and 127 (16383 ``fine``) or a note off and
+on. The files never say their units, so the rig always does.
 Files are relative to the rig file and read once per build (``cache``).
 """
 
@@ -55,6 +58,7 @@ SOURCE_KEYS: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = {
         ),
     ),
     "lipsync": (("file", "degrees", "shapes"), ("preston_blair", "fps", "voice", "names")),
+    "midi": (("file", "channel", "degrees"), ("control", "note", "fine", "interpolation")),
 }
 
 
@@ -339,10 +343,50 @@ def _lipsync(
     return cue_track(cues, table, _unit(spec, (0.0, 1.0), "opening"))
 
 
+def _midi(
+    spec: Spec, path: Path, _spring: Spring | None, cache: FileCache | None, notes: Notes
+) -> Track:
+    """A controller or a note of a Standard MIDI File, in live MIDI's words."""
+    from hilsim.targets.formats.midi_file import read_midi_file
+
+    channel = spec["channel"]
+    if isinstance(channel, bool) or not isinstance(channel, int) or not 1 <= channel <= 16:
+        raise SourceError("channel", f"must be a MIDI channel 1-16, got {channel!r}")
+    if ("control" in spec) == ("note" in spec):
+        raise SourceError("control", "give control (a controller) or note, one of the two")
+    key = "control" if "control" in spec else "note"
+    fine = spec.get("fine", False)
+    if not isinstance(fine, bool) or (fine and key == "note"):
+        raise SourceError("fine", f"must be true or false, with control; got {fine!r}")
+    top = 31 if fine else 127
+    number = spec[key]
+    if isinstance(number, bool) or not isinstance(number, int) or not 0 <= number <= top:
+        pair = " (a 14-bit pair's MSB; its LSB is control + 32)" if fine else ""
+        raise SourceError(key, f"must be 0-{top}{pair}, got {number!r}")
+    degrees = _pair(spec, "degrees")
+    if degrees[0] == degrees[1]:
+        raise SourceError("degrees", f"the two angles are equal ({degrees[0]:g})")
+    seq = _cached(cache, ("midi", path), lambda: read_midi_file(path))
+    _note(notes, f"{path.name}: {seq.describe()}")
+    if key == "note":
+        if "interpolation" in spec:
+            raise SourceError("interpolation", "a note is a step: it is always held")
+        return seq.note_track(channel, number, degrees)
+    try:
+        return seq.cc_track(
+            channel, number, degrees, fine=fine, interpolation=spec.get("interpolation", "hold")
+        )
+    except ValueError as exc:
+        if type(exc) is ValueError:  # the interpolation (a FormatError names the file)
+            raise SourceError("interpolation", str(exc)) from None
+        raise
+
+
 _BUILDERS: dict[str, Callable[[Spec, Path, Spring | None, FileCache | None, Notes], Track]] = {
     "bottango": _bottango,
     "blender_servo": _blender,
     "fseq": _fseq,
     "audio": _audio,
     "lipsync": _lipsync,
+    "midi": _midi,
 }

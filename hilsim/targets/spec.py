@@ -89,7 +89,7 @@ def track_from_spec(
         {type = "step", at_s, before_deg, after_deg}
         {type = "hold", value_deg}
         {type = "layers", layers = [<spec>, <spec>, ...]}              the specs' targets added
-        {type = "bottango" | "blender_servo" | "fseq" | "audio" | "lipsync", file, ...}
+        {type = "bottango" | "blender_servo" | "fseq" | "audio" | "lipsync" | "midi", file, ...}
                                                     another tool's file (hilsim.targets.sources)
 
     Args:

@@ -403,7 +403,7 @@ def test_demo_csv_spec():
 @pytest.mark.parametrize(
     "spec, key, match",
     [
-        ({}, "type", r"missing; allowed: audio, blender_servo, bottango, csv, fseq, hold, keyframes, layers, lipsync, sine, step"),
+        ({}, "type", r"missing; allowed: audio, blender_servo, bottango, csv, fseq, hold, keyframes, layers, lipsync, midi, sine, step"),
         ({"type": "spline"}, "type", r"unknown target type 'spline'; allowed: audio, blender_servo, bottango, csv"),
         ({"type": "sine", "amplitude": 20, "frequency_hz": 1}, "amplitude",
          r"unknown key for a 'sine' target; allowed: type, amplitude_deg, frequency_hz, phase_deg"),

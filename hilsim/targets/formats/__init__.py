@@ -12,6 +12,8 @@
                         ``spring_lag_s``, the lead that puts the commanded jaw in time
 ``lipsync``             Rhubarb (``lipsync_cues``), Moho ``.dat``, Papagayo ``.pgo`` cues
                         -> step-hold tracks through the rig's shape table
+``midi_file``           Standard MIDI Files (format 0/1): controllers and notes through the
+                        tempo map, in live MIDI's words
 ======================  ===============================================================
 
 Each reader is one module; what every reader shares is in ``common``. The rig names a
