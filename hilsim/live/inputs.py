@@ -160,17 +160,20 @@ class LiveInputs:
 
     # ------------------------------------------------------------------ life cycle
     def open(self, clock: Clock, now: Callable[[], float], say: Callable[[str], None]) -> None:
-        """Start the receivers (sockets, ports, threads), stamping with ``now()``. Raises
+        """Start the receivers (sockets, ports, threads), stamping with ``now()`` (on the real
+        ``clock``, at the kernel's arrival time). Raises
         ValueError / OSError / RuntimeError with one line on a port that cannot be opened
         (what was opened is closed first)."""
-        del clock  # each receiver stamps with now(); the clock is for inputs that need it
         spec = self.spec
+        #: real clock: each datagram stamped when the kernel received it (netguard)
+        stamps = not clock.virtual
         try:
             if self.osc is not None:
                 from hilsim.live.osc import listen
 
                 assert spec.osc is not None  # self.osc is built from it
-                rx = listen(self.osc, spec.osc.port, now, max_rx_per_s=spec.osc.max_rx_per_s)
+                rx = listen(self.osc, spec.osc.port, now, max_rx_per_s=spec.osc.max_rx_per_s,
+                            arrival_stamps=stamps)  # fmt: skip
                 self._closers.append(rx.close)
                 say(f"OSC on {spec.osc.guard.bind_address}:{spec.osc.port}: "
                     f"/hilsim/joint/<{'|'.join(self.osc.ranges)}> 0..1, /hilsim/cue/<name>, "
@@ -178,7 +181,8 @@ class LiveInputs:
             for dmx in self.dmx:
                 from hilsim.live.dmx_input import listen as dmx_listen
 
-                rx = dmx_listen(dmx, now, max_rx_per_s=dmx.config.max_rx_per_s)
+                rx = dmx_listen(dmx, now, max_rx_per_s=dmx.config.max_rx_per_s,
+                                arrival_stamps=stamps)  # fmt: skip
                 self._closers.append(rx.close)
                 groups = " (multicast)" if dmx.config.multicast else ""
                 say(f"{dmx.name} on {dmx.config.guard.bind_address}:{dmx.config.port}{groups}: "
@@ -186,7 +190,7 @@ class LiveInputs:
             if self.multisync is not None:
                 from hilsim.live.multisync import listen as sync_listen
 
-                rx = sync_listen(self.multisync, now)
+                rx = sync_listen(self.multisync, now, arrival_stamps=stamps)
                 self._closers.append(rx.close)
                 ms = self.multisync.config
                 say(f"FPP MultiSync on {ms.guard.bind_address}:{ms.port}"
