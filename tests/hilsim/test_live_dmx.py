@@ -489,3 +489,22 @@ def test_a_flood_is_dropped_and_said_at_most_once_a_second():
              if e.kind == "input_dropped" and e.detail["reason"] == "flood"]  # fmt: skip
     assert inp.guard.drops.by_kind["flood"] > 600
     assert [round(e.t, 2) for e in lines] == [0.1]  # 0.5 s and 1.05 s: within its second
+
+
+def test_two_consoles_taking_a_universe_in_turn_are_a_line_a_second_the_last_said():
+    """Two senders, one flapping its priority above and below the other's 1000 times a
+    second for 3 s: every packet is elected as E1.31 says, but the ``dmx_source`` lines are
+    4 at once then one a second, and the last one names the source left winning."""
+    inp = sacn_input()
+    lines = []
+    for k in range(3000):
+        t = k / 1000
+        inp.feed(t, e131(cid=CID_A, priority=100, sequence=k % 256), SENDER)
+        flap = 150 if k % 2 == 0 else 50
+        inp.feed(t, e131(cid=CID_B, priority=flap, sequence=k % 256), ("127.0.0.2", 5568))
+        if k % 4 == 0:
+            lines += [e for e in inp.poll(t).events if e.kind == "dmx_source"]
+    lines += [e for e in inp.poll(5.0).events if e.kind == "dmx_source"]
+    assert len(lines) <= 4 + 3 + 2
+    said = lines[-1].detail["message"]  # k = 2999: B at 50, so A (priority 100) holds it
+    assert "(priority 100) takes over" in said and "held back" in said
