@@ -153,8 +153,9 @@ def report(runs: list[Path]) -> int:
                 print(f"{run.name} vs {runs[0].name}: no common playing time", file=sys.stderr)
                 return 1
             ad = np.abs(d)
+            span = float(np.ptp(other[key]))
             print(f"{run.name} - {runs[0].name}, {what}: {d.size} ticks over "
-                  f"{d.size * TICK_S:.1f} s; show-time offset median {np.median(d):+.3f} ms, "
+                  f"{span:.1f} s; show-time offset median {np.median(d):+.3f} ms, "
                   f"|offset| p99 {np.percentile(ad, 99):.3f} ms, max {ad.max():.3f} ms "
                   f"(one tick at 250 Hz: {TICK_S * 1e3:g} ms)")  # fmt: skip
             if key == "host":

@@ -265,9 +265,11 @@ class DmxInput:
 
 def listen(dmx: DmxInput, clock: Any, **kw: Any) -> UdpReceiver:
     """The UDP socket (``config.port`` on the guard's address; with ``multicast``, every
-    universe's E1.31 group joined on that interface) feeding ``dmx`` from a thread."""
+    universe's E1.31 group joined on that interface; with ``broadcast``, on any address, so
+    the subnet's Art-Net broadcast is heard) feeding ``dmx`` from a thread."""
     cfg = dmx.config
     groups: Sequence[str] = ()
     if cfg.multicast:
         groups = [e131_multicast_group(u) for u in cfg.universes]
-    return UdpReceiver(dmx.guard, dmx.feed, cfg.port, clock, name=dmx.name, groups=groups, **kw)
+    return UdpReceiver(dmx.guard, dmx.feed, cfg.port, clock, name=dmx.name, groups=groups,
+                       any_address=cfg.broadcast, **kw)  # fmt: skip

@@ -184,7 +184,8 @@ class LiveInputs:
                 rx = dmx_listen(dmx, now, max_rx_per_s=dmx.config.max_rx_per_s,
                                 arrival_stamps=stamps)  # fmt: skip
                 self._closers.append(rx.close)
-                groups = " (multicast)" if dmx.config.multicast else ""
+                c = dmx.config
+                groups = " (multicast)" if c.multicast else " (broadcast)" if c.broadcast else ""
                 say(f"{dmx.name} on {dmx.config.guard.bind_address}:{dmx.config.port}{groups}: "
                     f"universes {', '.join(map(str, dmx.config.universes))}")  # fmt: skip
             if self.multisync is not None:

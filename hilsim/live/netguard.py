@@ -263,7 +263,8 @@ class UdpReceiver:
     (bursts of ``rx_burst``); past that the thread waits and the kernel drops the rest (counted
     ``socket_overflow`` on Linux). ``close()`` ends it within ``timeout_s``. ``groups``: IPv4
     multicast groups joined on the bind address's interface; the socket is then bound to any
-    address (multicast reaches no other), so the allow-list alone decides who is heard.
+    address (multicast reaches no other), so the allow-list alone decides who is heard; so is
+    it with ``any_address`` (a subnet's broadcast, e.g. Art-Net's, reaches no other either).
     ``arrival_stamps`` (real clock only): each datagram is stamped when the kernel received it,
     not when this thread got to read it (Linux ``SO_TIMESTAMPNS``; the age the kernel's stamp
     gives is taken off ``clock()``), so a receiver held back by the loop, the interpreter lock
@@ -282,6 +283,7 @@ class UdpReceiver:
         timeout_s: float = 0.2,
         groups: Sequence[str] = (),
         arrival_stamps: bool = False,
+        any_address: bool = False,
     ) -> None:
         self.guard, self.feed, self.clock, self.name = guard, feed, clock, name
         if not (isinstance(max_rx_per_s, int | float) and 0 < max_rx_per_s <= 1e7):
@@ -292,7 +294,7 @@ class UdpReceiver:
         host = guard.config.bind_address
         sock = socket.socket(socket.AF_INET6 if ":" in host else socket.AF_INET, socket.SOCK_DGRAM)
         try:
-            if groups:  # multicast reaches a socket bound to any address, not to the interface's
+            if groups or any_address:  # multicast and broadcast reach no interface's address
                 sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
                 sock.bind(("0.0.0.0", port))
                 for group in groups:

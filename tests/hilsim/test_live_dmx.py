@@ -508,3 +508,44 @@ def test_two_consoles_taking_a_universe_in_turn_are_a_line_a_second_the_last_sai
     assert len(lines) <= 4 + 3 + 2
     said = lines[-1].detail["message"]  # k = 2999: B at 50, so A (priority 100) holds it
     assert "(priority 100) takes over" in said and "held back" in said
+
+
+def test_artnet_broadcast_is_heard_with_broadcast_and_off_loopback_by_default(tmp_path):
+    """A console sending Art-Net to the subnet's broadcast (here loopback's, 127.255.255.255)
+    reaches a socket bound to any address, never one bound to the interface's own address:
+    ``broadcast = true`` binds so (the default off loopback); the allow-list still decides."""
+    import socket
+
+    from hilsim.live.dmx_config import read_dmx
+    from hilsim.rig.reader import Reader
+
+    fed = threading.Semaphore(0)
+
+    class Signalled(DmxInput):
+        def feed(self, t, data, sender):
+            super().feed(t, data, sender)
+            fed.release()
+
+    cfg = DmxConfig("artnet", (DmxJoint("head_pan", 0, 1, 16, -50.0, 10.0, 50.0),), port=0,
+                    broadcast=True)  # fmt: skip
+    inp = Signalled(cfg)
+    rx = listen(inp, lambda: 1.0)
+    s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    try:
+        s.setsockopt(socket.SOL_SOCKET, socket.SO_BROADCAST, 1)
+        artdmx = b"Art-Net\0\x00\x50\x00\x0e\x01\x00\x00\x00\x00\x02\xff\xff"
+        s.sendto(artdmx, ("127.255.255.255", rx.address[1]))
+        assert fed.acquire(timeout=5.0), "the broadcast was not heard"
+        assert values(inp, 1.0) == {"head_pan": 50.0}
+    finally:
+        s.close()
+        rx.close()
+    limits = {"head_pan": (-50.0, 50.0)}
+    joints = {"head_pan": {"universe": 0, "channel": 1}}
+    lan = {"interface": "192.168.1.10", "allow": ["192.168.1.20"], "joints": joints}
+    assert read_dmx(Reader(tmp_path, lan, "inputs.artnet"), "artnet", limits).broadcast
+    assert not read_dmx(Reader(tmp_path, {"joints": joints}, "inputs.artnet"), "artnet",
+                        limits).broadcast  # fmt: skip
+    with pytest.raises(hilsim.RigError, match="broadcast is Art-Net's"):
+        read_dmx(Reader(tmp_path, {"broadcast": True, "joints": {"head_pan": {
+            "universe": 1, "channel": 1}}}, "inputs.sacn"), "sacn", limits)  # fmt: skip
