@@ -34,7 +34,7 @@ from typing import TYPE_CHECKING, Protocol
 
 from drivers.clock import Clock
 from hilsim._types import JsonDict
-from hilsim.live.inbox import MAX_LIVE_DEG, LiveEvent
+from hilsim.live.inbox import MAX_LIVE_DEG, LineGate, LiveEvent
 from hilsim.live.inputs import LiveInputs, has_live_inputs
 from hilsim.live.live_layer import LiveLayer
 from hilsim.live.showfile import ShowSpec
@@ -46,6 +46,9 @@ if TYPE_CHECKING:
 
 #: an event's ``detail`` keys that the log line's own fields take
 _RESERVED = frozenset(("kind", "message", "t", "event", "tick"))
+#: the lines a storm of well-formed triggers repeats (a cue sent 1000 times a second): a few,
+#: then one a second per cue (LineGate); the triggers themselves all act
+_GATED = frozenset(("cue", "cue_ignored", "trigger"))
 
 
 class StopRequest(Protocol):
@@ -112,6 +115,7 @@ class Director:
         self._log: Callable[..., None] = lambda *a, **k: None
         self._stop: StopRequest | None = None
         self.take: Take | None = None
+        self._gate = LineGate()
         if spec.record is not None:
             from hilsim.live.takes import Take
 
@@ -177,6 +181,8 @@ class Director:
             events += self.audio.poll(t)
         for ev in events:
             self._event(k, ev)
+        for ev in self._gate.due(t):  # lines held back by a storm, said once a second
+            self._event(k, ev, gated=False)
 
     def set_value(
         self,
@@ -249,7 +255,11 @@ class Director:
             self.audio.stop()
         return []
 
-    def _event(self, k: int, ev: LiveEvent) -> None:
+    def _event(self, k: int, ev: LiveEvent, gated: bool = True) -> None:
+        if gated and ev.kind in _GATED:
+            what = ev.detail.get("cue") or ev.detail.get("address") or ev.detail.get("message")
+            if self._gate.offer(ev, f"{ev.kind} {ev.source} {what}") is None:
+                return
         self.counts["events"] += 1
         if ev.kind == "cue_start":
             self.counts["cues"] += 1

@@ -100,6 +100,10 @@ class Inbox:
         return len(self._q)
 
 
+#: the keys a LineGate keeps a budget for (the least recently made is forgotten past this)
+MAX_GATE_KEYS = 1024
+
+
 class LineGate:
     """At most ``burst`` lines per key at once, then one per ``interval_s`` of show time; the
     last one always said.
@@ -120,6 +124,9 @@ class LineGate:
     def _take(self, key: str, t: float) -> bool:
         bucket = self._budget.get(key)
         if bucket is None:
+            if len(self._budget) >= MAX_GATE_KEYS:  # bounded: forget the oldest not held back
+                old = next((k for k in self._budget if k not in self._held), None)
+                self._budget.pop(old if old is not None else next(iter(self._budget)))
             bucket = self._budget[key] = TokenBucket(1.0 / self.interval_s, self.burst, t)
         return bucket.take(t)
 
