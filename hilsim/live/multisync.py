@@ -111,6 +111,7 @@ class MultiSyncConfig:
     jump_s: float = 0.1  # a Sync further than this from the running show time: a seek
     lost_after_s: float = 2.5  # no packet this long while playing: lost (then on_stop)
     on_stop: str = "hold"
+    max_rx_per_s: float = 2000.0  # the receiver thread's read cap (netguard.UdpReceiver)
 
 
 class MultiSyncRemote:
@@ -243,6 +244,7 @@ def listen(remote: MultiSyncRemote, clock: Any, **kw: Any) -> UdpReceiver:
     """The UDP socket (``multicast``: 239.70.80.80 joined) feeding ``remote`` from a thread."""
     cfg = remote.config
     groups = (MULTISYNC_GROUP,) if cfg.multicast else ()
+    kw.setdefault("max_rx_per_s", cfg.max_rx_per_s)
     return UdpReceiver(remote.guard, remote.feed, cfg.port, clock, name="MultiSync",
                        groups=groups, **kw)  # fmt: skip
 
@@ -257,6 +259,8 @@ def read_multisync(r: Reader) -> MultiSyncConfig:
             interface=r.get("interface", str, None),
             allow=tuple(allow),
             max_packet_bytes=r.integer("max_packet_bytes", 512, lo=16, hi=65507),
+            rate_per_s=r.number("rate_per_s", 1000.0, positive=True, at_most=1e6),
+            burst=r.integer("burst", 200, lo=1, hi=1_000_000),
         )
     except ValueError as exc:
         raise RigError(f"{r.path}: {r.where}: {exc}") from None
@@ -273,6 +277,7 @@ def read_multisync(r: Reader) -> MultiSyncConfig:
         jump_s=r.number("jump_s", 0.1, positive=True, at_most=3600.0),
         lost_after_s=r.number("lost_after_s", 2.5, positive=True, at_most=3600.0),
         on_stop=on_stop,
+        max_rx_per_s=r.number("max_rx_per_s", 2000.0, positive=True, at_most=1e6),
     )  # fmt: skip
     r.finish()
     return out
