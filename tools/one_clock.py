@@ -3,6 +3,7 @@
     python tools/one_clock.py measure [--figures 2] [--seconds 60] [--rate 4] [--port 32320]
     python tools/one_clock.py master [--seconds 60] [--rate 4] [--to 239.70.80.80] [--port 32320]
     python tools/one_clock.py offset RUN_A RUN_B [...]
+    python tools/one_clock.py measure --via sacn [--figures 2] [--seconds 60] [--port 5568]
 
 ``master`` plays an FPP master from FPP's documented packets (``FPPD``, type 1: Open, Start,
 Sync at ``--rate`` Hz with the seconds elapsed as a float32, Stop) for one sequence, for
@@ -20,6 +21,11 @@ instant (interpolated between its ticks) is subtracted: the median, p99 and max 
 difference are the figures' offset, set against one tick at 250 Hz (4 ms). The same with
 ``t_sched`` (the instant each tick was due, so without the ticks' lateness) shows how well the
 clocks agree. State the load (``uptime``) beside any figure: this is a real-clock measurement.
+
+``--via sacn``: the master streams E1.31 instead (packets built by the ``sacn`` package, 40
+frames a second multicast to universe 1's group, a 16-bit channel whose value counts the
+frames) and each figure takes the joint live from ``[inputs.sacn]``; the offset is, per
+frame, the difference between the host instants the two figures first command it.
 """
 
 from __future__ import annotations
@@ -63,8 +69,12 @@ max_deg = 90
 max_speed_deg_s = 240
 max_accel_deg_s2 = 4000
 spring = {{ frequency_hz = 4.0, damping_ratio = 1.0, response = 0.0 }}
-target = {{ type = "keyframes", keys = [[0, {start}], [{end_s}, {end_deg}]] }}
+target = {target}
 """
+#: the rig's own target: a ramp whose angle is the show time (MultiSync), or a hold at the
+#: bottom of the sACN range, which no frame's value maps to
+RAMP = "{{ type = 'keyframes', keys = [[0, {start}], [{end_s}, {end_deg}]] }}"
+HOLD = "{ type = 'hold', value_deg = -90 }"
 SHOW = """[inputs.multisync]
 sequence = "{sequence}"
 port = {port}
@@ -112,6 +122,65 @@ def play_master(
     finally:
         sock.close()
     return sent
+
+
+SACN_SHOW = """[inputs.sacn]
+port = {port}
+multicast = true
+[inputs.sacn.joints.ramp]
+universe = 1
+channel = 1
+bits = 16
+degrees = [-90, 0, 90]
+"""
+SACN_FPS = 40.0
+
+
+def play_sacn(port: int, seconds: float, iface: str) -> int:
+    """E1.31 data for universe 1 at SACN_FPS to its multicast group, built by the ``sacn``
+    package: frame k carries the value k + 1 (coarse, fine) on channels 1-2."""
+    from sacn.messages.data_packet import DataPacket
+
+    sock, cid = master_socket(iface), tuple(range(16))
+    sent = 0
+    try:
+        t0 = time.perf_counter()
+        while sent / SACN_FPS < seconds:
+            time.sleep(max(0.0, t0 + sent / SACN_FPS - time.perf_counter()))
+            v = sent + 1
+            packet = DataPacket(cid, "one_clock", 1, (v >> 8, v & 0xFF), 100, sent % 256)
+            sock.sendto(bytes(packet.getBytes()), ("239.255.0.1", port))
+            sent += 1
+    finally:
+        sock.close()
+    return sent
+
+
+def frame_times(run: Path) -> dict[str, np.ndarray]:
+    """A ``--via sacn`` run: each frame (value) and the host instants (actual, scheduled) of
+    the first tick that commanded it."""
+    r = read_run(run)
+    clock_t0 = float(json.loads((run / "summary.json").read_text())["loop"]["clock_t0"])
+    deg = np.degrees(r.joint("target")[:, 0])
+    value = np.rint(1 + (deg + 90.0) * 32767 / 90.0).astype(np.int64)  # below the split
+    frames, first = np.unique(value, return_index=True)
+    keep = frames > 1
+    return {"frame": frames[keep], "host": clock_t0 + r.columns["t_actual"][first][keep],
+            "sched": clock_t0 + r.columns["t_sched"][first][keep]}  # fmt: skip
+
+
+def report_frames(runs: list[Path]) -> int:
+    first = frame_times(runs[0])
+    for run in runs[1:]:
+        other = frame_times(run)
+        common, ia, ib = np.intersect1d(first["frame"], other["frame"], return_indices=True)
+        for key, what in (("host", "first commanded (t_actual)"), ("sched", "tick due")):
+            d = (other[key][ib] - first[key][ia]) * 1e3
+            ad = np.abs(d)
+            print(f"{run.name} - {runs[0].name}, per sACN frame, {what}: {common.size} frames; "
+                  f"median {np.median(d):+.3f} ms, |offset| p99 {np.percentile(ad, 99):.3f} ms, "
+                  f"max {ad.max():.3f} ms (one tick at 250 Hz: {TICK_S * 1e3:g} ms)")  # fmt: skip
+    return 0
 
 
 # ------------------------------------------------------------------------------ the offset
@@ -175,14 +244,16 @@ def measure(args: argparse.Namespace) -> int:
     for i in range(args.figures):
         name = f"figure{i + 1}"
         end_deg = START_DEG + SLOPE * end_s
-        rig = RIG.format(name=name, start=START_DEG, end_s=end_s, end_deg=end_deg)
+        ramp = RAMP.format(start=START_DEG, end_s=end_s, end_deg=end_deg)
+        rig = RIG.format(name=name, target=HOLD if args.via == "sacn" else ramp)
         (work / f"{name}.toml").write_text(rig)
-        (work / f"{name}_show.toml").write_text(SHOW.format(sequence=SEQUENCE, port=args.port))
+        show = SACN_SHOW if args.via == "sacn" else SHOW
+        (work / f"{name}_show.toml").write_text(show.format(sequence=SEQUENCE, port=args.port))
         out = work / name
         runs.append(out)
         cmd = [sys.executable, "-m", "hilsim", "run", str(work / f"{name}.toml"),
                "--show", str(work / f"{name}_show.toml"), "--out", str(out), "--no-plots",
-               "--duration", str(args.seconds + 20)]  # fmt: skip
+               "--duration", str(args.seconds + (8 if args.via == "sacn" else 20))]  # fmt: skip
         print("$", " ".join(cmd))
         p = subprocess.Popen(cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
                              text=True, cwd=str(work))  # fmt: skip
@@ -196,10 +267,14 @@ def measure(args: argparse.Namespace) -> int:
                 print("a figure did not start listening within 60 s", file=sys.stderr)
                 return 1
         time.sleep(2.0)  # tick 0 and the warm-up
-        dest = (args.to or MULTISYNC_GROUP, args.port)
-        print(f"master: {SEQUENCE} to {dest[0]}:{dest[1]} for {args.seconds:g} s, "
-              f"Sync at {args.rate:g} Hz")  # fmt: skip
-        sent = play_master(dest, args.seconds, args.rate, SEQUENCE, args.iface)
+        if args.via == "sacn":
+            print(f"master: sACN universe 1 at {SACN_FPS:g} fps for {args.seconds:g} s")
+            sent = play_sacn(args.port, args.seconds, args.iface)
+        else:
+            dest = (args.to or MULTISYNC_GROUP, args.port)
+            print(f"master: {SEQUENCE} to {dest[0]}:{dest[1]} for {args.seconds:g} s, "
+                  f"Sync at {args.rate:g} Hz")  # fmt: skip
+            sent = play_master(dest, args.seconds, args.rate, SEQUENCE, args.iface)
         print(f"master: {sent} packets sent")
         for p in procs:
             p.wait(timeout=60.0)
@@ -208,14 +283,14 @@ def measure(args: argparse.Namespace) -> int:
             if p.poll() is None:
                 p.terminate()
     print("load:", os.getloadavg())
-    return report(runs)
+    return report_frames(runs) if args.via == "sacn" else report(runs)
 
 
 def _echo(p: subprocess.Popen[str], name: str, listening: threading.Event) -> None:
     assert p.stdout is not None
     for line in p.stdout:
         print(f"[{name}] {line.rstrip()}")
-        if "FPP MultiSync on" in line:
+        if "FPP MultiSync on" in line or "sACN on" in line:
             listening.set()
 
 
@@ -231,12 +306,15 @@ def main(argv: list[str] | None = None) -> int:
         p.add_argument("--iface", default="127.0.0.1", help="the interface multicast leaves by")
         p.add_argument("--sequence", default=SEQUENCE)
     sub.choices["measure"].add_argument("--figures", type=int, default=2)
+    via = {"choices": ("multisync", "sacn"), "default": "multisync", "help": "the master's"}
+    sub.choices["measure"].add_argument("--via", **via)
     sub.choices["measure"].add_argument("--work", default=None, help="directory for the runs")
     p = sub.add_parser("offset")
     p.add_argument("runs", nargs="+", type=Path)
+    p.add_argument("--via", **via)
     args = ap.parse_args(argv)
     if args.what == "offset":
-        return report(args.runs)
+        return report_frames(args.runs) if args.via == "sacn" else report(args.runs)
     if args.what == "master":
         dest = (args.to or MULTISYNC_GROUP, args.port)
         sent = play_master(dest, args.seconds, args.rate, args.sequence, args.iface)
