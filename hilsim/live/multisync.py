@@ -254,13 +254,17 @@ def read_multisync(r: Reader) -> MultiSyncConfig:
     allow = r.get("allow", list, [])
     if not all(isinstance(a, str) for a in allow):
         raise r.fail("allow", f"a list of addresses or networks as strings, got {allow!r}")
+    # read first: a bad value is its own one line, not wrapped below
+    max_bytes = r.integer("max_packet_bytes", 512, lo=16, hi=65507)
+    rate = r.number("rate_per_s", 1000.0, positive=True, at_most=1e6)
+    burst = r.integer("burst", 200, lo=1, hi=1_000_000)
     try:
         guard = GuardConfig(
             interface=r.get("interface", str, None),
             allow=tuple(allow),
-            max_packet_bytes=r.integer("max_packet_bytes", 512, lo=16, hi=65507),
-            rate_per_s=r.number("rate_per_s", 1000.0, positive=True, at_most=1e6),
-            burst=r.integer("burst", 200, lo=1, hi=1_000_000),
+            max_packet_bytes=max_bytes,
+            rate_per_s=rate,
+            burst=burst,
         )
     except ValueError as exc:
         raise RigError(f"{r.path}: {r.where}: {exc}") from None

@@ -308,6 +308,15 @@ def test_a_show_file_section_is_read_and_a_mistake_is_one_line(tmp_path):
     (tmp_path / "show.toml").write_text(off)
     with pytest.raises(hilsim.RigError, match="allow"):
         hilsim.Show(tmp_path / "rig.toml", virtual_time=True, show=tmp_path / "show.toml")
+    for section in ("inputs.sacn", "inputs.multisync"):  # one line: the file named once
+        text = SHOW if section == "inputs.sacn" else "[inputs.multisync]\n"
+        (tmp_path / "show.toml").write_text(
+            text.replace(f"[{section}]\n", f"[{section}]\nrate_per_s = -1\n")
+        )
+        with pytest.raises(hilsim.RigError) as err:
+            hilsim.Show(tmp_path / "rig.toml", virtual_time=True, show=tmp_path / "show.toml")
+        assert str(err.value).count("show.toml") == 1, str(err.value)
+        assert f"{section}.rate_per_s: must be > 0" in str(err.value)
 
 
 # ------------------------------------------------------------------------------ fuzzing
