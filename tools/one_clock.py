@@ -301,7 +301,7 @@ def main(argv: list[str] | None = None) -> int:
         p = sub.add_parser(name)
         p.add_argument("--seconds", type=float, default=60.0, help="how long the master plays")
         p.add_argument("--rate", type=float, default=4.0, help="Sync packets a second (FPP: 2-4)")
-        p.add_argument("--port", type=int, default=MULTISYNC_PORT)
+        p.add_argument("--port", type=int, default=None, help="default 32320 (sACN: 5568)")
         p.add_argument("--to", default=None, help=f"destination (default {MULTISYNC_GROUP})")
         p.add_argument("--iface", default="127.0.0.1", help="the interface multicast leaves by")
         p.add_argument("--sequence", default=SEQUENCE)
@@ -315,6 +315,8 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     if args.what == "offset":
         return report_frames(args.runs) if args.via == "sacn" else report(args.runs)
+    if args.port is None:
+        args.port = 5568 if getattr(args, "via", "") == "sacn" else MULTISYNC_PORT
     if args.what == "master":
         dest = (args.to or MULTISYNC_GROUP, args.port)
         sent = play_master(dest, args.seconds, args.rate, args.sequence, args.iface)
