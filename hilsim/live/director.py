@@ -27,7 +27,6 @@ feeds them with timestamps and runs the loop in virtual time.
 
 from __future__ import annotations
 
-import contextlib
 import math
 from collections.abc import Callable, Sequence
 from pathlib import Path
@@ -35,28 +34,21 @@ from typing import TYPE_CHECKING, Protocol
 
 from drivers.clock import Clock
 from hilsim._types import JsonDict
-from hilsim.live.controls import Controls
-from hilsim.live.inbox import MAX_LIVE_DEG, LiveEvent
+from hilsim.live.inbox import MAX_LIVE_DEG, LineGate, LiveEvent
+from hilsim.live.inputs import LiveInputs, has_live_inputs
 from hilsim.live.live_layer import LiveLayer
 from hilsim.live.showfile import ShowSpec
 from hilsim.targets.tracks import TargetSet, Track
 
-if TYPE_CHECKING:  # each input's module is imported when a show uses that input
-    from hilsim.live.audio_out import AudioOut
-    from hilsim.live.bottango_live import BottangoLive
-    from hilsim.live.dmx_input import DmxInput
-    from hilsim.live.gamepad import GamepadInput
-    from hilsim.live.keyboard import KeyboardInput
-    from hilsim.live.midi import MidiCcInput, MidiTriggerInput
-    from hilsim.live.multisync import MultiSyncRemote
-    from hilsim.live.osc import OscInput
+if TYPE_CHECKING:
     from hilsim.live.show import ShowRuntime
     from hilsim.live.takes import Take
-    from hilsim.live.teach import Teach
-    from hilsim.live.timecode import MtcChase
 
 #: an event's ``detail`` keys that the log line's own fields take
 _RESERVED = frozenset(("kind", "message", "t", "event", "tick"))
+#: the lines a storm of well-formed triggers repeats (a cue sent 1000 times a second): a few,
+#: then one a second per cue (LineGate); the triggers themselves all act
+_GATED = frozenset(("cue", "cue_ignored", "trigger"))
 
 
 #: the run directory's folders a show's takes go in (the recorded live input, a teach
@@ -113,16 +105,22 @@ class Director:
         self.tracks = [DirectedTrack(tr, self) for tr in inner]
         self.targets = TargetSet(self.tracks, self.names)
         self.targets.notes = base.notes
-        if self.runtime is not None and not self._live_inputs(spec):
+        if self.runtime is not None and not has_live_inputs(spec):
             end = getattr(self.runtime, "duration", None)
             if end is not None:  # a timeline only: the show ends with it
                 for tr in self.tracks:
                     tr.end = end
-        self._build_inputs(spec, silent)
+        #: the live inputs (hilsim.live.inputs); the director's attributes name each one
+        self.inputs = inputs = LiveInputs(spec, self.names, self.runtime, silent=silent)
+        self.osc, self.midi, self.midi_triggers = inputs.osc, inputs.midi, inputs.midi_triggers
+        self.chase, self.multisync, self.dmx = inputs.chase, inputs.multisync, inputs.dmx
+        self.bottango, self.gamepad = inputs.bottango, inputs.gamepad
+        self.keyboard, self.teach = inputs.keyboard, inputs.teach
+        self.audio, self.api = inputs.audio, inputs.api
         self._log: Callable[..., None] = lambda *a, **k: None
         self._stop: StopRequest | None = None
-        self._closers: list[Callable[[], None]] = []
         self.take: Take | None = None
+        self._gate = LineGate()
         if spec.record is not None:
             from hilsim.live.takes import Take
 
@@ -137,110 +135,6 @@ class Director:
             (lambda i: "rig") if runtime is None else (lambda i: runtime.layers[i]),
         )
 
-    @staticmethod
-    def _live_inputs(spec: ShowSpec) -> bool:
-        return any(
-            x is not None
-            for x in (spec.osc, spec.midi, spec.bottango, spec.gamepad, spec.keyboard, spec.teach,
-                      spec.sacn, spec.artnet, spec.multisync)
-        )  # fmt: skip
-
-    def _build_inputs(self, spec: ShowSpec, silent: bool) -> None:
-        """The inputs' state machines (no I/O yet); ``silent``: sounds scheduled and logged,
-        not played (virtual time: no sound device)."""
-        keys = tuple(getattr(self.runtime, "trigger_keys", ()) or ())
-        heard = {"osc": spec.osc, "midi": spec.midi, "key": spec.keyboard}
-        section = {"osc": "osc", "midi": "midi", "key": "keyboard"}
-        for key in keys:  # a trigger nothing in this show can send: said at load
-            kind = key.split(":", 1)[0]
-            cue_address = key.startswith("osc:/hilsim/cue/")  # every cue's own, always listed
-            if heard.get(kind, True) is None and spec.gamepad is None and not cue_address:
-                spec.notes.append(
-                    f"trigger {key!r}: the show has no [inputs.{section[kind]}], so nothing "
-                    "can send it"
-                )
-        self.osc: OscInput | None = None
-        self.midi: MidiCcInput | None = None
-        self.midi_triggers: MidiTriggerInput | None = None
-        self.chase: MtcChase | None = None
-        self.bottango: BottangoLive | None = None
-        self.gamepad: GamepadInput | None = None
-        self.keyboard: KeyboardInput | None = None
-        self.teach: Teach | None = None
-        self.audio: AudioOut | None = None
-        cues = () if self.runtime is None else tuple(self.runtime.spec.cues)
-        #: cues and joint values from the program running the show (hilsim.Show)
-        self.api = Controls(self.names, cues)
-        if spec.osc is not None:
-            from hilsim.live.osc import OscInput
-
-            osc_keys = [k[4:] for k in keys if k.startswith("osc:")]
-            self.osc = OscInput(
-                spec.osc.joints,
-                guard=spec.osc.guard,
-                lost_after_s=spec.osc.lost_after_s,
-                triggers=[a for a in osc_keys if not a.startswith("/hilsim/cue/")],
-                releasable=self.names,
-            )
-        if spec.midi is not None:
-            from hilsim.live.midi import MidiCcInput, MidiTriggerInput
-
-            if spec.midi.cc:
-                self.midi = MidiCcInput(spec.midi.cc, lost_after_s=spec.midi.lost_after_s)
-            midi_keys = [k for k in keys if k.startswith("midi:")]
-            if midi_keys:
-                self.midi_triggers = MidiTriggerInput(midi_keys)
-        if spec.mtc is not None:
-            from hilsim.live.timecode import MtcChase
-
-            m = spec.mtc
-            self.chase = MtcChase(freewheel_s=m.freewheel_s, jump_s=m.jump_s, offset_s=m.offset_s)
-        #: sACN and Art-Net in (hilsim.live.dmx_input)
-        self.dmx: list[DmxInput] = []
-        for dmx_config in (spec.sacn, spec.artnet):
-            if dmx_config is not None:
-                from hilsim.live.dmx_input import DmxInput
-
-                self.dmx.append(DmxInput(dmx_config))
-        self.multisync: MultiSyncRemote | None = None
-        if spec.multisync is not None:
-            from hilsim.live.multisync import MultiSyncRemote
-
-            self.multisync = MultiSyncRemote(spec.multisync)
-        if spec.bottango is not None:
-            from hilsim.live.bottango_live import BottangoLive
-
-            self.bottango = BottangoLive.from_config(spec.bottango)
-        if spec.gamepad is not None:
-            from hilsim.live.gamepad import GamepadInput
-
-            self.gamepad = GamepadInput(spec.gamepad)
-        if spec.keyboard is not None:
-            from hilsim.live.keyboard import KeyboardInput
-
-            self.keyboard = KeyboardInput(spec.keyboard)
-        if spec.teach is not None:
-            from hilsim.live.teach import Teach
-
-            self.teach = Teach(self.names, spec.teach)
-        sounds = getattr(spec.runtime, "sounds", None)
-        if sounds:
-            from hilsim.live.audio_out import AudioOut, SilentBackend
-
-            out = self.runtime.spec.sound_output if self.runtime is not None else None
-            self.audio = AudioOut(
-                SilentBackend() if silent else None,
-                device=None if out is None else out.device,
-                required=out is not None and out.required,
-            )
-            try:
-                self.audio.preload(
-                    [s.path for s in sounds.values()],
-                    offsets_ms={str(s.path): s.offset_s * 1e3 for s in sounds.values()},
-                )
-            except ValueError as exc:
-                raise ValueError(f"sounds: {exc}") from None
-
     # ------------------------------------------------------------------ life cycle
     def now(self) -> float:
         """The show time a receiver stamps a message with: 0 until tick 0, then clock − t0."""
@@ -254,51 +148,7 @@ class Director:
         """Start the receivers (sockets, ports, threads) before anything moves. Raises
         ValueError / OSError / RuntimeError with one line on a port that cannot be opened."""
         self.clock = clock
-        spec = self.spec
-        try:
-            if self.osc is not None:
-                from hilsim.live.osc import listen
-
-                assert spec.osc is not None  # self.osc is built from it
-                rx = listen(self.osc, spec.osc.port, self.now, max_rx_per_s=spec.osc.max_rx_per_s)
-                self._closers.append(rx.close)
-                say(f"OSC on {spec.osc.guard.bind_address}:{spec.osc.port}: "
-                    f"/hilsim/joint/<{'|'.join(self.osc.ranges)}> 0..1, /hilsim/cue/<name>, "
-                    "/hilsim/release[/<joint>], /hilsim/stop")  # fmt: skip
-            for dmx in self.dmx:
-                from hilsim.live.dmx_input import listen as dmx_listen
-
-                rx = dmx_listen(dmx, self.now, max_rx_per_s=dmx.config.max_rx_per_s)
-                self._closers.append(rx.close)
-                groups = " (multicast)" if dmx.config.multicast else ""
-                say(f"{dmx.name} on {dmx.config.guard.bind_address}:{dmx.config.port}{groups}: "
-                    f"universes {', '.join(map(str, dmx.config.universes))}")  # fmt: skip
-            if self.multisync is not None:
-                from hilsim.live.multisync import listen as sync_listen
-
-                rx = sync_listen(self.multisync, self.now)
-                self._closers.append(rx.close)
-                ms = self.multisync.config
-                say(f"FPP MultiSync on {ms.guard.bind_address}:{ms.port}"
-                    f"{' (multicast)' if ms.multicast else ''}: "
-                    f"following {ms.sequence or 'any sequence'}")  # fmt: skip
-            sinks = [s for s in (self.midi, self.midi_triggers, self.chase) if s is not None]
-            if sinks:
-                from hilsim.live.midi import open_midi_input
-
-                assert spec.midi is not None  # the show file gives [inputs.mtc] one too
-                port = open_midi_input(spec.midi.port, sinks, self.now)
-                self._closers.append(port.close)
-                say(f"MIDI in: {port.name}")
-            for part in (self.bottango, self.gamepad, self.keyboard, self.audio):
-                if part is not None and hasattr(part, "start"):
-                    note = part.start(self.now)
-                    self._closers.append(part.close)
-                    if note:
-                        say(str(note))
-        except BaseException:
-            self.close_inputs()
-            raise
+        self.inputs.open(clock, self.now, say)
 
     def begin(self, t0: float, log: Callable[..., None], stop: StopRequest | None) -> None:
         """Tick 0 is at clock time ``t0``; ``log(kind, message, **fields)`` writes an event,
@@ -306,75 +156,20 @@ class Director:
         self.t0, self._log, self._stop = t0, log, stop
 
     def close_inputs(self) -> None:
-        while self._closers:
-            close = self._closers.pop()
-            with contextlib.suppress(Exception):  # closing never stops the exit path
-                close()
+        self.inputs.close()
 
     # ------------------------------------------------------------------ one tick
-    # long on purpose: one tick: each input in turn, in the order they act
-    def tick(self, k: int, t: float, present_rad: Sequence[float]) -> None:  # noqa: C901, PLR0912
+    def tick(self, k: int, t: float, present_rad: Sequence[float]) -> None:
         """Tick ``k`` at show time ``t`` (s, k·period): poll, decide, log. ``present_rad``: the
         joints' present positions (joint frame) read this tick."""
         events: list[LiveEvent] = []
         triggers: list[str] = []
-        chase = self.chase
-        if chase is not None:
-            cp = chase.poll(t)
-            events += cp.events
-            self.offset = (0.0 if cp.show_time_s is None else cp.show_time_s) - t
-        sync = self.multisync
-        if sync is not None:  # an FPP master's time
-            for ev in sync.poll(t):
-                events.append(ev)
-                if sync.stop_requested and ev.kind in ("multisync_stop", "input_lost"):
-                    self.counts["stops"] += 1
-                    if self._stop is not None:
-                        self._stop.request_command(str(ev.detail["message"]))
-            self.offset = sync.show_time(t) - t
+        inputs = self.inputs
+        followed = inputs.show_time(t, events, self)  # a chased clock (MTC, MultiSync)
+        if followed is not None:
+            self.offset = followed - t
         t_show = t + self.offset
-        osc = self.osc
-        if osc is not None:
-            for ev in osc.poll(t):
-                if ev.kind == "cue":
-                    triggers.append("osc:" + ev.detail["address"])
-                    events.append(ev)
-                elif ev.kind == "release":
-                    events += self.release(ev.detail["joint"], ev.t, ev.detail["message"], "osc")
-                elif ev.kind == "stop":
-                    self._stop_command(ev.detail.get("message", "OSC /hilsim/stop"), ev, events)
-                else:
-                    events.append(ev)
-            for joint in osc.updated:  # only what arrived: a held value is set already
-                cur = osc.targets.get(joint)
-                assert cur is not None  # set by this poll; only a release before it forgets
-                self._set(joint, cur.deg, cur.t, "osc", events)
-        midi = self.midi
-        if midi is not None:
-            mp = midi.poll(t)
-            events += mp.events
-            for tm, joint, deg in mp.samples:
-                self._set(joint, deg, tm, "midi", events)
-        for dmx in self.dmx:
-            dp = dmx.poll(t)
-            events += dp.events
-            for joint in dp.releases:
-                events += self.release(joint, t, f"{dmx.name} value 0 (zero = release)", dmx.source)
-            for joint, deg, tm in dp.values:
-                self._set(joint, deg, tm, dmx.source, events)
-        if self.midi_triggers is not None:
-            triggers += [key for _, key in self.midi_triggers.poll(t)]
-        for part in (self.gamepad, self.bottango, self.api):
-            if part is not None:
-                self._poll_part(part, t, events, triggers)
-        if self.keyboard is not None:
-            triggers += self.keyboard.poll(t)
-        teach = self.teach
-        if teach is not None:
-            present_deg = [math.degrees(x) for x in present_rad]
-            teach.record(t, present_deg)
-            for joint, deg in teach.targets_deg(present_deg).items():
-                self.layer.teach(self.index[joint], math.radians(deg))
+        inputs.poll(t, present_rad, events, triggers, self)
         events += self._released(self.layer.expire(t))  # after this tick's fresh values
         runtime = self.runtime
         if runtime is not None:
@@ -391,8 +186,10 @@ class Director:
             events += self.audio.poll(t)
         for ev in events:
             self._event(k, ev)
+        for ev in self._gate.due(t):  # lines held back by a storm, said once a second
+            self._event(k, ev, gated=False)
 
-    def _set(
+    def set_value(
         self,
         joint: str,
         deg: float,
@@ -425,6 +222,18 @@ class Director:
         if self.take is not None:
             self.take.record(t_msg + self.offset, joint, deg)
 
+    _set = set_value  # the name tests and older callers use
+
+    def teach_value(self, joint: str, deg: float) -> None:
+        """Teach-by-hand's target for ``joint`` (degrees): the layer's teach value."""
+        self.layer.teach(self.index[joint], math.radians(deg))
+
+    def request_stop(self, what: str) -> None:
+        """A stop command from an input: counted, then the show's exit policy."""
+        self.counts["stops"] += 1
+        if self._stop is not None:
+            self._stop.request_command(what)
+
     def release(
         self, joint: str | None, t: float, reason: str, source: str = "show"
     ) -> list[LiveEvent]:
@@ -440,37 +249,6 @@ class Director:
                     self.osc.targets.forget(ev.detail["joint"])
         return events
 
-    def _poll_part(
-        self,
-        part: GamepadInput | BottangoLive | Controls,
-        t: float,
-        events: list[LiveEvent],
-        triggers: list[str],
-    ) -> None:
-        """A gamepad, the Bottango live driver or the program's controls: releases, values,
-        triggers, events, a stop. The gamepad and Bottango report a standing value every
-        tick; the controls only what was set."""
-        p = part.poll(t)
-        events += getattr(p, "events", ())
-        triggers += getattr(p, "triggers", ())
-        source = "api" if part is self.api else getattr(part, "source", "bottango")
-        for joint in getattr(p, "releases", ()):
-            events += self.release(joint, t, "Show.release()", source)
-        for joint, deg in (getattr(p, "values", None) or {}).items():
-            if deg is not None:
-                self._set(joint, deg, t, source, events, standing=part is not self.api)
-        if getattr(p, "stop", False):  # the part's own events say it (one line)
-            what = getattr(p, "stop_reason", None) or f"{type(part).__name__} stop"
-            self.counts["stops"] += 1
-            if self._stop is not None:
-                self._stop.request_command(what)
-
-    def _stop_command(self, what: str, ev: LiveEvent, events: list[LiveEvent]) -> None:
-        events.append(ev)
-        self.counts["stops"] += 1
-        if self._stop is not None:
-            self._stop.request_command(what)
-
     def _sound(self, ev: LiveEvent, t_show: float) -> list[LiveEvent]:
         """A clip in front with a sound starts it, in step with the clip (late: further into
         the file); a cue without one, or a cue's end, stops the sound playing."""
@@ -482,7 +260,11 @@ class Director:
             self.audio.stop()
         return []
 
-    def _event(self, k: int, ev: LiveEvent) -> None:
+    def _event(self, k: int, ev: LiveEvent, gated: bool = True) -> None:
+        if gated and ev.kind in _GATED:
+            what = ev.detail.get("cue") or ev.detail.get("address") or ev.detail.get("message")
+            if self._gate.offer(ev, f"{ev.kind} {ev.source} {what}") is None:
+                return
         self.counts["events"] += 1
         if ev.kind == "cue_start":
             self.counts["cues"] += 1
@@ -510,10 +292,7 @@ class Director:
         playing = "" if self.runtime is None else str(self.runtime.now_playing)
         if playing.startswith("cue "):
             parts.append(playing)
-        if self.chase is not None:
-            parts.append(f"MTC {self.chase.state}")
-        if self.multisync is not None:
-            parts.append(f"MultiSync {self.multisync.state}")
+        parts += self.inputs.states()
         return "; ".join(parts)
 
     # ------------------------------------------------------------------ the end
@@ -522,19 +301,7 @@ class Director:
         return the summary's ``live`` section. Never raises: a full disk is said in it."""
         self.close_inputs()
         out: JsonDict = {"show": self.spec.name, **self.counts, **self.layer.counts}
-        if self.osc is not None:
-            out["osc_drops"] = self.osc.guard.drops.snapshot()
-        for dmx in self.dmx:
-            out[dmx.source] = dmx.summary()
-        parts = ("midi", "chase", "multisync", "bottango", "gamepad", "keyboard", "teach", "audio")
-        for name in parts:
-            part = getattr(self, name)
-            summary = getattr(part, "summary", None)
-            if callable(summary):
-                try:
-                    out[name] = summary()
-                except Exception as exc:  # a summary is a report: never the exit path's end
-                    out[name] = {"error": repr(exc)}
+        out.update(self.inputs.summary())
         if run_dir is not None:
             out["takes"] = self._write_takes(run_dir)
         return out

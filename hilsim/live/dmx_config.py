@@ -9,9 +9,10 @@ limits) and ``zero`` (what a value of 0 means: ``hold``, the default as FPP's se
 The mapping is FPP's "Scaled": 1..split-1 spans min..center and split..full spans center..max,
 split being 128 (8 bits) or 32768 (16 bits: coarse 0x80 fine 0x00), full 255 or 65535.
 
-The input's own keys: ``port``, ``interface``, ``allow``, ``multicast`` (sACN), ``lost_after_s``
-(2.5, E1.31's data-loss timeout), ``release_after_s``, ``max_packet_bytes``, ``rate_per_s``,
-``burst``, ``max_rx_per_s``. Every key with an example: ``docs/live.md`` (sACN and Art-Net).
+The input's own keys: ``port``, ``interface``, ``allow``, ``multicast`` (sACN), ``broadcast``
+(Art-Net), ``lost_after_s`` (2.5, E1.31's data-loss timeout), ``release_after_s``,
+``max_packet_bytes``, ``rate_per_s``, ``burst``, ``max_rx_per_s``. Every key with an example:
+``docs/live.md`` (sACN and Art-Net).
 """
 
 from __future__ import annotations
@@ -31,7 +32,8 @@ ZERO_KINDS = ("hold", "min", "center", "max", "release")
 #: the universes each protocol numbers (E1.31: 1..63999; Art-Net: the 15-bit port address)
 UNIVERSES = {"sacn": (1, 63999), "artnet": (0, 32767)}
 DEFAULT_PORTS = {"sacn": E131_PORT, "artnet": ARTNET_PORT}
-INPUT_KEYS = ("port", "interface", "allow", "multicast", "lost_after_s", "release_after_s",
+INPUT_KEYS = ("port", "interface", "allow", "multicast", "broadcast", "lost_after_s",
+              "release_after_s",
               "max_packet_bytes", "rate_per_s", "burst", "max_rx_per_s", "joints")  # fmt: skip
 JOINT_KEYS = ("universe", "channel", "bits", "degrees", "zero")
 
@@ -77,6 +79,8 @@ class DmxConfig:
     guard: GuardConfig = field(default_factory=GuardConfig)
     #: join each universe's multicast group (sACN; default: when bound off loopback)
     multicast: bool = False
+    #: hear the subnet's broadcast too: bound to any address (Art-Net; default: off loopback)
+    broadcast: bool = False
     #: no packet from any source of a universe this long: its joints hold, one input_lost
     lost_after_s: float = 2.5
     release_after_s: float | None = None
@@ -95,13 +99,17 @@ def read_dmx(r: Reader, protocol: str, limits: Mapping[str, tuple[float, float]]
     if not all(isinstance(a, str) for a in allow):
         raise r.fail("allow", f"a list of addresses or networks as strings, got {allow!r}")
     interface = r.get("interface", str, None)
+    # read first: a bad value is its own one line, not wrapped below
+    max_bytes = r.integer("max_packet_bytes", 638, lo=16, hi=65507)
+    rate = r.number("rate_per_s", 1000.0, positive=True, at_most=1e6)
+    burst = r.integer("burst", 200, lo=1, hi=1_000_000)
     try:
         guard = GuardConfig(
             interface=interface,
             allow=tuple(allow),
-            max_packet_bytes=r.integer("max_packet_bytes", 638, lo=16, hi=65507),
-            rate_per_s=r.number("rate_per_s", 1000.0, positive=True, at_most=1e6),
-            burst=r.integer("burst", 200, lo=1, hi=1_000_000),
+            max_packet_bytes=max_bytes,
+            rate_per_s=rate,
+            burst=burst,
         )
     except ValueError as exc:
         raise RigError(f"{r.path}: {r.where}: {exc}") from None
@@ -111,6 +119,11 @@ def read_dmx(r: Reader, protocol: str, limits: Mapping[str, tuple[float, float]]
         raise r.fail("multicast", "Art-Net has no multicast groups (it is unicast or broadcast)")
     if multicast and ":" in guard.bind_address:
         raise r.fail("multicast", "sACN multicast joins are IPv4 here: name an IPv4 interface")
+    broadcast = r.get("broadcast", bool, protocol == "artnet" and off_loopback)
+    if broadcast and protocol != "artnet":
+        raise r.fail("broadcast", "sACN is multicast or unicast (broadcast is Art-Net's)")
+    if broadcast and ":" in guard.bind_address:
+        raise r.fail("broadcast", "broadcast is IPv4: name an IPv4 interface")
     table = r.get("joints", dict, ...)
     if not table:
         raise r.fail("joints", "name at least one joint: [inputs.<x>.joints.<joint>]")
@@ -128,6 +141,7 @@ def read_dmx(r: Reader, protocol: str, limits: Mapping[str, tuple[float, float]]
         port=port,
         guard=guard,
         multicast=multicast,
+        broadcast=broadcast,
         lost_after_s=r.number("lost_after_s", 2.5, positive=True, at_most=3600.0),
         release_after_s=r.number("release_after_s", None, positive=True, at_most=7 * 86400.0),
         max_rx_per_s=r.number("max_rx_per_s", 2000.0, positive=True, at_most=1e6),

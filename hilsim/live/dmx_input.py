@@ -5,7 +5,8 @@ Per universe, as E1.31 receivers do:
 - **sources**: each sender (E1.31 CID; Art-Net host) is tracked; the highest priority wins
   (Art-Net: all 100). On a tie the source already winning keeps the universe. A source silent
   for ``lost_after_s`` (2.5 s) or ending its stream (E1.31 "stream terminated") leaves; the
-  next one takes over (``dmx_source`` event).
+  next one takes over (``dmx_source`` event; sources taking the universe in turn faster than
+  that: a line a second per universe, the last one said).
 - **sequence**: a packet whose sequence number is 1..19 behind the source's last is late and
   dropped (``late``), as E1.31 says; Art-Net's sequence 0 means "not numbered".
 - **sync**: data naming a sync address (E1.31) waits for that address's sync packet, as long
@@ -40,7 +41,7 @@ from hilsim.live.dmx_packets import (
     parse_artnet,
     parse_e131,
 )
-from hilsim.live.inbox import LiveEvent
+from hilsim.live.inbox import LineGate, LiveEvent
 from hilsim.live.netguard import Address, DropLog, NetGuard, UdpReceiver
 
 #: E1.31: a sequence number this far behind the last (or equal) is a late packet
@@ -97,6 +98,7 @@ class DmxInput:
         self._latest: dict[str, tuple[int, float]] = {}  # joint -> (raw value, t)
         self._events: list[LiveEvent] = []
         self._drop_log = DropLog()
+        self._gate = LineGate()
         self.counts = {"packets": 0, "applied": 0, "other_universe": 0, "unused": 0}
 
     # -- the receiver's side ------------------------------------------------------------
@@ -229,6 +231,13 @@ class DmxInput:
                 self._expire(u, t)
             latest, self._latest = self._latest, {}
             out.events, self._events = self._events, []
+        said: list[LiveEvent] = []
+        for ev in out.events:  # two consoles taking a universe in turn: a line a second
+            if ev.kind != "dmx_source":
+                said.append(ev)
+            elif (ok := self._gate.offer(ev, f"source {ev.detail['universe']}")) is not None:
+                said.append(ok)
+        out.events = said + self._gate.due(t)
         for joint, (v, tm) in latest.items():
             j = self._joints[joint]
             deg = j.degrees(v)
@@ -256,9 +265,11 @@ class DmxInput:
 
 def listen(dmx: DmxInput, clock: Any, **kw: Any) -> UdpReceiver:
     """The UDP socket (``config.port`` on the guard's address; with ``multicast``, every
-    universe's E1.31 group joined on that interface) feeding ``dmx`` from a thread."""
+    universe's E1.31 group joined on that interface; with ``broadcast``, on any address, so
+    the subnet's Art-Net broadcast is heard) feeding ``dmx`` from a thread."""
     cfg = dmx.config
     groups: Sequence[str] = ()
     if cfg.multicast:
         groups = [e131_multicast_group(u) for u in cfg.universes]
-    return UdpReceiver(dmx.guard, dmx.feed, cfg.port, clock, name=dmx.name, groups=groups, **kw)
+    return UdpReceiver(dmx.guard, dmx.feed, cfg.port, clock, name=dmx.name, groups=groups,
+                       any_address=cfg.broadcast, **kw)  # fmt: skip

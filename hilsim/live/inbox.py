@@ -16,6 +16,8 @@ from collections import deque
 from dataclasses import dataclass, field
 from typing import Any
 
+from hilsim.live.netguard import TokenBucket
+
 #: the widest a live input's range may be (deg, either end): 100 turns. Wider ranges (1e308)
 #: would overflow to inf/NaN on the way to a joint: refused at load, never a fault mid-show
 MAX_LIVE_DEG = 36000.0
@@ -96,3 +98,57 @@ class Inbox:
 
     def __len__(self) -> int:
         return len(self._q)
+
+
+#: the keys a LineGate keeps a budget for (the least recently made is forgotten past this)
+MAX_GATE_KEYS = 1024
+
+
+class LineGate:
+    """At most ``burst`` lines per key at once, then one per ``interval_s`` of show time; the
+    last one always said.
+
+    A line past its key's budget is held back: only the latest is kept, the ones before it are
+    counted, and it is said once the budget allows with how many it stands for. So a storm of
+    well-formed packets (a master seeking a thousand times a second, two consoles taking a
+    universe from each other) is a line a second, and the state it left is the last line; an
+    Open, a Start and a Stop in one second are three lines at once. The input acts on every
+    packet; only its lines are gated."""
+
+    def __init__(self, interval_s: float = 1.0, burst: int = 4) -> None:
+        self.interval_s, self.burst = interval_s, burst
+        self._budget: dict[str, TokenBucket] = {}
+        self._held: dict[str, tuple[LiveEvent, int]] = {}
+        self.held = 0  #: lines held back, in all (each said later or folded into one)
+
+    def _take(self, key: str, t: float) -> bool:
+        bucket = self._budget.get(key)
+        if bucket is None:
+            if len(self._budget) >= MAX_GATE_KEYS:  # bounded: forget the oldest not held back
+                old = next((k for k in self._budget if k not in self._held), None)
+                self._budget.pop(old if old is not None else next(iter(self._budget)))
+            bucket = self._budget[key] = TokenBucket(1.0 / self.interval_s, self.burst, t)
+        return bucket.take(t)
+
+    def offer(self, ev: LiveEvent, key: str) -> LiveEvent | None:
+        """``ev`` if it may be said now, else None (held back until :meth:`due`)."""
+        if key not in self._held and self._take(key, ev.t):
+            return ev
+        n = self._held[key][1] + 1 if key in self._held else 1
+        self._held[key] = (ev, n)
+        self.held += 1
+        return None
+
+    def due(self, t: float) -> list[LiveEvent]:
+        """The held lines the budget allows at show time ``t``, in the order they happened,
+        each the latest of its key saying how many lines it stands for."""
+        out = []
+        for key, (ev, n) in list(self._held.items()):
+            if self._take(key, t):
+                del self._held[key]
+                message = str(ev.detail.get("message", ev.kind))
+                if n > 1:
+                    message += f" (the last of {n} such lines held back)"
+                out.append(LiveEvent(ev.t, ev.kind, ev.source,
+                                     {**ev.detail, "message": message, "lines": n}))  # fmt: skip
+        return sorted(out, key=lambda e: e.t)

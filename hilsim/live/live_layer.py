@@ -20,10 +20,11 @@ for good, as a lost input always did.
 Each take and release is one event (``live_take``, ``live_release``, ``release_ignored``). No
 clock reads, no locks: the director calls it once per tick from the loop's thread.
 
-A new input joins through the director: ``Director._set(joint, deg, t, source, events,
-standing=...)`` for each value and ``Director.release(joint, t, reason, source)`` for a
-release; its ``release_after_s`` is read by ``hilsim.live.director.release_after``. A program
-or a panel calls ``Show.release`` (:class:`~hilsim.live.controls.Controls`).
+A new input joins in ``hilsim.live.inputs`` (built, opened, polled there), which hands each
+value to ``Director.set_value(joint, deg, t, source, events, standing=...)`` and each release
+to ``Director.release(joint, t, reason, source)``; its ``release_after_s`` is read by
+``hilsim.live.director.release_after``. A program or a panel calls ``Show.release``
+(:class:`~hilsim.live.controls.Controls`).
 """
 
 from __future__ import annotations

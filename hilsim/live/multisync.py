@@ -10,10 +10,11 @@ few frames (2-4 a second once running). Other packet types (Ping, commands) are 
 The remote follows one ``sequence`` (a file name; empty: whichever the master plays): the
 show time is the master's seconds elapsed (minus ``offset_s``), run on from the last packet by
 the loop's own clock. Each Sync re-anchors it; a Sync further than ``jump_s`` from where the
-show time was (a seek, a dropped-out master) is said in one ``multisync_seek`` event. The show
-time drives the rig's animation and the show's timeline like the MTC chase does, so the
-figure plays the animation at the master's time; a seek is a step in the *target*, and each
-joint's spring and the safety filter carry the command there (never a jump).
+show time was (a seek, a dropped-out master) is said in one ``multisync_seek`` event (a storm
+of them, or of starts and stops: a line a second, the last one said). The show time drives
+the rig's animation and the show's timeline like the MTC chase does, so the figure plays the
+animation at the master's time; a seek is a step in the *target*, and each joint's spring and
+the safety filter carry the command there (never a jump).
 
 Before a Start the show time holds at 0 (the first frame's pose). On Stop (or no packet for
 ``lost_after_s`` while playing): ``on_stop = "hold"`` holds the show time where it stopped
@@ -32,7 +33,7 @@ from collections import deque
 from dataclasses import dataclass, field
 from typing import Any
 
-from hilsim.live.inbox import LiveEvent
+from hilsim.live.inbox import LineGate, LiveEvent
 from hilsim.live.netguard import Address, DropLog, GuardConfig, NetGuard, UdpReceiver
 from hilsim.rig import RigError
 from hilsim.rig.reader import Reader
@@ -41,6 +42,9 @@ MULTISYNC_PORT = 32320
 MULTISYNC_GROUP = "239.70.80.80"
 ACTIONS = {0: "start", 1: "stop", 2: "sync", 3: "open"}
 ON_STOP = ("hold", "stop")
+#: the lines a storm of packets could repeat, and the gate key each is held back under
+_GATED = {"multisync_open": "state", "multisync_start": "state", "multisync_stop": "state",
+          "multisync_seek": "seek"}  # fmt: skip
 _HEAD = struct.Struct("<4sBH")
 _SYNC = struct.Struct("<BBIf")
 
@@ -107,6 +111,7 @@ class MultiSyncConfig:
     jump_s: float = 0.1  # a Sync further than this from the running show time: a seek
     lost_after_s: float = 2.5  # no packet this long while playing: lost (then on_stop)
     on_stop: str = "hold"
+    max_rx_per_s: float = 2000.0  # the receiver thread's read cap (netguard.UdpReceiver)
 
 
 class MultiSyncRemote:
@@ -122,6 +127,7 @@ class MultiSyncRemote:
         self._lock = threading.Lock()
         self._inbox: deque[tuple[float, SyncMessage]] = deque(maxlen=64)
         self._drop_log = DropLog()
+        self._gate = LineGate()
         self.state = "waiting"  # waiting | playing | stopped | lost
         self._anchor: tuple[float, float] | None = None  # (loop t, show time) of the last packet
         self._last_rx = -math.inf
@@ -164,8 +170,16 @@ class MultiSyncRemote:
             got = list(self._inbox)
             self._inbox.clear()
         out: list[LiveEvent] = []
+        applied: list[LiveEvent] = []
         for tm, msg in got:
-            self._apply(tm, msg, out)
+            self._apply(tm, msg, applied)
+        for ev in applied:  # a storm of starts, stops or seeks: a line a second (LineGate)
+            key = _GATED.get(ev.kind)
+            if key is None or (ev.kind == "multisync_stop" and self.stop_requested):
+                out.append(ev)  # the line that ends the show is never held back
+            elif (said := self._gate.offer(ev, key)) is not None:
+                out.append(said)
+        out += self._gate.due(t)
         if self.state == "playing" and t - self._last_rx > self.config.lost_after_s:
             self._anchor = (t, self.show_time(t))
             self.state = "lost"
@@ -230,6 +244,7 @@ def listen(remote: MultiSyncRemote, clock: Any, **kw: Any) -> UdpReceiver:
     """The UDP socket (``multicast``: 239.70.80.80 joined) feeding ``remote`` from a thread."""
     cfg = remote.config
     groups = (MULTISYNC_GROUP,) if cfg.multicast else ()
+    kw.setdefault("max_rx_per_s", cfg.max_rx_per_s)
     return UdpReceiver(remote.guard, remote.feed, cfg.port, clock, name="MultiSync",
                        groups=groups, **kw)  # fmt: skip
 
@@ -239,11 +254,17 @@ def read_multisync(r: Reader) -> MultiSyncConfig:
     allow = r.get("allow", list, [])
     if not all(isinstance(a, str) for a in allow):
         raise r.fail("allow", f"a list of addresses or networks as strings, got {allow!r}")
+    # read first: a bad value is its own one line, not wrapped below
+    max_bytes = r.integer("max_packet_bytes", 512, lo=16, hi=65507)
+    rate = r.number("rate_per_s", 1000.0, positive=True, at_most=1e6)
+    burst = r.integer("burst", 200, lo=1, hi=1_000_000)
     try:
         guard = GuardConfig(
             interface=r.get("interface", str, None),
             allow=tuple(allow),
-            max_packet_bytes=r.integer("max_packet_bytes", 512, lo=16, hi=65507),
+            max_packet_bytes=max_bytes,
+            rate_per_s=rate,
+            burst=burst,
         )
     except ValueError as exc:
         raise RigError(f"{r.path}: {r.where}: {exc}") from None
@@ -260,6 +281,7 @@ def read_multisync(r: Reader) -> MultiSyncConfig:
         jump_s=r.number("jump_s", 0.1, positive=True, at_most=3600.0),
         lost_after_s=r.number("lost_after_s", 2.5, positive=True, at_most=3600.0),
         on_stop=on_stop,
+        max_rx_per_s=r.number("max_rx_per_s", 2000.0, positive=True, at_most=1e6),
     )  # fmt: skip
     r.finish()
     return out

@@ -27,6 +27,7 @@ import ipaddress
 import math
 import os
 import socket
+import struct
 import sys
 import threading
 import time
@@ -51,6 +52,12 @@ DROP_KINDS = (
 )
 
 SO_RXQ_OVFL = getattr(socket, "SO_RXQ_OVFL", 40)  # Linux: the socket's kernel-drop counter
+#: Linux: each datagram's arrival time stamped by the kernel (a CLOCK_REALTIME timespec)
+SO_TIMESTAMPNS = getattr(socket, "SO_TIMESTAMPNS", 35)
+_TIMESPEC = struct.Struct("@ll")  # time_t and long: 16 bytes on 64-bit Linux, 8 on 32-bit ARM
+#: a kernel stamp older than this (s) is not believed (a realtime clock step): capped
+MAX_ARRIVAL_AGE_S = 1.0
+_realtime = time.time  # the clock the kernel's stamps are on (a test shifts it)
 
 
 class NetGuardError(ValueError):
@@ -256,7 +263,12 @@ class UdpReceiver:
     (bursts of ``rx_burst``); past that the thread waits and the kernel drops the rest (counted
     ``socket_overflow`` on Linux). ``close()`` ends it within ``timeout_s``. ``groups``: IPv4
     multicast groups joined on the bind address's interface; the socket is then bound to any
-    address (multicast reaches no other), so the allow-list alone decides who is heard."""
+    address (multicast reaches no other), so the allow-list alone decides who is heard; so is
+    it with ``any_address`` (a subnet's broadcast, e.g. Art-Net's, reaches no other either).
+    ``arrival_stamps`` (real clock only): each datagram is stamped when the kernel received it,
+    not when this thread got to read it (Linux ``SO_TIMESTAMPNS``; the age the kernel's stamp
+    gives is taken off ``clock()``), so a receiver held back by the loop, the interpreter lock
+    or a busy host stamps the same instant as another process on the host would."""
 
     def __init__(
         self,
@@ -270,6 +282,8 @@ class UdpReceiver:
         rx_burst: int = 100,
         timeout_s: float = 0.2,
         groups: Sequence[str] = (),
+        arrival_stamps: bool = False,
+        any_address: bool = False,
     ) -> None:
         self.guard, self.feed, self.clock, self.name = guard, feed, clock, name
         if not (isinstance(max_rx_per_s, int | float) and 0 < max_rx_per_s <= 1e7):
@@ -280,7 +294,7 @@ class UdpReceiver:
         host = guard.config.bind_address
         sock = socket.socket(socket.AF_INET6 if ":" in host else socket.AF_INET, socket.SOCK_DGRAM)
         try:
-            if groups:  # multicast reaches a socket bound to any address, not to the interface's
+            if groups or any_address:  # multicast and broadcast reach no interface's address
                 sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
                 sock.bind(("0.0.0.0", port))
                 for group in groups:
@@ -293,12 +307,17 @@ class UdpReceiver:
             joined = f" (joining {', '.join(groups)})" if groups else ""
             msg = f"{name}: cannot listen on {host} port {port}{joined}: {exc.strerror}"
             raise NetGuardError(msg) from None
-        self.overflow_counted = False
+        self.overflow_counted = self.kernel_stamps = False
         with contextlib.suppress(OSError):
             sock.setsockopt(socket.SOL_SOCKET, SO_RXQ_OVFL, 1)
             self.overflow_counted = True
+        if arrival_stamps and sys.platform.startswith("linux"):
+            with contextlib.suppress(OSError):
+                sock.setsockopt(socket.SOL_SOCKET, SO_TIMESTAMPNS, 1)
+                self.kernel_stamps = True
         sock.settimeout(timeout_s)
         self._sock, self._kernel_drops = sock, 0
+        self._last_stamp = -math.inf
         self._bufsize = guard.config.max_packet_bytes + 1  # one byte more: an oversized is seen
         self._budget = TokenBucket(max_rx_per_s, rx_burst, time.monotonic())
         self._refill_s = max(1e-3, rx_burst / 2 / max_rx_per_s)
@@ -321,6 +340,7 @@ class UdpReceiver:
             os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), 19)
         sock, closing, drops = self._sock, self._closing, self.guard.drops
         anc = socket.CMSG_SPACE(4) if self.overflow_counted else 0
+        anc += socket.CMSG_SPACE(_TIMESPEC.size) if self.kernel_stamps else 0
         while not closing.is_set():
             if not self._budget.take(time.monotonic()):
                 closing.wait(self._refill_s)  # at the cap: the kernel buffers, then drops
@@ -334,15 +354,42 @@ class UdpReceiver:
                     return
                 continue  # e.g. an ICMP port-unreachable report: not a reason to stop
             try:
+                kernel_s = None
                 for level, kind, raw in ancdata:
-                    if level == socket.SOL_SOCKET and kind == SO_RXQ_OVFL and len(raw) >= 4:
+                    if level != socket.SOL_SOCKET:
+                        continue
+                    if kind == SO_RXQ_OVFL and len(raw) >= 4:
                         total = int.from_bytes(raw[:4], sys.byteorder)  # a native uint32
                         if total > self._kernel_drops:
                             drops.count("socket_overflow", total - self._kernel_drops)
                             self._kernel_drops = total
-                self.feed(self.clock(), data, sender)
+                    elif kind == SO_TIMESTAMPNS and len(raw) >= _TIMESPEC.size:
+                        sec, nsec = _TIMESPEC.unpack_from(raw)
+                        kernel_s = sec + nsec * 1e-9
+                if kernel_s is None:
+                    t = self.clock()
+                else:  # never before the last datagram's stamp (they arrived in this order)
+                    t = self._last_stamp = max(self._last_stamp, self._arrival(kernel_s))
+                self.feed(t, data, sender)
             except Exception:  # feed never raises; a broken clock must not end the thread
                 drops.count("internal")
+
+    def _arrival(self, kernel_s: float) -> float:
+        """``clock()`` when the kernel received the datagram (``kernel_s``, realtime): the
+        datagram's age, read between two realtime readings around ``clock()`` (the tightest
+        of three tries), so a thread preempted between the readings does not shift it."""
+        best_w, t = math.inf, 0.0
+        for _ in range(3):
+            r1 = _realtime()
+            c = self.clock()
+            r2 = _realtime()
+            if r2 - r1 < best_w:
+                best_w = r2 - r1
+                age = min(MAX_ARRIVAL_AGE_S, max(0.0, (r1 + r2) / 2 - kernel_s))
+                t = max(0.0, c - age) if age > 0.0 else c
+            if best_w < 50e-6:
+                break
+        return t
 
     def close(self) -> None:
         self._closing.set()

@@ -308,6 +308,15 @@ def test_a_show_file_section_is_read_and_a_mistake_is_one_line(tmp_path):
     (tmp_path / "show.toml").write_text(off)
     with pytest.raises(hilsim.RigError, match="allow"):
         hilsim.Show(tmp_path / "rig.toml", virtual_time=True, show=tmp_path / "show.toml")
+    for section in ("inputs.sacn", "inputs.multisync"):  # one line: the file named once
+        text = SHOW if section == "inputs.sacn" else "[inputs.multisync]\n"
+        (tmp_path / "show.toml").write_text(
+            text.replace(f"[{section}]\n", f"[{section}]\nrate_per_s = -1\n")
+        )
+        with pytest.raises(hilsim.RigError) as err:
+            hilsim.Show(tmp_path / "rig.toml", virtual_time=True, show=tmp_path / "show.toml")
+        assert str(err.value).count("show.toml") == 1, str(err.value)
+        assert f"{section}.rate_per_s: must be > 0" in str(err.value)
 
 
 # ------------------------------------------------------------------------------ fuzzing
@@ -489,3 +498,63 @@ def test_a_flood_is_dropped_and_said_at_most_once_a_second():
              if e.kind == "input_dropped" and e.detail["reason"] == "flood"]  # fmt: skip
     assert inp.guard.drops.by_kind["flood"] > 600
     assert [round(e.t, 2) for e in lines] == [0.1]  # 0.5 s and 1.05 s: within its second
+
+
+def test_two_consoles_taking_a_universe_in_turn_are_a_line_a_second_the_last_said():
+    """Two senders, one flapping its priority above and below the other's 1000 times a
+    second for 3 s: every packet is elected as E1.31 says, but the ``dmx_source`` lines are
+    4 at once then one a second, and the last one names the source left winning."""
+    inp = sacn_input()
+    lines = []
+    for k in range(3000):
+        t = k / 1000
+        inp.feed(t, e131(cid=CID_A, priority=100, sequence=k % 256), SENDER)
+        flap = 150 if k % 2 == 0 else 50
+        inp.feed(t, e131(cid=CID_B, priority=flap, sequence=k % 256), ("127.0.0.2", 5568))
+        if k % 4 == 0:
+            lines += [e for e in inp.poll(t).events if e.kind == "dmx_source"]
+    lines += [e for e in inp.poll(5.0).events if e.kind == "dmx_source"]
+    assert len(lines) <= 4 + 3 + 2
+    said = lines[-1].detail["message"]  # k = 2999: B at 50, so A (priority 100) holds it
+    assert "(priority 100) takes over" in said and "held back" in said
+
+
+def test_artnet_broadcast_is_heard_with_broadcast_and_off_loopback_by_default(tmp_path):
+    """A console sending Art-Net to the subnet's broadcast (here loopback's, 127.255.255.255)
+    reaches a socket bound to any address, never one bound to the interface's own address:
+    ``broadcast = true`` binds so (the default off loopback); the allow-list still decides."""
+    import socket
+
+    from hilsim.live.dmx_config import read_dmx
+    from hilsim.rig.reader import Reader
+
+    fed = threading.Semaphore(0)
+
+    class Signalled(DmxInput):
+        def feed(self, t, data, sender):
+            super().feed(t, data, sender)
+            fed.release()
+
+    cfg = DmxConfig("artnet", (DmxJoint("head_pan", 0, 1, 16, -50.0, 10.0, 50.0),), port=0,
+                    broadcast=True)  # fmt: skip
+    inp = Signalled(cfg)
+    rx = listen(inp, lambda: 1.0)
+    s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    try:
+        s.setsockopt(socket.SOL_SOCKET, socket.SO_BROADCAST, 1)
+        artdmx = b"Art-Net\0\x00\x50\x00\x0e\x01\x00\x00\x00\x00\x02\xff\xff"
+        s.sendto(artdmx, ("127.255.255.255", rx.address[1]))
+        assert fed.acquire(timeout=5.0), "the broadcast was not heard"
+        assert values(inp, 1.0) == {"head_pan": 50.0}
+    finally:
+        s.close()
+        rx.close()
+    limits = {"head_pan": (-50.0, 50.0)}
+    joints = {"head_pan": {"universe": 0, "channel": 1}}
+    lan = {"interface": "192.168.1.10", "allow": ["192.168.1.20"], "joints": joints}
+    assert read_dmx(Reader(tmp_path, lan, "inputs.artnet"), "artnet", limits).broadcast
+    assert not read_dmx(Reader(tmp_path, {"joints": joints}, "inputs.artnet"), "artnet",
+                        limits).broadcast  # fmt: skip
+    with pytest.raises(hilsim.RigError, match="broadcast is Art-Net's"):
+        read_dmx(Reader(tmp_path, {"broadcast": True, "joints": {"head_pan": {
+            "universe": 1, "channel": 1}}}, "inputs.sacn"), "sacn", limits)  # fmt: skip

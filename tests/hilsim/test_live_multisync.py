@@ -122,6 +122,35 @@ def test_a_real_loopback_socket_is_heard():
         rx.close()
 
 
+@pytest.mark.parametrize("storm", ["seeks", "starts and stops"])
+def test_a_storm_of_well_formed_packets_is_a_line_a_second_and_its_last_state_is_said(storm):
+    """A master (or anyone on loopback) seeking, or starting and stopping, 1000 times a
+    second for 3 s: every packet acts, but the lines are 4 at once then one a second, and the
+    last line says the state the storm left."""
+    r = MultiSyncRemote(MultiSyncConfig(sequence=SONG))
+    r.feed(0.0, fpp_packet(0, 0.0, SONG), SENDER)
+    lines = [e for e in r.poll(0.0)]
+    for k in range(1, 3001):
+        t = k / 1000
+        if storm == "seeks":
+            packet = fpp_packet(2, 10.0 * (k % 2) + t, SONG)
+        else:
+            packet = fpp_packet(0 if k % 2 == 0 else 1, t, SONG)
+        r.feed(t, packet, SENDER)
+        if k % 4 == 0:
+            lines += r.poll(t)
+    lines += r.poll(5.0)  # the storm is over: what was held back is said
+    kinds = [e.kind for e in lines if e.kind.startswith("multisync_")]
+    assert len(kinds) <= 1 + 4 + 3 + 2  # the start, a burst of 4, one a second, the last
+    if storm == "seeks":
+        assert r.counts["seeks"] == 3000  # each acted
+        last = [e for e in lines if e.kind == "multisync_seek"][-1]
+        assert last.detail["to_s"] == pytest.approx(3.0) and "held back" in last.detail["message"]
+        assert r.show_time(3.0) == pytest.approx(3.0)
+    else:
+        assert kinds[-1] == "multisync_start" and r.state == "playing"  # k = 3000: a start
+
+
 # ------------------------------------------------------------------------------ a show
 RIG = f"""
 name = "remote"
@@ -259,3 +288,66 @@ def test_mtc_and_multisync_together_are_one_line(tmp_path):
     (tmp_path / "show.toml").write_text(SHOW + "[inputs.mtc]\n")
     with pytest.raises(hilsim.RigError, match=r"inputs\.mtc sets the show time too"):
         hilsim.Show(tmp_path / "rig.toml", virtual_time=True, show=tmp_path / "show.toml")
+
+
+# ------------------------------------------------------------------------------ one clock
+def test_two_figures_on_one_host_hear_one_master_by_multicast_and_agree_on_show_time(tmp_path):
+    """Two directors (two figures' shows on one host) with ``multicast = true`` on one port:
+    every packet the master multicasts reaches both (each socket joined 239.70.80.80, the
+    kernel hands a multicast datagram to each), so both command the same show time, tick by
+    tick. One virtual clock stamps both (no timing is asserted)."""
+    import socket
+
+    from drivers.clock import VirtualClock
+    from hilsim.live.multisync import MULTISYNC_GROUP
+    from hilsim.live.netguard import NetGuardError
+
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as probe:  # a free port for both
+        probe.bind(("127.0.0.1", 0))
+        port = probe.getsockname()[1]
+    (tmp_path / "rig.toml").write_text(RIG)
+    (tmp_path / "show.toml").write_text(SHOW + f"port = {port}\nmulticast = true\n")
+    rig = load_rig(tmp_path / "rig.toml")
+    clock, fed = VirtualClock(), threading.Semaphore(0)
+    directors = []
+    for _ in range(2):
+        d = with_show(build_parts(rig), str(tmp_path / "show.toml"), False, virtual=True).director
+        real_feed = d.multisync.feed
+
+        def feed(t, data, sender, real_feed=real_feed):
+            real_feed(t, data, sender)
+            fed.release()
+
+        d.multisync.feed = feed  # the receiver feeds this one
+        directors.append(d)
+    tx = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    try:
+        for d in directors:
+            try:
+                d.open(clock, lambda line: None)
+            except NetGuardError as exc:  # a host without multicast on loopback
+                pytest.skip(str(exc))
+            d.begin(0.0, lambda *a, **k: None, None)
+        tx.setsockopt(socket.IPPROTO_IP, socket.IP_MULTICAST_IF, socket.inet_aton("127.0.0.1"))
+        master = [(0.5, fpp_packet(0, 0.0, SONG))]  # Start at 0.5 s, Sync at 4 Hz
+        master += [(0.5 + i * 0.25, fpp_packet(2, i * 0.25, SONG)) for i in range(1, 9)]
+        shows = []
+        for k in range(800):  # 3.2 s of ticks; each packet sent when its time comes
+            t = k * PERIOD
+            while master and master[0][0] <= t:
+                at, packet = master.pop(0)
+                clock.advance(at - clock.now())  # both receivers stamp the packet at `at`
+                tx.sendto(packet, (MULTISYNC_GROUP, port))
+                for _ in directors:
+                    assert fed.acquire(timeout=5.0), "a figure did not hear the master"
+            for d in directors:
+                d.tick(k, t, [0.0])
+            shows.append([t + d.offset for d in directors])
+    finally:
+        tx.close()
+        for d in directors:
+            d.close_inputs()
+    shows = np.array(shows)
+    assert np.array_equal(shows[:, 0], shows[:, 1])  # one clock: the same show time, every tick
+    assert [d.multisync.counts["packets"] for d in directors] == [9, 9]
+    assert shows[-1, 0] == pytest.approx(3.2 - PERIOD - 0.5)  # the master's time, run on

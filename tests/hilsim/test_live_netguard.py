@@ -5,10 +5,13 @@ from __future__ import annotations
 import math
 import os
 import socket
+import sys
 import threading
+import time
 
 import pytest
 
+from hilsim.live import netguard
 from hilsim.live.netguard import (
     DropCounts,
     DropLog,
@@ -188,6 +191,31 @@ def test_receiver_thread_is_not_realtime_and_yields_to_the_loop(monkeypatch):
         rx.close()
     assert asked == [(0, os.SCHED_OTHER)]
     assert niced == [(os.PRIO_PROCESS, rx._thread.native_id, 19)]  # the receiver thread only
+
+
+@pytest.mark.parametrize(("stamps", "late_s", "want"), [(False, 0.25, (2.0, 2.0)),
+                                                         (True, 0.25, (1.0, 1.75)),
+                                                         (True, 30.0, (1.0, 1.0))])  # fmt: skip
+def test_arrival_stamps_are_the_kernels_not_when_the_thread_got_to_read(
+    monkeypatch, stamps, late_s, want
+):
+    """With ``arrival_stamps`` the datagram is stamped when the kernel received it: a reader
+    that got to it ``late_s`` later (the real clock shifted that far on) takes the delay off
+    its clock (at most MAX_ARRIVAL_AGE_S, 1 s). Without, the stamp is the clock at read."""
+    if not sys.platform.startswith("linux"):
+        pytest.skip("kernel arrival stamps are Linux's SO_TIMESTAMPNS")
+    monkeypatch.setattr(netguard, "_realtime", lambda: time.time() + late_s)
+    feed = _Feed()
+    rx = UdpReceiver(NetGuard(), feed, 0, clock=lambda: 2.0, arrival_stamps=stamps)
+    try:
+        assert rx.kernel_stamps == stamps
+        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as tx:
+            tx.sendto(b"ping", rx.address)
+            assert feed.fed.acquire(timeout=5.0)
+    finally:
+        rx.close()
+    ((t, data, _),) = feed.got
+    assert data == b"ping" and want[0] <= t <= want[1]
 
 
 @pytest.mark.parametrize(

@@ -179,6 +179,24 @@ def test_a_flood_of_malformed_packets_and_a_stranger_change_nothing(tmp_path):
     assert r.result.exit_code == 0
 
 
+def test_a_storm_of_one_cue_is_a_few_lines_a_second_and_each_trigger_acts(tmp_path):
+    """/trigger/pir 1000 times a second for 3 s (the scare locked out 10 s): the trigger
+    acts each time (one cue, then lockouts), but its ``cue`` and ``cue_ignored`` lines are 4,
+    then one a second each, the last one saying how many it stands for."""
+
+    def inject(k, d):
+        if 250 <= k < 1000:
+            for _ in range(4):
+                d.osc.feed(k * PERIOD, osc("/trigger/pir"), ("127.0.0.1", 5000))
+
+    r = show(tmp_path, SCARE_SHOW.replace('"at:3.0"', '"at:30"'), duration=5.0, inject=inject)
+    kinds = [e["kind"] for e in r.run.events]
+    assert kinds.count("cue_start") == 1
+    assert 1 <= kinds.count("cue") <= 4 + 3 + 1 and 1 <= kinds.count("cue_ignored") <= 4 + 3 + 1
+    last = [e for e in r.run.events if e["kind"] == "cue_ignored"][-1]
+    assert "held back" in last["message"] and last["lines"] > 100
+
+
 # ------------------------------------------------------------------ MIDI
 MIDI_SHOW = """
 [inputs.midi]
