@@ -47,6 +47,7 @@ if TYPE_CHECKING:  # each input's module is imported when a show uses that input
     from hilsim.live.dmx_input import DmxInput
     from hilsim.live.gamepad import GamepadInput
     from hilsim.live.keyboard import KeyboardInput
+    from hilsim.live.ltc_chase import LtcChase
     from hilsim.live.midi import MidiCcInput, MidiTriggerInput
     from hilsim.live.multisync import MultiSyncRemote
     from hilsim.live.osc import OscInput
@@ -190,6 +191,11 @@ class Director:
 
             m = spec.mtc
             self.chase = MtcChase(freewheel_s=m.freewheel_s, jump_s=m.jump_s, offset_s=m.offset_s)
+        self.ltc: LtcChase | None = None  # LTC (a WAV file or an audio input)
+        if spec.ltc is not None:
+            from hilsim.live.ltc_chase import LtcChase
+
+            self.ltc = LtcChase(spec.ltc)
         #: sACN and Art-Net in (hilsim.live.dmx_input)
         self.dmx: list[DmxInput] = []
         for dmx_config in (spec.sacn, spec.artnet):
@@ -285,7 +291,7 @@ class Director:
                 port = open_midi_input(spec.midi.port, sinks, self.now)
                 self._closers.append(port.close)
                 say(f"MIDI in: {port.name}")
-            for part in (self.bottango, self.gamepad, self.keyboard, self.audio):
+            for part in (self.bottango, self.gamepad, self.keyboard, self.audio, self.ltc):
                 if part is not None and hasattr(part, "start"):
                     note = part.start(self.now)
                     self._closers.append(part.close)
@@ -313,7 +319,7 @@ class Director:
         joints' present positions (joint frame) read this tick."""
         events: list[LiveEvent] = []
         triggers: list[str] = []
-        chase = self.chase
+        chase = self.chase if self.chase is not None else self.ltc
         if chase is not None:
             cp = chase.poll(t)
             events += cp.events
@@ -507,6 +513,8 @@ class Director:
             parts.append(playing)
         if self.chase is not None:
             parts.append(f"MTC {self.chase.state}")
+        if self.ltc is not None:
+            parts.append(self.ltc.status)
         if self.multisync is not None:
             parts.append(f"MultiSync {self.multisync.state}")
         return "; ".join(parts)
@@ -522,7 +530,7 @@ class Director:
         for dmx in self.dmx:
             out[dmx.source] = dmx.summary()
         parts = ("midi", "chase", "multisync", "bottango", "gamepad", "keyboard", "teach", "audio")
-        for name in parts:
+        for name in (*parts, "ltc"):
             part = getattr(self, name)
             summary = getattr(part, "summary", None)
             if callable(summary):
