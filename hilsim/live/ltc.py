@@ -135,6 +135,8 @@ class LtcDecoder:
         """The transitions in ``x`` (global sample positions, fractional), with hysteresis."""
         n = x.size
         decay = math.exp(-n / (0.05 * self.sample_rate))  # the envelope forgets in ~50 ms
+        if self._n == 0:  # the first block sets the envelopes
+            self._hi = self._lo = float(x[0])
         centre = 0.5 * (self._hi + self._lo)
         self._hi = max(float(x.max()), centre + (self._hi - centre) * decay)
         self._lo = min(float(x.min()), centre + (self._lo - centre) * decay)

@@ -105,6 +105,8 @@ class AudioLtcReader:
                 self._chase.feed_samples(block, t_first)
             except ValueError:  # LtcError or a stamp out of order: this block is lost
                 self.errors += 1
+            finally:
+                self._q.task_done()  # (a test joins the queue: every block decoded)
 
     def take_events(self, t: float) -> list[LiveEvent]:
         """The loop's: one ``ltc_audio_dropped`` a second at most while blocks are dropped."""

@@ -424,3 +424,23 @@ def test_an_audio_input_in_the_show_file_is_read_as_such(tmp_path) -> None:
         source="Scarlett 2i2", channel=2, fps="25", offset_s=3600.0, sample_rate=44100
     )
     assert not spec.ltc.is_wav and spec.midi is None
+
+
+def test_live_md_example_is_what_the_reader_takes(tmp_path) -> None:
+    """docs/live.md's [inputs.ltc] block, with its WAV made and its commented key on."""
+    import tomllib
+
+    from hilsim.live.ltc_chase import read_ltc
+    from hilsim.rig.reader import Reader
+
+    text = (Path(__file__).resolve().parents[2] / "docs" / "live.md").read_text(encoding="utf-8")
+    block = text.split("### SMPTE LTC", 1)[1].split("```toml", 1)[1].split("```", 1)[0]
+    enc.write_wav(tmp_path / "show_ltc.wav", enc.ltc_samples("25", 0.2, 48000), 48000)
+    wav_cfg = read_ltc(Reader(tmp_path / "s.toml", tomllib.loads(block)["inputs"]["ltc"],
+                              "inputs.ltc"), tmp_path)  # fmt: skip
+    assert wav_cfg.is_wav and wav_cfg.offset_s == 3600 and wav_cfg.fps == "auto"
+    device = block.replace('source = "show_ltc.wav"', 'source = "Scarlett 2i2"')
+    device = device.replace("# sample_rate", "sample_rate")
+    cfg = read_ltc(Reader(tmp_path / "s.toml", tomllib.loads(device)["inputs"]["ltc"],
+                          "inputs.ltc"), tmp_path)  # fmt: skip
+    assert cfg.source == "Scarlett 2i2" and cfg.sample_rate == 48000
