@@ -15,7 +15,8 @@ ahead in 20 ms chunks (so ``--virtual-time`` chases it deterministically). An au
 read by :mod:`hilsim.live.ltc_audio` in a thread of its own. Events: ``timecode_locked``
 (with ``rate`` and ``show_time_s``), ``timecode_stopped``, ``timecode_held``,
 ``timecode_jump``, ``timecode_invalid``; once each: ``timecode_none`` (nothing locked in 2 s),
-``timecode_reverse``, ``timecode_rate_mismatch``. Keys and a show-controller set-up:
+``timecode_reverse``, ``timecode_rate_mismatch``, ``input_unavailable`` (no audio input),
+``ltc_read_error`` (the WAV cannot be read on). Keys and a show-controller set-up:
 ``docs/live.md`` (LTC).
 """
 
@@ -120,12 +121,19 @@ class WavSource:
             raise ValueError(
                 f"{path}: {self.rate} Hz; LTC is read at {MIN_SAMPLE_RATE}..{MAX_SAMPLE_RATE} Hz"
             )
+        if self.width not in (1, 2, 3, 4):
+            self.close()
+            raise ValueError(f"{path}: {8 * self.width}-bit samples; PCM is 8, 16, 24 or 32 bits")
         self.channel = channel
         self.done = False
 
     def read(self, n: int) -> np.ndarray:
         """The next ``n`` samples (fewer at the end of the file; ``done`` then)."""
-        raw = self._w.readframes(n)
+        try:
+            raw = self._w.readframes(n)
+        except (wave.Error, EOFError, OSError) as exc:
+            self.done = True
+            raise ValueError(f"{self.path}: cannot read on ({exc})") from None
         w, ch = self.width, self.channels
         count = len(raw) // (w * ch)
         if count < n:
@@ -237,7 +245,14 @@ class LtcChase(TimecodeChase):
             return
         chunk = max(1, round(WAV_CHUNK_S * wav.rate))
         while not wav.done and dec.samples < t * wav.rate:
-            self.feed_samples(wav.read(chunk), dec.samples / wav.rate)
+            try:
+                block = wav.read(chunk)
+            except ValueError as exc:  # a file cut short on disk: the signal ends here
+                self._pending.append(
+                    LiveEvent(t, "ltc_read_error", self.source, {"message": str(exc)})
+                )
+                return
+            self.feed_samples(block, dec.samples / wav.rate)
 
     # ------------------------------------------------------------------ the loop's side
     def poll(self, t: float) -> ChasePoll:
@@ -306,6 +321,8 @@ class LtcChase(TimecodeChase):
 
     def _once_notes(self, t: float, events: list[LiveEvent]) -> None:
         dec = self.decoder
+        if self.error is not None:  # no input: said once already (input_unavailable)
+            return
         if self.state == "waiting" and t >= NO_LOCK_AFTER_S and "none" not in self._said:
             self._said.add("none")
             seen = "" if dec is None else f" ({dec.frames} frames decoded, {dec.invalid} invalid)"

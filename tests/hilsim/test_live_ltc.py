@@ -11,7 +11,7 @@ from types import SimpleNamespace
 
 import numpy as np
 import pytest
-from hypothesis import HealthCheck, given, settings
+from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
 from hilsim.live.ltc import LtcDecoder, LtcError
@@ -351,6 +351,7 @@ def test_no_audio_device_is_one_warning_and_no_chase() -> None:
     assert [e.kind for e in first.events] == ["input_unavailable"]
     assert first.state == "waiting" and first.show_time_s is None
     assert [e.kind for e in chase.poll(0.008).events] == []
+    assert [e.kind for e in chase.poll(5.0).events] == []  # no second line (timecode_none)
     assert "no audio input" in chase.summary()["error"]
 
 
@@ -444,3 +445,59 @@ def test_live_md_example_is_what_the_reader_takes(tmp_path) -> None:
     cfg = read_ltc(Reader(tmp_path / "s.toml", tomllib.loads(device)["inputs"]["ltc"],
                           "inputs.ltc"), tmp_path)  # fmt: skip
     assert cfg.source == "Scarlett 2i2" and cfg.sample_rate == 48000
+
+
+@settings(
+    max_examples=200, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture]
+)
+@given(
+    body=st.binary(max_size=200),
+    fmt=st.integers(0, 4),
+    channels=st.integers(0, 3),
+    width=st.integers(0, 5),
+    rate=st.integers(0, 200000),
+)
+@example(body=bytes(range(100)), fmt=1, channels=1, width=5, rate=48000)  # 40-bit "PCM"
+@example(body=bytes(range(99)), fmt=1, channels=3, width=3, rate=8000)
+def test_fuzz_a_damaged_wav_is_one_valueerror_or_reads(tmp_path, body, fmt, channels, width, rate):
+    """A RIFF/WAVE header with random fields and data: the WAV reader raises ValueError (one
+    line) or reads samples; nothing else leaves it."""
+    import struct
+
+    from hilsim.live.ltc_chase import WavSource
+
+    fmt_chunk = struct.pack(
+        "<HHIIHH", fmt, channels, rate, rate * channels * width, channels * width, 8 * width
+    )
+    data = b"fmt " + struct.pack("<I", 16) + fmt_chunk + b"data" + struct.pack("<I", len(body))
+    path = tmp_path / "f.wav"
+    path.write_bytes(b"RIFF" + struct.pack("<I", 4 + len(data) + len(body)) + b"WAVE" + data + body)
+    try:
+        src = WavSource(path, 1)
+    except ValueError as exc:
+        assert "\n" not in str(exc)
+        return
+    with src:
+        while not src.done:
+            x = src.read(64)
+            assert x.ndim == 1
+
+
+def test_a_wav_that_cannot_be_read_on_is_said_and_the_chase_lets_go(tmp_path) -> None:
+    """A read error mid-file (a disk gone): one ltc_read_error, then freewheel and hold, never
+    an exception in the loop's tick."""
+    chase = LtcChase(LtcConfig(source=wav(tmp_path, "25", 3.0)))
+    chase.start(lambda: 0.0)
+    for k in range(250):
+        chase.poll(k * TICK)
+    assert chase.state == "locked"
+
+    def broken(n):
+        raise OSError("Input/output error")
+
+    chase._wav._w.readframes = broken
+    kinds = []
+    for k in range(250, 750):
+        kinds += [e.kind for e in chase.poll(k * TICK).events]
+    assert kinds == ["ltc_read_error", "timecode_stopped", "timecode_held"]
+    assert chase.state == "held"
