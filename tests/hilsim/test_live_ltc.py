@@ -66,12 +66,12 @@ def test_drop_frame_labels_skip_00_and_01_at_the_minute() -> None:
     assert "00:00:59;29" in labels and labels[labels.index("00:00:59;29") + 1] == "00:01:00;02"
 
 
-@pytest.mark.parametrize("block", [1, 7, 441, 10**6])
+@pytest.mark.parametrize("block", [1, 7, 160, 10**6])
 def test_block_size_changes_nothing(block) -> None:
-    x = enc.ltc_samples("25", 1.0, 44100, start=(0, 0, 1, 0))
-    ref = [(str(f), f.end_sample) for f in decode_all(x, 44100, 192)[0]]
-    got = [(str(f), f.end_sample) for f in decode_all(x, 44100, block)[0]]
-    assert [g[0] for g in got] == [r[0] for r in ref]
+    x = enc.ltc_samples("25", 0.5, 16000, start=(0, 0, 1, 0))
+    ref = [(str(f), f.end_sample) for f in decode_all(x, 16000, 192)[0]]
+    got = [(str(f), f.end_sample) for f in decode_all(x, 16000, block)[0]]
+    assert len(ref) >= 10 and [g[0] for g in got] == [r[0] for r in ref]
     assert np.allclose([g[1] for g in got], [r[1] for r in ref], atol=1e-6)
 
 
