@@ -114,6 +114,7 @@ class Director:
         self.inputs = inputs = LiveInputs(spec, self.names, self.runtime, silent=silent)
         self.osc, self.midi, self.midi_triggers = inputs.osc, inputs.midi, inputs.midi_triggers
         self.chase, self.multisync, self.dmx = inputs.chase, inputs.multisync, inputs.dmx
+        self.ltc = inputs.ltc
         self.bottango, self.gamepad = inputs.bottango, inputs.gamepad
         self.keyboard, self.teach = inputs.keyboard, inputs.teach
         self.audio, self.api = inputs.audio, inputs.api

@@ -1,7 +1,7 @@
 """The show's live inputs: each one built, opened, polled once a tick and closed, in one place.
 
 :class:`LiveInputs` holds what a show file's ``[inputs.*]`` (and ``--live``) ask for: the
-clocks a show can follow (MTC chase, FPP MultiSync), the value inputs (OSC, MIDI CC, sACN,
+clocks a show can follow (MTC or LTC chase, FPP MultiSync), the value inputs (OSC, MIDI CC, sACN,
 Art-Net, gamepad, Bottango live, the program's controls, teach-by-hand), the triggers (OSC,
 MIDI notes, keys) and the show's sound output. The director owns the decisions (who holds a
 joint, the show runtime, the log); this module only turns each input's poll into calls on the
@@ -33,6 +33,7 @@ if TYPE_CHECKING:  # each input's module is imported when a show uses that input
     from hilsim.live.dmx_input import DmxInput
     from hilsim.live.gamepad import GamepadInput
     from hilsim.live.keyboard import KeyboardInput
+    from hilsim.live.ltc_chase import LtcChase
     from hilsim.live.midi import MidiCcInput, MidiTriggerInput
     from hilsim.live.multisync import MultiSyncRemote
     from hilsim.live.osc import OscInput
@@ -41,7 +42,9 @@ if TYPE_CHECKING:  # each input's module is imported when a show uses that input
     from hilsim.live.timecode import MtcChase
 
 #: the inputs whose ``summary()`` goes into the summary's ``live`` section, in this order
-SUMMARIES = ("midi", "chase", "multisync", "bottango", "gamepad", "keyboard", "teach", "audio")
+SUMMARIES = (
+    "midi", "chase", "multisync", "bottango", "gamepad", "keyboard", "teach", "audio", "ltc",
+)  # fmt: skip
 
 
 class Sink(Protocol):
@@ -128,6 +131,12 @@ class LiveInputs:
 
             m = spec.mtc
             self.chase = MtcChase(freewheel_s=m.freewheel_s, jump_s=m.jump_s, offset_s=m.offset_s)
+        #: LTC (a WAV file or an audio input): the show's chase when it has no MTC
+        self.ltc: LtcChase | None = None
+        if spec.ltc is not None:
+            from hilsim.live.ltc_chase import LtcChase
+
+            self.ltc = LtcChase(spec.ltc)
         #: sACN and Art-Net in (hilsim.live.dmx_input)
         self.dmx: list[DmxInput] = []
         for dmx_config in (spec.sacn, spec.artnet):
@@ -205,7 +214,7 @@ class LiveInputs:
                 port = open_midi_input(spec.midi.port, sinks, now)
                 self._closers.append(port.close)
                 say(f"MIDI in: {port.name}")
-            for part in (self.bottango, self.gamepad, self.keyboard, self.audio):
+            for part in (self.bottango, self.gamepad, self.keyboard, self.audio, self.ltc):
                 if part is not None and hasattr(part, "start"):
                     note = part.start(now)
                     self._closers.append(part.close)
@@ -227,7 +236,7 @@ class LiveInputs:
         """The show time at loop time ``t`` from the clock the show follows (MTC chase, FPP
         MultiSync; the later one named wins), None: the show follows its own clock."""
         t_show: float | None = None
-        chase = self.chase
+        chase = self.chase if self.chase is not None else self.ltc
         if chase is not None:
             cp = chase.poll(t)
             events += cp.events
@@ -325,6 +334,8 @@ class LiveInputs:
         out = []
         if self.chase is not None:
             out.append(f"MTC {self.chase.state}")
+        if self.ltc is not None:
+            out.append(self.ltc.status)
         if self.multisync is not None:
             out.append(f"MultiSync {self.multisync.state}")
         return out

@@ -4,7 +4,7 @@ A show file names the clips a figure plays, what starts them, and the live input
 drive it. The rig (its servos, limits and springs) stays in the rig file. Every section is
 optional; paths are relative to the show file. Sections: ``[show]``, ``[clips.*]``,
 ``[sounds]``, ``[idle]``, ``[cues.*]``, ``[[timeline]]``, ``[inputs.osc]``, ``[inputs.midi]``,
-``[inputs.mtc]``, ``[inputs.sacn]``, ``[inputs.artnet]``, ``[inputs.multisync]``,
+``[inputs.mtc]``, ``[inputs.ltc]``, ``[inputs.sacn]``, ``[inputs.artnet]``, ``[inputs.multisync]``,
 ``[inputs.gamepad]``, ``[inputs.keyboard]``, ``[inputs.bottango]``, ``[record]`` and
 ``[teach]``. ``--live`` has a built-in one.
 
@@ -34,6 +34,7 @@ if TYPE_CHECKING:  # each section's reader is imported when a show file has that
     from hilsim.live.dmx_config import DmxConfig
     from hilsim.live.gamepad import GamepadConfig
     from hilsim.live.keyboard import KeyboardConfig
+    from hilsim.live.ltc_chase import LtcConfig
     from hilsim.live.multisync import MultiSyncConfig
     from hilsim.live.show_spec import MakeTrack, RuntimeSpec
     from hilsim.live.teach import TeachConfig
@@ -41,7 +42,7 @@ if TYPE_CHECKING:  # each section's reader is imported when a show file has that
 #: the default OSC port of ``hilsim run --live``
 DEFAULT_OSC_PORT = 9000
 TOP_KEYS = ("show", "clips", "sounds", "idle", "cues", "timeline", "inputs", "record", "teach")
-INPUT_KEYS = ("osc", "midi", "mtc", "sacn", "artnet", "multisync", "bottango", "gamepad",
+INPUT_KEYS = ("osc", "midi", "mtc", "ltc", "sacn", "artnet", "multisync", "bottango", "gamepad",
               "keyboard")  # fmt: skip
 
 
@@ -93,6 +94,7 @@ class ShowSpec:
     osc: OscConfig | None = None
     midi: MidiConfig | None = None
     mtc: MtcConfig | None = None
+    ltc: LtcConfig | None = None
     sacn: DmxConfig | None = None
     artnet: DmxConfig | None = None
     multisync: MultiSyncConfig | None = None
@@ -158,6 +160,12 @@ def load_show(path: str | Path, rig: Rig, make_track: MakeTrack) -> ShowSpec:
             spec.midi = _midi(inputs.sub("midi"), names)
         if "mtc" in inputs.table:
             spec.mtc = _mtc(inputs.sub("mtc"))
+        if "ltc" in inputs.table:
+            from hilsim.live.ltc_chase import read_ltc
+
+            spec.ltc = read_ltc(inputs.sub("ltc"), path.parent)
+            if spec.mtc is not None:
+                raise inputs.fail("ltc", "inputs.mtc sets the show time too: keep one")
         _network_inputs(inputs, spec, rig)
         if "bottango" in inputs.table:
             from hilsim.live.bottango_live import from_table as bottango_table
@@ -206,8 +214,9 @@ def _network_inputs(inputs: Reader, spec: ShowSpec, rig: Rig) -> None:
         from hilsim.live.multisync import read_multisync
 
         spec.multisync = read_multisync(inputs.sub("multisync"))
-        if spec.mtc is not None:
-            raise inputs.fail("multisync", "inputs.mtc sets the show time too: keep one")
+        if spec.mtc is not None or spec.ltc is not None:
+            other = "mtc" if spec.mtc is not None else "ltc"
+            raise inputs.fail("multisync", f"inputs.{other} sets the show time too: keep one")
 
 
 def _osc(r: Reader, rig: Rig) -> OscConfig:

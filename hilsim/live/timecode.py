@@ -92,17 +92,26 @@ class ChasePoll:
     events: list[LiveEvent] = field(default_factory=list)
 
 
-class MtcChase:
-    """MIDI Time Code -> show time (see the module docstring).
+class TimecodeChase:
+    """A timecode -> show time: lock, freewheel, hold, relock (MTC's and LTC's one logic).
+
+    A subclass hands each decoded code to :meth:`_new_code` with the local time it was on the
+    wire (and how many frames after its label that is), marks the stream alive with
+    ``_alive_t``, and calls :meth:`_advance` once per poll for the stop, freewheel and hold.
 
     Args:
-        freewheel_s: how long (s, ≥ 0) the show time runs on after the last quarter frame
+        freewheel_s: how long (s, ≥ 0) the show time runs on after the timecode stops
             (at least one frame).
         jump_s: a new code further than this (s, > 0) from the running show time is a jump.
         offset_s: the timecode that is show time 0 (s; e.g. 3600 for 01:00:00:00).
         capacity: the inbox's size (messages).
         source: the events' ``source``.
     """
+
+    #: the name in messages (``"MTC chase: ..."``)
+    name = "MTC"
+    #: ``timecode_stopped``'s key for the last sign of life
+    alive_key = "last_quarter_frame_t"
 
     def __init__(
         self,
@@ -121,14 +130,16 @@ class MtcChase:
                 or (name == "jump_s" and x == 0)
             ):
                 raise ValueError(
-                    f"MTC chase: {name} must be a number of seconds {bound}, got {x!r}"
+                    f"{self.name} chase: {name} must be a number of seconds {bound}, got {x!r}"
                 )
         if (
             isinstance(offset_s, bool)
             or not isinstance(offset_s, int | float)
             or not math.isfinite(offset_s)
         ):
-            raise ValueError(f"MTC chase: offset_s must be a finite number, got {offset_s!r}")
+            raise ValueError(
+                f"{self.name} chase: offset_s must be a finite number, got {offset_s!r}"
+            )
         self.freewheel_s = float(freewheel_s)
         self.jump_s = float(jump_s)
         self.offset_s = float(offset_s)
@@ -136,24 +147,18 @@ class MtcChase:
         self.inbox = Inbox(capacity)
         self.state = "waiting"
         self.timecode: Smpte | None = None
-        self._pieces = [0] * 8
-        self._last_piece = -1  # the last quarter frame's piece
-        self._in_sequence = False  # pieces 0.. arrived in order, without a pause
-        self._last_qf_t = -math.inf
-        self._reverse_run = 0
         self._anchor_show = 0.0  # show time at _anchor_t (s)
         self._anchor_t = 0.0
-        self._alive_t = 0.0  # the last quarter frame of the chased stream (local s)
+        self._alive_t = 0.0  # the last sign of the chased stream (local s)
         self._held = 0.0
         self._frame_s = 1 / 24  # one frame (s) at the chased rate; 24 fps until known
         self._bad_run = False
-        self.quarter_frames = 0  #: quarter frames received
-        self.codes = 0  #: full codes decoded (quarter-frame sequences and full frames)
-        self.rejected = 0  #: quarter frames out of sequence, invalid codes, other messages
+        self.codes = 0  #: codes decoded
+        self.rejected = 0  #: messages or codes refused
 
-    def feed(self, message: Any, t: float) -> None:
-        """Hand in one MIDI message stamped ``t`` (show time of the loop's clock, s)."""
-        self.inbox.put(t, message)
+    def _stale_s(self) -> float:
+        """No sign of the stream this long (s): it stopped (MTC: one frame)."""
+        return self._frame_s
 
     def show_time(self, t: float) -> float | None:
         """The show time (s) at local time ``t`` by the current state (no messages applied)."""
@@ -167,6 +172,127 @@ class MtcChase:
         """The show time at ``t`` while the timecode runs (locked, or freewheeling on)."""
         run_on = max(self.freewheel_s, self._frame_s)
         return self._anchor_show + (min(t, self._alive_t + run_on) - self._anchor_t)
+
+    def _advance(self, t: float, events: list[LiveEvent]) -> None:
+        """Locked with no sign of the stream for :meth:`_stale_s`: freewheel; then hold."""
+        if self.state == "locked" and t - self._alive_t > self._stale_s():
+            self.state = "freewheel"
+            events.append(
+                LiveEvent(
+                    t,
+                    "timecode_stopped",
+                    self.source,
+                    {
+                        self.alive_key: self._alive_t,
+                        "freewheel_s": self.freewheel_s,
+                        "message": f"{self.name} stopped: the show time runs on "
+                        f"{max(self.freewheel_s, self._frame_s):g} s, then holds",
+                    },
+                )
+            )
+        if self.state == "freewheel" and t - self._alive_t >= max(self.freewheel_s, self._frame_s):
+            self._held = self._running(t)  # (freewheel: what show_time(t) gives)
+            self.state = "held"
+            message = f"{self.name} gone: the show time holds at {self._held:.3f} s"
+            events.append(
+                LiveEvent(
+                    t,
+                    "timecode_held",
+                    self.source,
+                    {"show_time_s": self._held, "message": message},
+                )
+            )
+
+    def _new_code(
+        self, tm: float, code: Smpte, frames_late: float, cause: str, events: list[LiveEvent]
+    ) -> None:
+        why = code.problem()
+        if why is not None:
+            self.rejected += 1
+            if not self._bad_run:  # one event per run of bad codes, not one every 2 frames
+                events.append(
+                    LiveEvent(
+                        tm,
+                        "timecode_invalid",
+                        self.source,
+                        {
+                            "timecode": str(code),
+                            "problem": why,
+                            "message": f"{self.name}: {code} is no valid code: {why}",
+                        },
+                    )
+                )
+            self._bad_run = True
+            return
+        self._bad_run = False
+        self.codes += 1
+        self._frame_s = 1 / code.fps
+        new = code.to_seconds() + frames_late * self._frame_s - self.offset_s
+        before = self.show_time(tm)
+        rate = RATE_NAMES[code.rate]
+        detail: dict[str, Any] = {
+            "timecode": str(code),
+            "rate": rate,
+            "show_time_s": new,
+            "offset_s": self.offset_s,
+        }
+        if cause == "quarter_frames":
+            detail["quarter_frame"] = 7  # the piece that completed the code: the anchor
+        if self.timecode is not None and code.rate != self.timecode.rate:
+            detail["rate_was"] = RATE_NAMES[self.timecode.rate]
+        if before is not None and abs(new - before) > self.jump_s:
+            events.append(
+                LiveEvent(
+                    tm,
+                    "timecode_jump",
+                    self.source,
+                    {
+                        **detail,
+                        "from_s": before,
+                        "to_s": new,
+                        "cause": cause,
+                        "message": f"{self.name} jumped to {code}: show time {before:.3f} -> "
+                        f"{new:.3f} s",
+                    },
+                )
+            )
+        self.timecode = code
+        if cause == "full_frame":
+            self.state, self._held = "cued", new
+            events.append(LiveEvent(tm, "timecode_locate", self.source, detail))
+            return
+        if self.state != "locked":
+            said = (
+                f"{self.name} locked at {code} ({rate} fps): show time {new:.3f} s "
+                f"(offset {self.offset_s:g} s)"
+            )
+            events.append(
+                LiveEvent(tm, "timecode_locked", self.source, {**detail, "message": said})
+            )
+        elif "rate_was" in detail:
+            events.append(LiveEvent(tm, "timecode_rate", self.source, detail))
+        self.state = "locked"
+        self._anchor_show, self._anchor_t, self._alive_t = new, tm, tm
+
+
+class MtcChase(TimecodeChase):
+    """MIDI Time Code -> show time (see the module docstring); the arguments are
+    :class:`TimecodeChase`'s."""
+
+    def __init__(self, **kwargs: Any) -> None:
+        super().__init__(**kwargs)
+        self._pieces = [0] * 8
+        self._last_piece = -1  # the last quarter frame's piece
+        self._in_sequence = False  # pieces 0.. arrived in order, without a pause
+        self._last_qf_t = -math.inf
+        self._reverse_run = 0
+        self.quarter_frames = 0  #: quarter frames received
+        self.codes = 0  #: full codes decoded (quarter-frame sequences and full frames)
+        self.rejected = 0  #: quarter frames out of sequence, invalid codes, other messages
+
+    def feed(self, message: Any, t: float) -> None:
+        """Hand in one MIDI message stamped ``t`` (show time of the loop's clock, s)."""
+        self.inbox.put(t, message)
 
     def poll(self, t: float) -> ChasePoll:
         """Apply the messages due at ``t`` and advance the state; bounded work, never waits."""
@@ -189,20 +315,7 @@ class MtcChase:
                 self._full_frame(tm, tuple(msg.data), events)
             else:
                 self.rejected += 1
-        if self.state == "locked" and t - self._alive_t > self._frame_s:
-            self.state = "freewheel"
-            events.append(
-                LiveEvent(
-                    t,
-                    "timecode_stopped",
-                    self.source,
-                    {"last_quarter_frame_t": self._alive_t, "freewheel_s": self.freewheel_s},
-                )
-            )
-        if self.state == "freewheel" and t - self._alive_t >= max(self.freewheel_s, self._frame_s):
-            self._held = self._running(t)  # (freewheel: what show_time(t) gives)
-            self.state = "held"
-            events.append(LiveEvent(t, "timecode_held", self.source, {"show_time_s": self._held}))
+        self._advance(t, events)
         return ChasePoll(self.show_time(t), self.state, self.timecode, events)
 
     def _quarter_frame(self, tm: float, piece: int, nibble: int, events: list[LiveEvent]) -> None:
@@ -249,48 +362,3 @@ class MtcChase:
         hr, mn, sc, fr = data[4:8]
         code = Smpte(hr & 0x1F, mn & 0x3F, sc & 0x3F, fr & 0x1F, (hr >> 5) & 3)
         self._new_code(tm, code, 0.0, "full_frame", events)
-
-    def _new_code(
-        self, tm: float, code: Smpte, frames_late: float, cause: str, events: list[LiveEvent]
-    ) -> None:
-        why = code.problem()
-        if why is not None:
-            self.rejected += 1
-            if not self._bad_run:  # one event per run of bad codes, not one every 2 frames
-                events.append(
-                    LiveEvent(
-                        tm, "timecode_invalid", self.source, {"timecode": str(code), "problem": why}
-                    )
-                )
-            self._bad_run = True
-            return
-        self._bad_run = False
-        self.codes += 1
-        self._frame_s = 1 / code.fps
-        new = code.to_seconds() + frames_late * self._frame_s - self.offset_s
-        before = self.show_time(tm)
-        detail = {"timecode": str(code), "rate": RATE_NAMES[code.rate], "show_time_s": new}
-        if cause == "quarter_frames":
-            detail["quarter_frame"] = 7  # the piece that completed the code: the anchor
-        if self.timecode is not None and code.rate != self.timecode.rate:
-            detail["rate_was"] = RATE_NAMES[self.timecode.rate]
-        if before is not None and abs(new - before) > self.jump_s:
-            events.append(
-                LiveEvent(
-                    tm,
-                    "timecode_jump",
-                    self.source,
-                    {**detail, "from_s": before, "to_s": new, "cause": cause},
-                )
-            )
-        self.timecode = code
-        if cause == "full_frame":
-            self.state, self._held = "cued", new
-            events.append(LiveEvent(tm, "timecode_locate", self.source, detail))
-            return
-        if self.state != "locked":
-            events.append(LiveEvent(tm, "timecode_locked", self.source, detail))
-        elif "rate_was" in detail:
-            events.append(LiveEvent(tm, "timecode_rate", self.source, detail))
-        self.state = "locked"
-        self._anchor_show, self._anchor_t, self._alive_t = new, tm, tm
