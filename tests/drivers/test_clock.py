@@ -149,3 +149,64 @@ def test_the_default_spin_window_is_what_a_clock_gets(fake):
     c.wait_until(t)
     ((dt, _, _),) = fake.sleeps
     assert dt == pytest.approx(0.004 - clock_mod.DEFAULT_SPIN_S, abs=5e-6)
+
+
+class LateWakes(FakeTime):
+    """A host whose sleeps wake ``late_s`` after their time."""
+
+    def __init__(self, late_s: float) -> None:
+        super().__init__()
+        self.late_s = late_s
+
+    def sleep(self, dt: float) -> None:
+        super().sleep(dt)
+        self.t += self.late_s
+
+
+def _waits(ft: FakeTime, c: MonotonicClock, n: int, period: float = 0.004) -> list[float]:
+    """``n`` deadlines ``period`` apart; how late each wait returned (s)."""
+    late, t = [], c.now()
+    for _ in range(n):
+        t += period
+        late.append(c.wait_until(t) - t)
+    return late
+
+
+@pytest.fixture
+def late30(monkeypatch):
+    ft = LateWakes(30e-6)
+    monkeypatch.setattr(clock_mod.time, "perf_counter", ft.perf_counter)
+    monkeypatch.setattr(clock_mod.time, "sleep", ft.sleep)
+    return ft
+
+
+def test_the_spin_window_shrinks_to_how_late_this_host_wakes(late30):
+    # a host that wakes every sleep 30 µs late: the window learns ~30 µs instead of spinning
+    # the 100 µs allowed, and the deadlines are still met by the spin
+    c = MonotonicClock(spin_s=100e-6)
+    assert c.window_s == 100e-6  # until it has seen a sleep, the whole allowance
+    late = _waits(late30, c, 3000)
+    assert 30e-6 <= c.window_s <= 41e-6  # its p99, give or take a step
+    dt = late30.sleeps[-1][0]
+    assert dt == pytest.approx(0.004 - c.window_s, abs=5e-6)  # sleeps to ~35 µs before
+    assert max(late[-500:]) < 3e-6  # on time (the clock's reads cost the fake 1 µs each)
+
+
+def test_the_learned_window_never_passes_spin_us(monkeypatch):
+    ft = LateWakes(500e-6)  # later than the allowance: spin it all, as a fixed window does
+    monkeypatch.setattr(clock_mod.time, "perf_counter", ft.perf_counter)
+    monkeypatch.setattr(clock_mod.time, "sleep", ft.sleep)
+    c = MonotonicClock(spin_s=100e-6)
+    late = _waits(ft, c, 200)
+    assert c.window_s == 100e-6
+    assert min(late) == pytest.approx(400e-6, abs=5e-6)  # late by the excess only
+    z = MonotonicClock(spin_s=0.0)  # sleep only: nothing to learn
+    _waits(ft, z, 50)
+    assert z.window_s == 0.0
+
+
+def test_a_fixed_window_is_kept_when_not_learning(late30):
+    c = MonotonicClock(spin_s=100e-6, learn=False)
+    _waits(late30, c, 500)
+    assert c.window_s == 100e-6
+    assert late30.sleeps[-1][0] == pytest.approx(0.004 - 100e-6, abs=5e-6)
