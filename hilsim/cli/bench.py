@@ -5,8 +5,10 @@ only, beside cyclictest when installed (like with like), then with its spin wind
 that window's CPU; the bus's achieved write+read cycle rate beside its wire-time model,
 command/feedback latencies, a diagnosis of the bus with the fix for each problem and the
 rate it would give, and the host's cost of one whole tick beside a bare dynamixel-sdk Sync
-Write + Fast Sync Read cycle (4, 8, 16 servos; :mod:`hilsim.bench.tick`). One report, in
-that order, then notes, files and the verdict last; the run says its expected length first.
+Write + Fast Sync Read cycle (4, 8, 16 servos; :mod:`hilsim.bench.tick`), and on the built-in
+emulator the demo's and scale16's CPU per second of show (:mod:`hilsim.bench.showcpu`). One
+report, in that order, then notes, files and the verdict last; the run says its expected
+length first.
 
 Without CONFIG or --port the bus side runs on the built-in emulator on the real clock (1, 4,
 8 and 16 servos at 1 and 4 Mbps; 4 and 16 with ``--quick``, which also leaves the CPU over a
