@@ -169,6 +169,10 @@ class MonotonicClock:
         #: woken sooner (``learn``); starts at ``spin_s``
         self.window_s = self.spin_s
         self.learn = bool(learn)
+        # the quantile's estimate (s), kept up to twice spin_s: clamped at spin_s itself, a
+        # host whose p99 is above it would lose its late wakes' steps and drift the window
+        # below spin_s; twice bounds how long a calmer host waits for it to come down
+        self._wake_q = self.spin_s
         self._now = time.perf_counter if now is None else now
         self._sleep = time.sleep if sleep is None else sleep
         # the time source itself, not a method around it: a tick reads the clock ~20 times
@@ -193,14 +197,14 @@ class MonotonicClock:
                 idle.set()
                 self._sleep(remaining)
                 idle.clear()
-            if self.learn:  # how late this sleep woke moves the window toward its quantile
-                woke = self._now()
-                if woke - (t - window) > window:
-                    window += WAKE_STEP_S * WAKE_QUANTILE
-                    self.window_s = window if window < self.spin_s else self.spin_s
+            if self.learn:  # how late this sleep woke moves the estimate toward its quantile
+                q = self._wake_q
+                if self._now() - (t - window) > q:
+                    q = min(q + WAKE_STEP_S * WAKE_QUANTILE, 2.0 * self.spin_s)
                 else:
-                    window -= WAKE_STEP_S * (1.0 - WAKE_QUANTILE)
-                    self.window_s = window if window > 0.0 else 0.0
+                    q = max(q - WAKE_STEP_S * (1.0 - WAKE_QUANTILE), 0.0)
+                self._wake_q = q
+                self.window_s = q if q < self.spin_s else self.spin_s
         while (now := self._now()) < t:
             pass
         return now

@@ -210,3 +210,26 @@ def test_a_fixed_window_is_kept_when_not_learning(late30):
     _waits(late30, c, 500)
     assert c.window_s == 100e-6
     assert late30.sleeps[-1][0] == pytest.approx(0.004 - 100e-6, abs=5e-6)
+
+
+def test_a_host_whose_p99_wake_up_is_later_than_spin_us_keeps_the_whole_window(monkeypatch):
+    # 30 µs late but one sleep in 25 300 µs late: the wake-ups' p99 is past the 100 µs
+    # allowed, so the window stays 100 µs throughout, as a fixed one (lateness p99 as ever)
+    ft = LateWakes(30e-6)
+    n = [0]
+
+    def sleep(dt: float) -> None:
+        n[0] += 1
+        ft.late_s = 300e-6 if n[0] % 25 == 0 else 30e-6
+        LateWakes.sleep(ft, dt)
+
+    monkeypatch.setattr(clock_mod.time, "perf_counter", ft.perf_counter)
+    monkeypatch.setattr(clock_mod.time, "sleep", sleep)
+    c = MonotonicClock(spin_s=100e-6)
+    windows = []
+    t = c.now()
+    for _ in range(2000):
+        t += 0.004
+        c.wait_until(t)
+        windows.append(c.window_s)
+    assert set(windows[-1000:]) == {100e-6}
