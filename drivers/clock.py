@@ -22,17 +22,15 @@ from typing import Protocol, runtime_checkable
 #: reaches its deadline spinning, at less CPU than a wider window. ``python -m
 #: hilsim.bench.cpu`` compares windows; the figures are in docs/performance.md.
 DEFAULT_SPIN_S = 100e-6
-#: the share of sleeps the learned spin window covers (``MonotonicClock.window_s``): the
-#: window tracks this quantile of how late the OS wakes the thread, so that share of
-#: deadlines is met by spinning, as many as a fixed window of ``spin_s`` meets where the
-#: host wakes sooner than that, at less CPU. Above 0.99 with a margin for the estimate's
-#: noise: the lateness p99 stays a fixed window's (0.99 itself measured 13-34 µs where a
-#: fixed window had 0.4 µs)
-WAKE_QUANTILE = 0.995
-#: how far one sleep moves the learned window (s): up ``WAKE_QUANTILE`` of it after a wake
-#: later than the window, down the rest after one within it (a stochastic quantile step:
-#: from 100 to 60 µs in ~800 sleeps, 3.2 s at 250 Hz)
-WAKE_STEP_S = 10e-6
+#: how fast the learned spin window (``MonotonicClock.window_s``) comes down (s a sleep): it
+#: is the latest wake-up of the recent past, held, less this for each sleep since that woke
+#: sooner; a wake-up later than it raises it at once. So the window is the worst lateness of
+#: the last few seconds (40 µs of it lost in 800 sleeps, 3.2 s at 250 Hz), and a tick starts
+#: late only where a wake-up is later than any in that time: the lateness p99 of a fixed
+#: window on a calm host, and a fixed window itself on one whose wake-ups pass ``spin_s``.
+#: (Tracking a percentile instead, the 99th or 99.5th, lagged a bursty host: under
+#: SCHED_FIFO at load 6-10 its lateness p99 was 11-86 µs where a fixed window had 0.2-2.4.)
+WAKE_DECAY_S = 0.05e-6
 
 
 #: Linux ``prctl`` options for the calling thread's timer slack (ns): the kernel may fire a
@@ -146,8 +144,8 @@ class MonotonicClock:
     10-50 µs with :func:`precise_timers`, up to 50 µs more without, ~0.1-1 ms on a busy
     host), then spins on the clock for the last stretch. ``spin_s`` (a rig's
     ``loop.spin_us``) is the most it spins; with ``learn`` (the default) the window is the
-    :data:`WAKE_QUANTILE` of how late this host's sleeps have woken, learned from each
-    sleep (:attr:`window_s`), when that is less: a host that wakes its threads 20 µs late
+    latest this host's sleeps have woken in the last few seconds (:data:`WAKE_DECAY_S`,
+    :attr:`window_s`), when that is less: a host that wakes its threads at most 20 µs late
     spins ~20 µs, not ``spin_s``, and one that wakes later than ``spin_s`` spins ``spin_s``
     as a fixed window would. The sleep is one ``time.sleep``, which Linux runs as an
     absolute ``clock_nanosleep`` on the monotonic clock. ``now`` and ``sleep`` are the time
@@ -171,9 +169,9 @@ class MonotonicClock:
         #: woken sooner (``learn``); starts at ``spin_s``
         self.window_s = self.spin_s
         self.learn = bool(learn)
-        # the quantile's estimate (s), kept up to twice spin_s: clamped at spin_s itself, a
-        # host whose p99 is above it would lose its late wakes' steps and drift the window
-        # below spin_s; twice bounds how long a calmer host waits for it to come down
+        # the recent worst wake-up (s), held up to twice spin_s: held only to spin_s, a host
+        # waking later than that would see the window come down between its late wake-ups;
+        # twice bounds how long a calmer host waits for it to come down
         self._wake_q = self.spin_s
         self._now = time.perf_counter if now is None else now
         self._sleep = time.sleep if sleep is None else sleep
@@ -199,12 +197,9 @@ class MonotonicClock:
                 idle.set()
                 self._sleep(remaining)
                 idle.clear()
-            if self.learn:  # how late this sleep woke moves the estimate toward its quantile
-                q = self._wake_q
-                if self._now() - (t - window) > q:
-                    q = min(q + WAKE_STEP_S * WAKE_QUANTILE, 2.0 * self.spin_s)
-                else:
-                    q = max(q - WAKE_STEP_S * (1.0 - WAKE_QUANTILE), 0.0)
+            if self.learn:  # the latest recent wake-up, held, coming down slowly
+                q, late = self._wake_q, self._now() - (t - window)
+                q = min(late, 2.0 * self.spin_s) if late > q else max(q - WAKE_DECAY_S, 0.0)
                 self._wake_q = q
                 self.window_s = q if q < self.spin_s else self.spin_s
         while (now := self._now()) < t:
