@@ -22,6 +22,15 @@ from typing import Protocol, runtime_checkable
 #: reaches its deadline spinning, at less CPU than a wider window. ``python -m
 #: hilsim.bench.cpu`` compares windows; the figures are in docs/performance.md.
 DEFAULT_SPIN_S = 100e-6
+#: how fast the learned spin window (``MonotonicClock.window_s``) comes down (s a sleep): it
+#: is the latest wake-up of the recent past, held, less this for each sleep since that woke
+#: sooner; a wake-up later than it raises it at once. So the window is the worst lateness of
+#: the last few seconds (40 µs of it lost in 800 sleeps, 3.2 s at 250 Hz), and a tick starts
+#: late only where a wake-up is later than any in that time: the lateness p99 of a fixed
+#: window on a calm host, and a fixed window itself on one whose wake-ups pass ``spin_s``.
+#: (Tracking a percentile instead, the 99th or 99.5th, lagged a bursty host: under
+#: SCHED_FIFO at load 6-10 its lateness p99 was 11-86 µs where a fixed window had 0.2-2.4.)
+WAKE_DECAY_S = 0.05e-6
 
 
 #: Linux ``prctl`` options for the calling thread's timer slack (ns): the kernel may fire a
@@ -131,12 +140,16 @@ class Slack(threading.Event):
 class MonotonicClock:
     """The host's monotonic clock.
 
-    ``wait_until`` sleeps to ``spin_s`` before the deadline (the OS wakes threads late:
+    ``wait_until`` sleeps to a *spin window* before the deadline (the OS wakes threads late:
     10-50 µs with :func:`precise_timers`, up to 50 µs more without, ~0.1-1 ms on a busy
-    host), then spins on the clock for the last stretch: the *spin window*. A rig sets it with
-    ``loop.spin_us``. The sleep is one ``time.sleep``, which Linux runs as an absolute
-    ``clock_nanosleep`` on the monotonic clock. ``now`` and ``sleep`` are the time source
-    (default ``time.perf_counter`` and ``time.sleep``); tests pass a simulated one.
+    host), then spins on the clock for the last stretch. ``spin_s`` (a rig's
+    ``loop.spin_us``) is the most it spins; with ``learn`` (the default) the window is the
+    latest this host's sleeps have woken in the last few seconds (:data:`WAKE_DECAY_S`,
+    :attr:`window_s`), when that is less: a host that wakes its threads at most 20 µs late
+    spins ~20 µs, not ``spin_s``, and one that wakes later than ``spin_s`` spins ``spin_s``
+    as a fixed window would. The sleep is one ``time.sleep``, which Linux runs as an
+    absolute ``clock_nanosleep`` on the monotonic clock. ``now`` and ``sleep`` are the time
+    source (default ``time.perf_counter`` and ``time.sleep``); tests pass a simulated one.
     """
 
     virtual = False
@@ -147,10 +160,19 @@ class MonotonicClock:
         *,
         now: Callable[[], float] | None = None,
         sleep: Callable[[float], None] | None = None,
+        learn: bool = True,
     ) -> None:
         if not (spin_s >= 0.0 and math.isfinite(spin_s)):
             raise ValueError(f"spin_s must be finite and >= 0, got {spin_s!r}")
         self.spin_s = float(spin_s)
+        #: the spin window in force (s): ``spin_s``, or less where this host's sleeps have
+        #: woken sooner (``learn``); starts at ``spin_s``
+        self.window_s = self.spin_s
+        self.learn = bool(learn)
+        # the recent worst wake-up (s), held up to twice spin_s: held only to spin_s, a host
+        # waking later than that would see the window come down between its late wake-ups;
+        # twice bounds how long a calmer host waits for it to come down
+        self._wake_q = self.spin_s
         self._now = time.perf_counter if now is None else now
         self._sleep = time.sleep if sleep is None else sleep
         # the time source itself, not a method around it: a tick reads the clock ~20 times
@@ -162,7 +184,8 @@ class MonotonicClock:
 
     def wait_until(self, t: float, idle: threading.Event | None = None) -> float:
         now = self._now()
-        remaining = t - now - self.spin_s
+        window = self.window_s
+        remaining = t - now - window
         if remaining > 0.0:
             if idle is None:
                 idle = self.idle
@@ -170,10 +193,15 @@ class MonotonicClock:
                 self._sleep(remaining)
             else:  # other threads may work while we sleep, not while we spin or run
                 if isinstance(idle, Slack):
-                    idle.until = t - self.spin_s
+                    idle.until = t - window
                 idle.set()
                 self._sleep(remaining)
                 idle.clear()
+            if self.learn:  # the latest recent wake-up, held, coming down slowly
+                q, late = self._wake_q, self._now() - (t - window)
+                q = min(late, 2.0 * self.spin_s) if late > q else max(q - WAKE_DECAY_S, 0.0)
+                self._wake_q = q
+                self.window_s = q if q < self.spin_s else self.spin_s
         while (now := self._now()) < t:
             pass
         return now

@@ -15,6 +15,16 @@ with the load average before and after:
   ``--set loop.realtime_priority`` or 80, on ``--set loop.cpu`` or the last CPU) for as long,
   on the same host: how often the host itself wakes a real-time thread later than this rig's
   spare time (the runs are not at the same time: the host's noise comes and goes).
+* ``--alongside SPARE_US``: ``cyclictest`` in the same minute, beside the run: one thread
+  per CPU (``-S -d 0``, 1 kHz, SCHED_FIFO 80, memory locked, ``--default-system``: the host's
+  power settings left as the show has them), each wake-up at least SPARE_US late recorded
+  with its time (``--spike``, CLOCK_MONOTONIC, the loop's clock too). Printed beside the
+  loop's overrun episodes: how many began within a tick of such a wake-up (on the loop's
+  CPU when ``loop.cpu`` pins it, else on any) and how many did not: the loop's own, or the
+  host's on a CPU where no cyclictest thread was waiting. Alongside rather than interleaved:
+  the host's noise comes and goes within a minute (counts taken a minute apart disagreed by
+  2-10x), so only the same instants answer whether an episode was the host's; the cost is
+  two threads that preempt whatever runs for a few µs a millisecond each.
 
 Diagnosis knobs (each run is one child; nothing in the shipped code changes):
 
@@ -25,6 +35,7 @@ Diagnosis knobs (each run is one child; nothing in the shipped code changes):
 
     python tools/bench_scale.py [--seconds 60] [--mode inproc|pty|both] [--repeat 2]
         [--gc freeze] [--set loop.spin_us=300] [--rig configs/scale16.toml] [--json FILE]
+        [--alongside 250]
 """
 
 from __future__ import annotations
@@ -34,6 +45,7 @@ import json
 import os
 import re
 import select
+import signal
 import subprocess
 import sys
 import tempfile
@@ -143,7 +155,14 @@ def start_emulator(rig_text: str) -> tuple[subprocess.Popen, str]:
 
 
 def run_once(
-    rig: Path, seconds: float, mode: str, gc_mode: str, diag: list[str], tmp: Path, n: int
+    rig: Path,
+    seconds: float,
+    mode: str,
+    gc_mode: str,
+    diag: list[str],
+    tmp: Path,
+    n: int,
+    alongside: float | None = None,
 ) -> dict:
     run_dir = tmp / f"run-{mode}-{n}"
     if gc_mode.startswith("gen0="):
@@ -159,6 +178,7 @@ def run_once(
         argv += ["--port", pty]
     load_before = loadavg()
     code_text = CHILD.format(prelude=prelude)
+    beside = None if alongside is None else start_alongside(seconds + 5.0, alongside)
     t0 = time.perf_counter()
     try:
         child = subprocess.Popen(
@@ -175,6 +195,7 @@ def run_once(
         if emu is not None:
             emu.terminate()
             emu.wait(10)
+        spikes = None if beside is None else stop_alongside(beside)
     code = os.waitstatus_to_exitcode(status)
     gc_line = [ln for ln in err.splitlines() if ln.startswith("GC ")]
     gc_stats = json.loads(gc_line[-1][3:]) if gc_line else {}
@@ -189,6 +210,10 @@ def run_once(
             raise SystemExit(f"hilsim run exited {code} without {path}:\n{err}")
         summaries[bus] = json.loads(path.read_text())
     episodes = {bus: overrun_episodes(run_dir / bus) for bus in buses}
+    same_minute = {
+        bus: None if spikes is None else coincide(run_dir / bus, summaries[bus], spikes, rig)
+        for bus in buses
+    }
     cpu = usage.ru_utime + usage.ru_stime  # the child and every process it waited for
     most_ticks = max(int(s.get("ticks") or 0) for s in summaries.values())
     rows = []
@@ -232,6 +257,7 @@ def run_once(
                 },
                 "load_before": load_before,
                 "load_after": loadavg(),
+                "alongside": same_minute[bus],
             }
         )
     return rows
@@ -263,6 +289,102 @@ def overrun_episodes(run_dir: Path) -> dict | str:
         "at_late_wake": int(woke_late.sum()),
         "in_long_bus_stage": int(long_bus.sum()),
     }
+
+
+_SPIKE = re.compile(r"T:\s*(\d+)\s+Spike:\s*(\d+):\s*TS:\s*(\d+)")
+_THREAD = re.compile(r"T:\s*(\d+)\s*\(\s*\d+\)\s*P:\s*\d+\s*I:\s*\d+\s*C:\s*(\d+).*Max:\s*(\d+)")
+
+
+def start_alongside(seconds: float, spare_us: float) -> subprocess.Popen | str:
+    """cyclictest beside the run (see ``--alongside``), or why it could not start."""
+    cmd = ["cyclictest", "-m", "-q", "-S", "-d", "0", "-i", "1000", "-p", "80"]
+    cmd += ["--default-system", f"--spike={max(0, round(spare_us) - 1)}", "--spike-nodes=1000000"]
+    cmd += ["-D", str(max(1, round(seconds)))]
+    try:
+        return subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    except OSError as exc:
+        return f"cyclictest not run: {exc} (Debian's rt-tests)"
+
+
+def stop_alongside(proc: subprocess.Popen | str) -> dict:
+    """Stop cyclictest (SIGINT: it prints its summary); its wake-ups' counts and spikes."""
+    if isinstance(proc, str):
+        return {"error": proc}
+    if proc.poll() is None:
+        proc.send_signal(signal.SIGINT)
+    try:
+        out, err = proc.communicate(timeout=30)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        out, err = proc.communicate()
+    threads = {int(m[1]): (int(m[2]), int(m[3])) for m in _THREAD.finditer(out)}
+    if not threads:
+        return {"error": f"cyclictest printed no summary (exit {proc.returncode}): {err[:200]}"}
+    spikes = [(int(m[1]), int(m[2]), int(m[3]) * 1e-6) for m in _SPIKE.finditer(out)]
+    return {"threads": threads, "spikes": spikes}
+
+
+def coincide(run_dir: Path, summary: dict, beside: dict, rig: Path) -> dict | str:
+    """The run's overrun episodes against cyclictest's late wake-ups in the show's span: how
+    many began within [-1, +3] ticks of one (on the loop's pinned CPU, else any CPU)."""
+    if "error" in beside:
+        return beside["error"]
+    from hilsim.rig import load_rig
+    from hilsim.telemetry.reader import read_run
+
+    try:
+        t0 = float(summary["loop"]["clock_t0"])
+        end = t0 + float(summary.get("duration_s") or 0.0)
+        run = read_run(run_dir)
+        over = run.overrun.astype(bool)
+        loop = load_rig(rig).loop
+        pinned, period = loop.cpu, 1.0 / float(loop.rate_hz)
+    except Exception as exc:  # a benchmark's extra: the run's own figures stand without it
+        return f"{type(exc).__name__}: {exc}"
+    spikes = [(c, us, ts) for c, us, ts in beside["spikes"] if t0 <= ts <= end]
+    mine = np.array([ts for c, _, ts in spikes if pinned is None or c == pinned])
+    starts = np.flatnonzero(over & ~np.r_[False, over[:-1]])
+    at = t0 + run.t_sched[starts]
+    near = np.zeros(len(at), dtype=bool)
+    if len(mine):
+        mine.sort()
+        lo = np.searchsorted(mine, at - period)
+        hi = np.searchsorted(mine, at + 3 * period, side="right")
+        near = hi > lo
+    cpus = sorted(beside["threads"])
+    return {
+        "episodes": len(starts),
+        "episodes_at_host_wakeup": int(near.sum()),
+        "episodes_without": int((~near).sum()),
+        "late_wakeups": {c: sum(1 for x, _, _ in spikes if x == c) for c in cpus},
+        "late_wakeups_1ms": sum(1 for _, us, _ in spikes if us >= 1000),
+        "max_us": max((us for _, us, _ in spikes), default=0),
+        "cpu_matched": "any" if pinned is None else pinned,
+        "loop_sched": (summary.get("loop") or {}).get("sched"),
+    }
+
+
+def alongside_line(a: dict | str | None, spare_us: float) -> str:
+    if a is None:
+        return ""
+    if isinstance(a, str):
+        return f"  same minute: cyclictest alongside not counted: {a}"
+    per_cpu = ", ".join(f"CPU {c} {n}" for c, n in a["late_wakeups"].items())
+    where = "any CPU" if a["cpu_matched"] == "any" else f"CPU {a['cpu_matched']}"
+    return (
+        f"  same minute: {a['episodes']} overrun episodes of the loop; cyclictest alongside "
+        f"woke {spare_us:g} us or more late {sum(a['late_wakeups'].values())} times "
+        f"({per_cpu}; {a['late_wakeups_1ms']} of 1 ms or more, max {a['max_us']} us); "
+        f"{a['episodes_at_host_wakeup']} episodes began within [-1, +3] ticks of such a "
+        f"wake-up on {where}, {a['episodes_without']} did not (the loop's own, or the host's "
+        "where no cyclictest thread waited)"
+        + (
+            "; the loop ran SCHED_OTHER: other processes' work delays it and not cyclictest "
+            "(SCHED_FIFO): --set loop.realtime_priority=50 --set loop.cpu=1 for like with like"
+            if a.get("loop_sched") == "SCHED_OTHER"
+            else f"; the loop ran {a.get('loop_sched')}"
+        )
+    )
 
 
 def host_check(seconds: float, spare_us: float, cpu: int | None, priority: int | None) -> str:
@@ -351,6 +473,13 @@ def main(argv: list[str] | None = None) -> int:
         help="then run cyclictest as long and count its wake-ups at least SPARE_US late "
         "(scale16: ~250, its period less its tick)",
     )
+    ap.add_argument(
+        "--alongside",
+        type=float,
+        metavar="SPARE_US",
+        help="cyclictest in the same minute, beside each run (one thread a CPU): its wake-ups "
+        "at least SPARE_US late beside the loop's overrun episodes, matched in time",
+    )
     args = ap.parse_args(argv)
     if args.gc not in PRELUDE and not re.fullmatch(r"gen0=\d+", args.gc):
         ap.error(f"--gc: none, freeze, disable or gen0=N, got {args.gc!r}")
@@ -361,9 +490,14 @@ def main(argv: list[str] | None = None) -> int:
         rig = tuned_rig(args.rig.resolve(), args.set, Path(tmp))
         for n in range(args.repeat):
             for mode in modes:
-                for r in run_once(rig, args.seconds, mode, args.gc, args.diag, Path(tmp), n):
+                runs = run_once(
+                    rig, args.seconds, mode, args.gc, args.diag, Path(tmp), n, args.alongside
+                )
+                for r in runs:
                     r["set"] = args.set
                     print(line(r), flush=True)
+                    if args.alongside is not None:
+                        print(alongside_line(r["alongside"], args.alongside), flush=True)
                     if args.json:
                         with args.json.open("a") as f:
                             f.write(json.dumps(r) + "\n")

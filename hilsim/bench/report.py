@@ -290,8 +290,9 @@ def _spin_text(loops: list[LoopResult]) -> list[str]:
     w0 = spun[0].spin
     assert w0 is not None  # (filtered above)
     lines = [
-        f"Spin window: the same loop sleeping, then spinning the last {w0.spin_us or 0:g} µs of "
-        "each wait (loop.spin_us): its lateness and its CPU, not comparable with cyclictest",
+        f"Spin window: the same loop sleeping, then spinning at most the last "
+        f"{w0.spin_us or 0:g} µs of each wait (loop.spin_us; less where this host's wake-ups "
+        "are sooner, learned): its lateness and its CPU, not comparable with cyclictest",
         _LOOP_HEAD,
     ]
     for lr in spun:

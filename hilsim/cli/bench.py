@@ -5,8 +5,10 @@ only, beside cyclictest when installed (like with like), then with its spin wind
 that window's CPU; the bus's achieved write+read cycle rate beside its wire-time model,
 command/feedback latencies, a diagnosis of the bus with the fix for each problem and the
 rate it would give, and the host's cost of one whole tick beside a bare dynamixel-sdk Sync
-Write + Fast Sync Read cycle (4, 8, 16 servos; :mod:`hilsim.bench.tick`). One report, in
-that order, then notes, files and the verdict last; the run says its expected length first.
+Write + Fast Sync Read cycle (4, 8, 16 servos; :mod:`hilsim.bench.tick`), and on the built-in
+emulator the demo's and scale16's CPU per second of show (:mod:`hilsim.bench.showcpu`). One
+report, in that order, then notes, files and the verdict last; the run says its expected
+length first.
 
 Without CONFIG or --port the bus side runs on the built-in emulator on the real clock (1, 4,
 8 and 16 servos at 1 and 4 Mbps; 4 and 16 with ``--quick``, which also leaves the CPU over a
@@ -41,6 +43,8 @@ _SPIN_US = round(DEFAULT_SPIN_S * 1e6, 6)
 #: VM: the expected length said at the start
 TICK_COST_S = {True: 3.0, False: 12.0}
 PTY_CPU_S = {True: 0.0, False: 22.0}
+#: the demo's and scale16's CPU per second of show over a pty (s; quick, full)
+SHOW_CPU_S = {True: 6.5, False: 18.0}
 #: what ``--quick`` takes on this project's 2-core VM (s), as --help and the README say
 QUICK_S = 20
 
@@ -99,11 +103,15 @@ def build_plan(args: argparse.Namespace, argv_text: str = "hilsim bench") -> Ben
 
     quick = bool(args.quick)
     pty = not (args.config or args.port or quick) and args.clock == "real"  # CPU over a pty
+    shows = not (args.config or args.port) and args.clock == "real"  # CPU a second of show
     common = dict(
-        host_s=TICK_COST_S[quick] + (PTY_CPU_S[quick] if pty else 0.0),
+        host_s=TICK_COST_S[quick]
+        + (PTY_CPU_S[quick] if pty else 0.0)
+        + (SHOW_CPU_S[quick] if shows else 0.0),
         quick=quick,
         clock=args.clock,
-        loop_duration_s=1.5 if quick else 10.0,
+        # (--quick on the emulator: 1 s, making room for the shows' CPU in its ~20 s)
+        loop_duration_s=(1.0 if shows else 1.5) if quick else 10.0,
         spin_us=_SPIN_US if args.spin_us is None else args.spin_us,
         sched=args.sched,
         priority=args.priority,
@@ -178,6 +186,7 @@ def run(args: argparse.Namespace) -> int:
     except BenchError as exc:  # the bus cannot be used: nothing was measured
         return usage_error("bench", exc)
     from hilsim.bench import cpu as cpu_bench  # CPU per cycle over a pty: SDK vs hilsim
+    from hilsim.bench import showcpu  # CPU per second of show: the demo, scale16
     from hilsim.bench import tick as tick_bench  # host CPU of a tick: bare SDK cycle vs hilsim
     from hilsim.bench.report import _finite
 
@@ -189,6 +198,10 @@ def run(args: argparse.Namespace) -> int:
     if cpu is not None:
         report.sections.append(cpu.text())
         report.extra["cpu"] = _finite(cpu.as_dict())
+    shows = showcpu.for_bench(args, report, progress)
+    if shows is not None:
+        report.sections.append(shows.text())
+        report.extra["show_cpu"] = _finite(shows.as_dict())
     out.mkdir(parents=True, exist_ok=True)
     if not args.no_plots:
         progress("plotting")

@@ -327,6 +327,7 @@ class HilLoop:
             health_deferred=self.watch.health.deferred,
             health_forced=self.watch.health.forced,
             servo_condition=self.watch.condition.extremes(self.watch.names),
+            spin_window_us=None if self.clock.virtual else getattr(self.clock, "window_s", 0) * 1e6,
         )
         if interrupted is not None:
             raise interrupted

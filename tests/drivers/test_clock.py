@@ -149,3 +149,93 @@ def test_the_default_spin_window_is_what_a_clock_gets(fake):
     c.wait_until(t)
     ((dt, _, _),) = fake.sleeps
     assert dt == pytest.approx(0.004 - clock_mod.DEFAULT_SPIN_S, abs=5e-6)
+
+
+class LateWakes(FakeTime):
+    """A host whose sleeps wake ``late_s`` after their time."""
+
+    def __init__(self, late_s: float) -> None:
+        super().__init__()
+        self.late_s = late_s
+
+    def sleep(self, dt: float) -> None:
+        super().sleep(dt)
+        self.t += self.late_s
+
+
+def _waits(ft: FakeTime, c: MonotonicClock, n: int, period: float = 0.004) -> list[float]:
+    """``n`` deadlines ``period`` apart; how late each wait returned (s)."""
+    late, t = [], c.now()
+    for _ in range(n):
+        t += period
+        late.append(c.wait_until(t) - t)
+    return late
+
+
+@pytest.fixture
+def late30(monkeypatch):
+    ft = LateWakes(30e-6)
+    monkeypatch.setattr(clock_mod.time, "perf_counter", ft.perf_counter)
+    monkeypatch.setattr(clock_mod.time, "sleep", ft.sleep)
+    return ft
+
+
+def test_the_spin_window_shrinks_to_how_late_this_host_wakes(late30):
+    # a host that wakes every sleep 30 µs late: the window learns ~30 µs instead of spinning
+    # the 100 µs allowed, and the deadlines are still met by the spin
+    c = MonotonicClock(spin_s=100e-6)
+    assert c.window_s == 100e-6  # until it has seen a sleep, the whole allowance
+    late = _waits(late30, c, 3000)
+    assert 30e-6 <= c.window_s <= 33e-6  # the latest wake-up (+ the fake's clock reads)
+    dt = late30.sleeps[-1][0]
+    assert dt == pytest.approx(0.004 - c.window_s, abs=5e-6)  # sleeps to ~35 µs before
+    assert max(late[-500:]) < 3e-6  # on time (the clock's reads cost the fake 1 µs each)
+    late30.late_s = 80e-6  # one later wake-up: the window takes it at once, and holds it
+    _waits(late30, c, 1)
+    assert c.window_s == pytest.approx(81e-6, abs=2e-6)
+    late30.late_s = 30e-6
+    _waits(late30, c, 100)
+    assert c.window_s == pytest.approx(76e-6, abs=2e-6)  # coming down 0.05 µs a sleep
+
+
+def test_the_learned_window_never_passes_spin_us(monkeypatch):
+    ft = LateWakes(500e-6)  # later than the allowance: spin it all, as a fixed window does
+    monkeypatch.setattr(clock_mod.time, "perf_counter", ft.perf_counter)
+    monkeypatch.setattr(clock_mod.time, "sleep", ft.sleep)
+    c = MonotonicClock(spin_s=100e-6)
+    late = _waits(ft, c, 200)
+    assert c.window_s == 100e-6
+    assert min(late) == pytest.approx(400e-6, abs=5e-6)  # late by the excess only
+    z = MonotonicClock(spin_s=0.0)  # sleep only: nothing to learn
+    _waits(ft, z, 50)
+    assert z.window_s == 0.0
+
+
+def test_a_fixed_window_is_kept_when_not_learning(late30):
+    c = MonotonicClock(spin_s=100e-6, learn=False)
+    _waits(late30, c, 500)
+    assert c.window_s == 100e-6
+    assert late30.sleeps[-1][0] == pytest.approx(0.004 - 100e-6, abs=5e-6)
+
+
+def test_a_host_whose_p99_wake_up_is_later_than_spin_us_keeps_the_whole_window(monkeypatch):
+    # 30 µs late but one sleep in 25 300 µs late: wake-ups past the 100 µs allowed every few
+    # sleeps, so the window stays 100 µs throughout, as a fixed one (lateness p99 as ever)
+    ft = LateWakes(30e-6)
+    n = [0]
+
+    def sleep(dt: float) -> None:
+        n[0] += 1
+        ft.late_s = 300e-6 if n[0] % 25 == 0 else 30e-6
+        LateWakes.sleep(ft, dt)
+
+    monkeypatch.setattr(clock_mod.time, "perf_counter", ft.perf_counter)
+    monkeypatch.setattr(clock_mod.time, "sleep", sleep)
+    c = MonotonicClock(spin_s=100e-6)
+    windows = []
+    t = c.now()
+    for _ in range(2000):
+        t += 0.004
+        c.wait_until(t)
+        windows.append(c.window_s)
+    assert set(windows[-1000:]) == {100e-6}
