@@ -97,7 +97,9 @@ TARGET_TYPES: dict[str, tuple[str, str]] = {
     ),
     "csv": (
         "A column of a CSV animation: a header row `time_s,<joint>,...`, then one row per "
-        "sample (time in s, angles in degrees); linear between rows, held before and after.",
+        "sample (time in s, angles in degrees); linear between rows (`interpolation = "
+        '"hold"`: each row held until the next, as a take\'s `raw.csv` was live), held before '
+        "and after.",
         '{ type = "csv", file = "demo_animation.csv" }',
     ),
     "sine": (
@@ -240,7 +242,8 @@ TARGET_KEYS: dict[str, Key] = {
     ),
     "interpolation": Key(
         "text",
-        "Frames (midi: controller values) held until the next, or joined linearly.",
+        "Frames (midi: controller values) held until the next, or joined linearly (a csv "
+        "file: linear unless it says hold).",
         default="hold",
         allowed='`"hold"` | `"linear"`',
     ),

@@ -147,13 +147,15 @@ class CsvAnimation:
         """Time of the last row (s)."""
         return float(self.times_s[-1])
 
-    def curve(self, column: str) -> CsvCurve:
-        """The track of one column. Raises :class:`CsvFormatError` (line 1) if there is none."""
+    def curve(self, column: str, interpolation: str = "linear") -> CsvCurve:
+        """The track of one column, joined linearly between rows or each row ``"hold"`` until
+        the next. Raises :class:`CsvFormatError` (line 1) if there is none."""
         if column not in self.columns:
             raise CsvFormatError(
                 self.path, 1, f"no column {column!r}; the joint columns are {', '.join(self.names)}"
             )
-        return CsvCurve(self.times_s, self.columns[column], source=f"{self.path}:{column}")
+        values, source = self.columns[column], f"{self.path}:{column}"
+        return CsvCurve(self.times_s, values, interpolation, source=source)
 
 
 def _csv_header(path: Path, line: int, row: list[str]) -> list[str]:

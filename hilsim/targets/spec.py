@@ -46,7 +46,7 @@ class SpecError(ValueError):
 #: per target type: (required keys, optional keys), besides "type"
 SPEC_KEYS: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = {
     "keyframes": (("keys",), ("easing",)),
-    "csv": (("file",), ("column",)),
+    "csv": (("file",), ("column", "interpolation")),
     "sine": (("amplitude_deg", "frequency_hz"), ("phase_deg", "offset_deg")),
     "step": (("at_s", "before_deg", "after_deg"), ()),
     "hold": (("value_deg",), ()),
@@ -84,7 +84,7 @@ def track_from_spec(
     Specs, one per type (keys marked ? are optional)::
 
         {type = "keyframes", keys = [[t_s, deg], ...], easing? = "linear" | [name per segment]}
-        {type = "csv", file = "anim.csv", column? = <joint_name>}     file relative to base_dir
+        {type = "csv", file = "anim.csv", column? = <joint_name>, interpolation? = "linear"}
         {type = "sine", amplitude_deg, frequency_hz, phase_deg? = 0, offset_deg? = 0}
         {type = "step", at_s, before_deg, after_deg}
         {type = "hold", value_deg}
@@ -236,4 +236,7 @@ def _csv_from_spec(
             "column",
             f"{path}:1: no column {column!r}{how}; the joint columns are {', '.join(anim.names)}",
         )
-    return anim.curve(column)
+    how = spec.get("interpolation", "linear")
+    if how not in ("linear", "hold"):
+        raise SpecError("interpolation", f'must be "linear" or "hold", got {how!r}')
+    return anim.curve(column, how)

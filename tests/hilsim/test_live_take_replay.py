@@ -85,11 +85,16 @@ def test_a_bottango_live_take_replays_offline_as_it_was_live(tmp_path, capsys):
     assert on.sum() > 400 and written["raw_samples"]["jaw"] > 200
     at, want = ticks[on][::3], live[on][::3]
     # raw.csv: every value the session set, at the tick it set it: the live targets exactly.
-    # (Between two samples it is joined linearly, so across a hold it is not the live target.)
+    # (Joined linearly between two samples, so across a hold it is not the live target.)
     k = np.rint(raw_t / PERIOD).astype(int)[::3]
     raw = _tracks(tmp_path, "raw", f'{{ type = "csv", file = "{take / "raw.csv"}" }}', "",
                   ticks[k], capsys)  # fmt: skip
     np.testing.assert_allclose(raw, live[k], rtol=0, atol=1e-9)
+    # raw.csv held row to row: the live target at every tick, holds kept
+    held = _tracks(tmp_path, "held",
+                   f'{{ type = "csv", file = "{take / "raw.csv"}", interpolation = "hold" }}', "",
+                   at, capsys)  # fmt: skip
+    np.testing.assert_allclose(held, want, rtol=0, atol=1e-9)
     # keys.csv: the linear keys, within the take's tolerance of the live target at every tick
     keys = _tracks(tmp_path, "keys", f'{{ type = "csv", file = "{take / "keys.csv"}" }}', "", at,
                    capsys)  # fmt: skip
