@@ -348,9 +348,8 @@ class P1ServoBus(ServoBus):
         if rows:
             raise StartupMismatch(rows, port=self.link.name)
         notes.append(
-            f"{', '.join(self.families)}: no Bus Watchdog: if this program dies the servos hold "
-            "their last goal (a host stall is measured and said: they hold their last goal "
-            "meanwhile)"
+            f"{', '.join(self.families)}: no Bus Watchdog: a host stall is measured and said "
+            "(the servos hold their last goal meanwhile)"
         )
         if self.method is ReadMethod.ROTATION:
             notes.append(
