@@ -264,6 +264,13 @@ class P1Servo:
             if span.eeprom and self.raw("Lock"):
                 return self.status(err)  # locked: EEPROM unchanged, no error bit
         old_torque = mem[self._torque_addr]
+        if (
+            span.names == _GOAL_ONLY
+            and mem[addr : addr + len(data)] == data
+            and (self.dxl or old_torque == 1)
+            and self._plan is not None
+        ):
+            return self.status(err)  # the goal it holds (and torque on): nothing changes
         if span.whole:  # every byte writable, no Lock among them
             mem[addr : addr + len(data)] = data
         else:
