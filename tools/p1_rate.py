@@ -69,7 +69,8 @@ def run(port: str, cycles: int, repeats: int, label: str) -> None:
     for r in results:
         print(
             f"    run: cycle {r.achieved_s * 1e3:.3f} ms, bus {r.bus_s * 1e3:.3f} ms "
-            f"({(r.bus_ratio - 1) * 100:+.1f} %), host {(r.achieved_s - r.bus_s) * 1e3:.3f} ms"
+            f"({(r.bus_ratio - 1) * 100:+.1f} %; host stalls {r.stall_s * 1e3:.3f} ms), "
+            f"host {(r.achieved_s - r.bus_s) * 1e3:.3f} ms"
         )
 
 
