@@ -22,6 +22,7 @@ and voltage are constant unless a fault says otherwise. What is not modelled: ``
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 from typing import Literal
 
 from drivers.protocol1.control_table import ControlTable, DxlP1Error, Item, table_for
@@ -59,6 +60,11 @@ class P1Servo:
         }
         # goal (actual frame), vmax, amax, Homing Offset: cached until a write
         self._plan: tuple[float, float, float, int] | None = None
+        # vmax, amax, Homing Offset, the position limits: cached until a write of anything
+        # but Goal Position (a Sync Write of goals keeps them)
+        self._limits: tuple[float, float, int, int, int] | None = None
+        # (addr, length) of a write -> what it touches (_Span), worked out once
+        self._spans: dict[tuple[int, int], _Span] = {}
         pp, ps = self._items["Present Position"], self._items["Present Speed"]
         self._present_pos = (pp.addr, pp.end, self._slots[pp.name][2], pp.sign_bit or 0)
         self._present_speed = (ps.addr, ps.end, self._slots[ps.name][2], ps.sign_bit or 0)
@@ -132,7 +138,7 @@ class P1Servo:
         """Set item ``name`` directly (a test's or a fault's hand, not the wire)."""
         item = self._items[name]
         self._mem[item.addr : item.end] = item.encode(value)
-        self._plan = None
+        self._plan = self._limits = None
 
     def _baud_code(self, baud: int) -> int:
         if self.dxl:
@@ -156,7 +162,7 @@ class P1Servo:
 
     def _power_up(self) -> None:
         """Power on: EEPROM from flash, RAM at its initial values, goal where the horn is."""
-        self._plan = None
+        self._plan = self._limits = None
         self._mem[:] = self._flash
         self._defaults(self._mem, eeprom=False)
         if self.table.has("Torque Limit"):  # its power-up value is the EEPROM maximum
@@ -249,23 +255,47 @@ class P1Servo:
         """Write ``data`` at ``addr``; returns the ERR byte."""
         self.touch(t)
         err = 0
-        span = range(addr, addr + len(data))
+        span = self._spans.get((addr, len(data))) or self._span(addr, len(data))
+        mem = self._mem
         if self.dxl:
             err = self._dxl_check(addr, data)
             if err & DxlP1Error.RANGE:
                 return self.status(err)
-            if self.raw("Lock") and any(self._eeprom(a) for a in span):
+            if span.eeprom and self.raw("Lock"):
                 return self.status(err)  # locked: EEPROM unchanged, no error bit
-        old = bytes(self._mem)
-        for i, a in enumerate(span):
-            item = self._owner[a] if a < self._size else None
-            if item is None or not item.writable:
-                continue  # Feetech skips it (Dynamixel refused it above)
-            if item.name == "Lock" and self.dxl and old[a]:
-                continue  # Dynamixel: only a power cycle clears Lock
-            self._mem[a] = data[i]
-        self._after_write(old, span)
+        old_torque = mem[self._torque_addr]
+        if (
+            span.names == _GOAL_ONLY
+            and mem[addr : addr + len(data)] == data
+            and (self.dxl or old_torque == 1)
+            and self._plan is not None
+        ):
+            return self.status(err)  # the goal it holds (and torque on): nothing changes
+        if span.whole:  # every byte writable, no Lock among them
+            mem[addr : addr + len(data)] = data
+        else:
+            for i in span.keep:  # Feetech skips the others (Dynamixel refused them above)
+                if self.dxl and span.lock == addr + i and mem[addr + i]:
+                    continue  # Dynamixel: only a power cycle clears Lock
+                mem[addr + i] = data[i]
+        self._after_write(old_torque, span)
         return self.status(err)
+
+    def _span(self, addr: int, length: int) -> _Span:
+        """What a write of ``length`` bytes at ``addr`` touches (kept for the next one)."""
+        span = range(addr, addr + length)
+        owners = [self._owner[a] if a < self._size else None for a in span]
+        keep = tuple(i for i, item in enumerate(owners) if item is not None and item.writable)
+        names = frozenset(item.name for item in owners if item is not None)
+        lock = next((a for a, i in zip(span, owners, strict=True) if i and i.name == "Lock"), None)
+        found = self._spans[(addr, length)] = _Span(
+            keep,
+            len(keep) == length and lock is None,
+            names,
+            tuple(a for a in span if self._eeprom(a)),
+            lock,
+        )
+        return found
 
     def _eeprom(self, a: int) -> bool:
         item = self._owner[a] if a < self._size else None
@@ -293,12 +323,14 @@ class P1Servo:
                     err |= DxlP1Error.ANGLE_LIMIT
         return err
 
-    def _after_write(self, old: bytes, span: range) -> None:
+    def _after_write(self, old_torque: int, span: _Span) -> None:
+        names = span.names
         self._plan = None
-        names = {item.name for a in span if a < self._size and (item := self._owner[a])}
+        if names != _GOAL_ONLY:
+            self._limits = None
         if "Baud Rate" in names:
             self._baud = self._code_baud(self.raw("Baud Rate"))
-        eeprom = [a for a in span if self._eeprom(a)]
+        eeprom = span.eeprom
         if eeprom and (self.dxl or not self.raw("Lock")):
             for a in eeprom:  # kept over a power cycle
                 self._flash[a] = self._mem[a]
@@ -311,8 +343,8 @@ class P1Servo:
                 if not self.raw("Lock"):
                     item = self._items["Homing Offset"]
                     self._flash[item.addr : item.end] = self._mem[item.addr : item.end]
-                self._put(self._mem, "Torque Enable", old[self._items["Torque Enable"].addr])
-            elif te == 1 and old[self._items["Torque Enable"].addr] != 1:
+                self._put(self._mem, "Torque Enable", old_torque)
+            elif te == 1 and old_torque != 1:
                 self._hold()
             elif te != 1:
                 self._vel = 0.0
@@ -414,19 +446,22 @@ class P1Servo:
     def _make_plan(self) -> tuple[float, float, float, int]:
         """The move's goal (actual frame), top speed, acceleration and the Homing Offset,
         cached until a write."""
-        self._plan = (self._goal(), self._vmax(), self._amax(), self._offset())
+        vmax, amax, offset, lo, hi = self._limits or self._make_limits()
+        goal = self.value("Goal Position")
+        if lo or hi:  # clamped to the position limits
+            goal = min(max(goal, lo), hi)
+        self._plan = (float(goal + offset), vmax, amax, offset)
         return self._plan
 
-    def _goal(self) -> float:
-        """The goal in the actual frame, clamped to the position limits."""
-        goal = self.value("Goal Position")
+    def _make_limits(self) -> tuple[float, float, int, int, int]:
+        """Top speed, acceleration, Homing Offset and the position limits (0, 0: none),
+        cached until a write of anything but Goal Position."""
         if self.dxl:
             lo, hi = self.raw("CW Angle Limit"), self.raw("CCW Angle Limit")
         else:
             lo, hi = self.raw("Min Position Limit"), self.raw("Max Position Limit")
-        if lo or hi:
-            goal = min(max(goal, lo), hi)
-        return float(goal + self._offset())
+        self._limits = (self._vmax(), self._amax(), self._offset(), lo, hi)
+        return self._limits
 
     def _advance(self, t: float) -> None:
         """Move the horn from ``_now`` to ``t``: time-optimal towards the goal under the speed
@@ -482,6 +517,23 @@ class P1Servo:
         return (
             f"P1Servo({self.table.model!r}, id={self.id}, t={self._now:.6f}, pos={self._pos:.1f})"
         )
+
+
+#: The names a Sync Write of goals touches: the move's limits stay as they were.
+_GOAL_ONLY = frozenset({"Goal Position"})
+
+
+@dataclass(frozen=True, slots=True)
+class _Span:
+    """What a write of some bytes at some address touches: the offsets of the writable
+    bytes, whether that is all of them (and no Lock), the items' names, the EEPROM
+    addresses, the Lock register's address if among them."""
+
+    keep: tuple[int, ...]
+    whole: bool
+    names: frozenset[str]
+    eeprom: tuple[int, ...]
+    lock: int | None
 
 
 def _segment(dist: float, v: float, vmax: float, a: float) -> tuple[float, float, bool]:

@@ -19,18 +19,22 @@ and the exit policy :mod:`drivers.p1bus.health`.
 from __future__ import annotations
 
 import math
+import struct
 from collections.abc import Iterable, Sequence
+from typing import Literal
 
 import numpy as np
 from numpy.typing import NDArray
 
 from drivers.clock import Clock
 from drivers.dynamixel.errors import Mismatch, StartupMismatch
+from drivers.fill import Packed
 from drivers.p1bus import health
-from drivers.p1bus.link import P1Link, decode, encode
+from drivers.p1bus.link import P1Link, decode
 from drivers.p1bus.startup import P1Expectation, P1ServoState, P1StartupReport, check_servo
 from drivers.p1bus.table import Family, ReadMethod, bus_read_method, family_of
 from drivers.protocol1 import packet, wire_time
+from drivers.protocol1.encoding import to_sign_magnitude
 from drivers.servo_bus import (
     ExitPolicy,
     ExitReport,
@@ -87,7 +91,22 @@ class P1ServoBus(ServoBus):
         elif self.method is ReadMethod.BULK:
             addr = self._present.addr
             self._request = packet.bulk_read([(i, addr, _POS_BYTES) for i in ids_])
+        self._views = (Packed(), Packed(), Packed())  # a reading's arrays (drivers.fill)
         self._single = [packet.read(i, self._present.addr, _POS_BYTES) for i in ids_]
+        # the tick's Sync Write, built once: per tick only the goals and the checksum change
+        # (the words in each servo's byte order: its family's, as encode() writes them)
+        self._goal_frame = bytearray(
+            packet.sync_write(self._goal_addr, _POS_BYTES, {i: bytes(_POS_BYTES) for i in ids_})
+        )
+        self._goal_pack = struct.Struct("<" + "BH" * self.n).pack_into
+        self._goal_args: list[int] = [v for i in ids_ for v in (i, 0)]
+        self._swap = [f.big_endian for f in self.fams]
+        self._goal_sign = [f.goal_position.sign_bit for f in self.fams]
+        # Present Position per servo: byte order, sign bit, the error bits that void a reply
+        pr = self._present
+        self._present_codec: list[tuple[Literal["little", "big"], int | None, int]] = [
+            ("big" if f.big_endian else "little", pr.sign_bit, ~f.hardware_bits) for f in self.fams
+        ]
 
     @classmethod
     def open(
@@ -176,26 +195,45 @@ class P1ServoBus(ServoBus):
 
     # -- per tick ----------------------------------------------------------------
     def _write_goals(self, goals: NDArray[np.float64]) -> None:
+        # one pass: tick, range check, the word in the servo's order (the tick's path)
+        args, frame = self._goal_args, self._goal_frame
+        i, bad = 1, False
+        for g, tpr, c, lo, hi, sign, swap in zip(
+            goals.tolist(),
+            self._tpr,
+            self._center,
+            self._lo,
+            self._hi,
+            self._goal_sign,
+            self._swap,
+            strict=True,
+        ):
+            tk = round(g * tpr) + c
+            if not lo <= tk <= hi:
+                bad = True
+                continue
+            raw = (tk if tk >= 0 or sign is None else to_sign_magnitude(tk, sign)) & 0xFFFF
+            args[i] = (raw >> 8 | (raw & 0xFF) << 8) if swap else raw
+            i += 2
+        if bad:
+            self._refuse_goals(goals)
+        self._goal_pack(frame, 7, *args)  # after FF FF FE LEN 83 addr len
+        frame[-1] = ~sum(memoryview(frame)[2:-1]) & 0xFF
+        self.link.transact(bytes(frame), (), 0, "Sync Write")
+
+    def _refuse_goals(self, goals: NDArray[np.float64]) -> None:
+        """ValueError naming every goal outside what its servo accepts."""
         ticks = [
             round(g * t) + c
             for g, t, c in zip(goals.tolist(), self._tpr, self._center, strict=True)
         ]
-        bad = [
-            (sid, tk, lo, hi)
-            for sid, tk, lo, hi in zip(self.ids, ticks, self._lo, self._hi, strict=True)
-            if not lo <= tk <= hi
-        ]
-        if bad:
-            raise ValueError(
-                "goal outside what the servo accepts; nothing sent: "
-                + ", ".join(f"servo {s}: tick {t} not in {lo}..{hi}" for s, t, lo, hi in bad)
+        raise ValueError(
+            "goal outside what the servo accepts; nothing sent: "
+            + ", ".join(
+                f"servo {s}: tick {t} not in {lo}..{hi}"
+                for s, t, lo, hi in zip(self.ids, ticks, self._lo, self._hi, strict=True)
+                if not lo <= t <= hi
             )
-        data = {
-            sid: encode(fam, fam.goal_position, tk)
-            for sid, fam, tk in zip(self.ids, self.fams, ticks, strict=True)
-        }
-        self.link.transact(
-            packet.sync_write(self._goal_addr, _POS_BYTES, data), (), 0, "Sync Write"
         )
 
     def _read_present(self, out: PresentReading) -> None:
@@ -222,8 +260,28 @@ class P1ServoBus(ServoBus):
                     )
         else:
             replies = self.link.transact(self._request, self.ids, _POS_BYTES, str(self.method))
-            for k, sid in enumerate(self.ids):
-                self._take(k, replies.got.get(sid), pos, status, errors)
+            got, size = replies.got, self._present.size
+            # _take's work for each servo, inline: the tick's path
+            for k, (sid, (order, sign, bad), centre, tpr) in enumerate(
+                zip(self.ids, self._present_codec, self._center, self._tpr, strict=True)
+            ):
+                reply = got.get(sid)
+                if reply is None:
+                    continue
+                err, params = reply
+                errors[k] = err
+                if err & bad:
+                    status[k] = _ERROR
+                    continue
+                tick = int.from_bytes(params[:size], order)
+                if sign is not None:
+                    tick = (
+                        -(tick & ((1 << sign) - 1))
+                        if tick >> sign & 1
+                        else tick & ((1 << sign) - 1)
+                    )
+                pos[k] = (tick - centre) / tpr
+                status[k] = _ALERT if err else _OK
             if replies.corrupt:
                 self.corrupt_sample = replies.corrupt[-1] or self.corrupt_sample
             failed = status.count(_STALE)
@@ -231,9 +289,16 @@ class P1ServoBus(ServoBus):
                 now = self._clock.now()
                 rest = self.link.chain_s(n, _POS_BYTES) + self.link.latency_timer_ms * 1e-3
                 self.link.port.hold_until_quiet(now + rest)
-        out.positions[:] = pos
-        out.status[:] = status
-        out.errors[:] = errors
+        pv, sv, ev = self._views  # the reading's arrays, viewed once (drivers.fill)
+        if pv.arr is not out.positions or sv.arr is not out.status or ev.arr is not out.errors:
+            pv, sv, ev = self._views = (
+                Packed(out.positions, n),
+                Packed(out.status, n),
+                Packed(out.errors, n),
+            )
+        pv.put(*pos)
+        sv.put(*status)
+        ev.put(*errors)
         out.t_done = self._clock.now()
 
     def _take(
@@ -283,9 +348,8 @@ class P1ServoBus(ServoBus):
         if rows:
             raise StartupMismatch(rows, port=self.link.name)
         notes.append(
-            f"{', '.join(self.families)}: no Bus Watchdog: if this program dies the servos hold "
-            "their last goal (a host stall is measured and said: they hold their last goal "
-            "meanwhile)"
+            f"{', '.join(self.families)}: no Bus Watchdog: a host stall is measured and said "
+            "(the servos hold their last goal meanwhile)"
         )
         if self.method is ReadMethod.ROTATION:
             notes.append(

@@ -171,12 +171,14 @@ def decode(fam: Family, reg: Reg, data: bytes, start: int | None = None) -> int:
 def _receive(port: object, ids: Iterable[int], per_reply: int, total: int) -> Replies:
     """Status packets from ``ids`` until each has one or the packet deadline passes."""
     want = set(ids)
+    data = port.readPort(max(1, total))  # type: ignore[attr-defined]
+    if len(data) == total and (whole := _whole_chain(data, want, per_reply)) is not None:
+        return Replies(whole, [])
     got: dict[int, tuple[int, bytes]] = {}
     corrupt: list[bytes] = []
     parser = packet.StreamParser()
     received = 0
     while True:
-        data = port.readPort(max(1, total - received))  # type: ignore[attr-defined]
         received += len(data)
         for _, (raw, fid, ok, code, params) in parser.feed_decoded(data):
             if not ok or len(params) != per_reply - packet.OVERHEAD:
@@ -187,3 +189,28 @@ def _receive(port: object, ids: Iterable[int], per_reply: int, total: int) -> Re
             if parser.pending and len(got) < len(want):
                 corrupt.append(b"")  # a reply cut short
             return Replies(got, corrupt)
+        data = port.readPort(max(1, total - received))  # type: ignore[attr-defined]
+
+
+def _whole_chain(
+    data: bytes, want: set[int], per_reply: int
+) -> dict[int, tuple[int, bytes]] | None:
+    """The usual tick: ``data`` is exactly one intact status packet of ``per_reply`` bytes
+    from each ID of ``want``, back to back. Then ``{id: (err, params)}``, what the stream
+    parser would make of it; else None (the parser sorts it out)."""
+    got: dict[int, tuple[int, bytes]] = {}
+    last = per_reply - 1
+    size = per_reply - 4
+    for i in range(0, len(data), per_reply):
+        fid = data[i + 2]
+        if (
+            data[i] != 0xFF
+            or data[i + 1] != 0xFF
+            or data[i + 3] != size
+            or fid not in want
+            or fid in got
+            or ~sum(data[i + 2 : i + last]) & 0xFF != data[i + last]
+        ):
+            return None
+        got[fid] = (data[i + 4], data[i + 5 : i + last])
+    return got if len(got) == len(want) else None

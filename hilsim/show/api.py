@@ -55,6 +55,7 @@ from hilsim.show.session import (
     open_telemetry,
     port_for,
     run_show,
+    start_guardian,
 )
 from hilsim.show.show_files import record_show_files
 from hilsim.show.stop import StopFlag
@@ -62,6 +63,7 @@ from hilsim.telemetry.format import TelemetryFormat
 
 if TYPE_CHECKING:
     from drivers.dynamixel.bus import DynamixelBus
+    from drivers.p1bus.guardian import Guardian
     from hilsim.show.loop import HilLoop
     from hilsim.telemetry import TelemetryWriter
 
@@ -171,6 +173,7 @@ class Show:
         self._lock = threading.Lock()
         self._bus: DynamixelBus | None = None
         self._run_dir: RunDir | None = None
+        self._guardian: Guardian | None = None  # no Bus Watchdog: drivers.p1bus.guardian
         self._running = threading.Event()
         self._done = threading.Event()
         self._result: ShowResult | None = None
@@ -220,6 +223,10 @@ class Show:
             raise
         try:
             self.notes += check_bus(rig, bus, self._say)
+            self._guardian, note = start_guardian(rig, bus, self._run_dir.path)
+            if note:
+                self.notes.append(note)
+                self._say(f"note: {note}")
             director = self.parts.director
             if director is not None:  # its ports, before anything moves
                 check_teach(rig, bus, director)
@@ -233,6 +240,7 @@ class Show:
         except BaseException:
             if self.parts.director is not None:
                 self.parts.director.close_inputs()
+            self._release_guardian()
             bus.close()
             self._run_dir.remove_if_empty()
             raise
@@ -252,6 +260,7 @@ class Show:
         director = self.parts.director
         if director is not None and self._result is None:
             director.close_inputs()
+        self._release_guardian()
         if self._bus is not None:
             self._bus.close()
         if self._result is None and self._run_dir is not None:
@@ -333,7 +342,14 @@ class Show:
                 self._result.run_dir = _keep_only_takes(run_dir)  # but the takes recorded
             return self._result
         finally:
+            self._release_guardian()  # every way out of the loop applied the exit policy
             self._done.set()
+
+    def _release_guardian(self) -> None:
+        """The show ended by itself: its guardian (if any) exits without a word."""
+        guardian, self._guardian = self._guardian, None
+        if guardian is not None:
+            guardian.release()
 
     def _prune_runs(self, run_dir: Path) -> list[dict[str, Any]]:
         """The caps on the runs root: its oldest runs removed (a run made elsewhere, by

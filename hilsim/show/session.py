@@ -40,6 +40,7 @@ from hilsim.show.stop import StopFlag
 
 if TYPE_CHECKING:
     from drivers.dynamixel.bus import DynamixelBus
+    from drivers.p1bus.guardian import Guardian
     from drivers.p1bus.startup import P1Expectation
     from hilsim.live.director import Director
     from hilsim.telemetry import TelemetryWriter
@@ -206,6 +207,46 @@ def check_p1_bus(rig: Rig, bus: DynamixelBus, say: Callable[[str], None]) -> lis
     for note in notes:
         say(f"note: {note}")
     return notes
+
+
+def start_guardian(
+    rig: Rig, bus: DynamixelBus, run_dir: Path | None
+) -> tuple[Guardian | None, str]:
+    """On a bus with no Bus Watchdog, on an OS serial port: start the guardian that applies
+    the exit policy if this process dies (:mod:`drivers.p1bus.guardian`), before torque goes
+    on. Returns it (None when there is none to start) and the start-up line that says what
+    happens if the program dies. Never refuses the show: a guardian that cannot start is said."""
+    if bus.has_watchdog:
+        return None, ""
+    fd = getattr(getattr(bus.link.port, "ser", None), "fd", None)
+    if not isinstance(fd, int) or fd < 0:
+        return None, "if this program dies the emulated servos stop with it (no guardian needed)"
+    from drivers.p1bus.guardian import Guardian
+
+    relax = rig.safety.exit_policy == "relax"
+    try:
+        guardian = Guardian.start(
+            fd,
+            port=bus.link.name,
+            ids=rig.servo_ids,
+            models=[j.model for j in rig.joints],
+            policy=str(rig.safety.exit_policy),
+            run_dir=run_dir,
+        )
+    except OSError as exc:
+        return None, (
+            f"warning: cannot start the guardian ({exc.strerror or exc}): if this program dies "
+            "the servos hold their last goal with torque on"
+        )
+    what = (
+        "turns their torque off (exit policy relax), reads it back"
+        if relax
+        else "leaves them holding their last goal (exit policy hold)"
+    )
+    return guardian, (
+        f"guardian (pid {guardian.pid}): if this program dies it {what} and says so in the "
+        "run directory (guardian.json); if the computer stops, the servos hold their last goal"
+    )
 
 
 def check_teach(rig: Rig, bus: DynamixelBus, director: Director | None) -> None:

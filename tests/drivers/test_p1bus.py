@@ -334,3 +334,29 @@ def test_baud_rate_values_and_the_hosts_rate() -> None:
     url = DxlsimUrl.parse("dxlsim://?ids=1&model=STS3215")
     assert url.build_bus(9600).servos[0].baud == 1_000_000  # no Feetech value for 9600
     assert url.build_bus(500_000).servos[0].baud == 500_000
+
+
+def test_a_limit_written_between_sync_writes_of_goals_governs_the_next_move() -> None:
+    """The emulator keeps a move's limits over Sync Writes of goals alone; a write of Goal
+    Speed or a Position Limit in between is used by the next goal, servo by servo."""
+    bus = make("STS3215", [1, 2])
+    s1, s2 = bus.servo(1), bus.servo(2)
+
+    def goals(tick: int) -> bytes:
+        return p1.sync_write(42, 2, {1: tick.to_bytes(2, "little"), 2: tick.to_bytes(2, "little")})
+
+    txrx(bus, goals(3000), wait=1.0)
+    for _ in range(3):  # the same goals again: nothing changes
+        txrx(bus, goals(3000), wait=0.01)
+    assert s1.raw("Present Position") == s2.raw("Present Position") == 3000
+    txrx(bus, p1.write(1, 11, (2500).to_bytes(2, "little")))  # Max Position Limit
+    txrx(bus, p1.write(1, 46, (500).to_bytes(2, "little")))  # Goal Speed 500 step/s
+    bus.write(goals(3500))
+    bus.clock.advance(0.5)  # type: ignore[attr-defined]
+    s1.touch(bus.clock.now())
+    s2.touch(bus.clock.now())
+    assert 2650 <= s1.raw("Present Position") <= 2800  # down to its limit at ~500 step/s
+    assert s2.raw("Present Position") == 3500  # the other at full speed, long there
+    bus.clock.advance(0.6)  # type: ignore[attr-defined]
+    s1.touch(bus.clock.now())
+    assert s1.raw("Present Position") == 2500 and s1.raw("Moving") == 0

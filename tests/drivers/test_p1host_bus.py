@@ -9,12 +9,15 @@ import math
 
 import numpy as np
 import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 
 from drivers.dxlsim import register_bus, unregister_bus
 from drivers.dynamixel.errors import ExitNotConfirmed, StartupMismatch
 from drivers.p1bus import table
 from drivers.p1bus.bus import P1ServoBus
 from drivers.p1bus.health import write_eeprom
+from drivers.p1bus.link import _whole_chain, encode
 from drivers.p1bus.startup import P1Expectation
 from drivers.protocol1 import packet
 from drivers.protocol1.control_table import TABLES
@@ -292,3 +295,55 @@ def test_scan_cli_finds_an_ax_figure_on_protocol_1(capsys):
         assert "--protocol feetech or --protocol 1.0" in capsys.readouterr().err
     finally:
         unregister_bus(name)
+
+
+@settings(
+    max_examples=30, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture]
+)
+@given(st.lists(st.floats(-1.0, 1.0), min_size=3, max_size=3))
+def test_the_goal_frame_is_the_packet_builders_sync_write(p1, rads):
+    """The tick's Sync Write, rewritten in place, is byte for byte what
+    :func:`packet.sync_write` makes of each family's encoding (STS and SCS on one bus)."""
+    bus, stub = p1({1: "STS3215", 2: "SCS0009", 3: "STS3215"})
+    since = len(stub.sent)
+    bus.write_goals(np.array(rads))
+    ticks = [round(g * t) + c for g, t, c in zip(rads, bus._tpr, bus._center, strict=True)]
+    want = packet.sync_write(
+        42,
+        2,
+        {
+            sid: encode(fam, fam.goal_position, tk)
+            for sid, fam, tk in zip(bus.ids, bus.fams, ticks, strict=True)
+        },
+    )
+    assert stub.sent[since][1] == want
+
+
+@settings(max_examples=200, deadline=None)
+@given(
+    st.lists(st.integers(0, 253), min_size=1, max_size=12, unique=True),
+    st.integers(0, 255),
+    st.binary(min_size=24, max_size=24),
+    st.integers(0, 200),
+    st.integers(0, 255),
+)
+def test_a_whole_chain_reads_as_the_stream_parser_reads_it(ids, err, words, at, flip):
+    """The tick's shortcut for a Sync Read chain that came whole gives what the stream
+    parser gives, or stands aside (a damaged byte anywhere)."""
+    data = bytearray(
+        b"".join(packet.encode_status(i, err, words[2 * k : 2 * k + 2]) for k, i in enumerate(ids))
+    )
+    data[at % len(data)] ^= flip
+    want = set(ids)
+    fast = _whole_chain(bytes(data), want, 8)
+    got: dict[int, tuple[int, bytes]] = {}
+    corrupt = []
+    for _, (raw, fid, ok, code, params) in packet.StreamParser().feed_decoded(bytes(data)):
+        if not ok or len(params) != 2:
+            corrupt.append(raw)
+        elif fid in want and fid not in got:
+            got[fid] = (code, params)
+    if fast is not None:
+        assert fast == got and not corrupt
+    else:
+        assert flip != 0  # an intact chain always takes the shortcut

@@ -339,7 +339,9 @@ def test_bench_measures_the_feetech_bus_against_its_wire_model(tmp_path, capsys)
     assert got["model_s"] == pytest.approx(1.84e-3, abs=1e-9)
     assert got["achieved_s"] == pytest.approx(got["model_s"], rel=1e-6)
     assert got["failed_reads"] == 0 and got["read_hz_per_servo"] == 250.0
-    assert "1.840 ms a tick" in capsys.readouterr().out
+    assert got["bus_s"] == pytest.approx(got["model_s"], rel=1e-6)  # all of it the bus's
+    out = capsys.readouterr().out
+    assert "1.840 ms a tick" in out and "of which bus time 1.840 ms a tick (+0.0 %" in out
 
 
 def test_the_joint_plot_draws_a_rotation_buses_present_line_through_its_unread_ticks(emulated):
