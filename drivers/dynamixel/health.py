@@ -288,25 +288,25 @@ def _confirm(
     link: Link, sid: int, item: Item, value: int, attempts: int, settle: bool = True
 ) -> None:
     """Write ``item := value`` and read it back, up to ``attempts`` tries (``settle``: as
-    :func:`_read`). A write the servo acknowledged is not repeated for a read-back that
-    failed on the wire: the next try reads again (on a noisy line each try then needs one
-    clean reply, not two)."""
+    :func:`_read`). After a try that failed on the wire the write may have taken (its
+    status packet late or lost), so the next try reads first and writes only if the value
+    is not there: on a noisy line a try then needs one clean reply, not two."""
     last = ""
-    written = False
+    write = True
     for k in range(attempts):
         try:
-            if not written:
-                link.write_item(sid, item, value)
-                written = True
+            if not write and link.read_item(sid, item) == value:
+                return
+            link.write_item(sid, item, value)
             got = link.read_item(sid, item)
         except (CommError, ServoError) as exc:
             last = str(exc)
+            write = False
             if settle and k + 1 < attempts:
                 link.settle()
             continue
         if got == value:
             return
-        written = False
         last = f"wrote {value}, read back {got}"
     raise _UnconfirmedError(
         f"{item.name} := {value} not confirmed after {attempts} attempt(s): {last}"
