@@ -327,6 +327,7 @@ class HilLoop:
             health_reads=self.watch.health.reads,
             health_deferred=self.watch.health.deferred,
             health_forced=self.watch.health.forced,
+            health_every_tick=self.bus.tick_health is not None,
             servo_condition=self.watch.condition.extremes(self.watch.names),
         )
         if interrupted is not None:
