@@ -112,23 +112,23 @@ class BenchReport:
             one_bus = len({(r.ids, r.baud, r.port) for r in rows}) == 1
             best = max(_as_run(rows), key=lambda r: r.achieved_hz) if target or one_bus else None
             if best is not None:
-                read = ("Fast" if best.fast else "plain") + (
+                read = ("Fast" if best.fast else "plain") + " Sync Read" + (
                     f" of the {best.read_bytes} B tick block" if best.read_bytes != 4 else ""
                 )
                 if not target:
                     out.append(
-                        f"This bus tops out at {best.achieved_hz:.0f} cycles/s ({read} Sync "
-                        f"Read; wire-time model {best.model_hz:.0f})."
+                        f"This bus tops out at {best.achieved_hz:.0f} cycles/s ({read}; "
+                        f"wire-time model {best.model_hz:.0f})."
                     )
                 elif best.achieved_hz < target:
                     out.append(
                         f"The bus is the limit: {best.achieved_hz:.0f} cycles/s achieved "
-                        f"({read} Sync Read, model {best.model_hz:.0f}) < your {target:g} Hz."
+                        f"({read}, model {best.model_hz:.0f}) < your {target:g} Hz."
                     )
                 else:
                     out.append(
                         f"The bus keeps up: {best.achieved_hz:.0f} cycles/s achieved "
-                        f"({read} Sync Read) for your {target:g} Hz loop."
+                        f"({read}) for your {target:g} Hz loop."
                     )
             worst = min(rows, key=lambda r: r.ratio)
             if worst.ratio < 0.8:

@@ -228,3 +228,56 @@ def test_the_wire_model_counts_the_blocks_bytes():
     # write 14 + 5N, request 14 + N, reply 8 + 11N: 36 + 17N
     assert wire_time.cycle_bytes(4, True, 4, ct.TICK_BLOCK_SIZE) == 36 + 17 * 4
     assert wire_time.cycle_bytes(4, True) == 36 + 14 * 4
+
+
+# ============================================================================ the parser
+def _reply(blocks: list[tuple[int, int, int, int, int, int]]) -> bytes:
+    """A Fast Sync Read reply of tick blocks (ERR, ID, position, torque, watchdog, marker),
+    each block's CRC running over the packet up to it, as the servos send it."""
+    from drivers.protocol2.crc import crc16
+
+    size = len(blocks) * 11 + 3
+    out = bytearray(b"\xff\xff\xfd\x00\xfe" + size.to_bytes(2, "little") + b"\x55")
+    for err, sid, position, torque, wd, marker in blocks:
+        out += bytes((err, sid)) + position.to_bytes(4, "little", signed=True)
+        out += bytes((torque, wd & 0xFF, marker))
+        out += crc16(bytes(out)).to_bytes(2, "little")
+    return bytes(out)
+
+
+def test_the_parser_keeps_blocks_while_each_is_whole_and_never_a_reset_ones_position():
+    from drivers.dynamixel import tick_block
+
+    n = 4
+    blocks = [
+        (0, 1, 2048, 1, 5, 2),
+        (0, 2, 1000, 0, -1, 2),
+        (0, 3, 0, 0, 0, 0),
+        (0x80, 4, 7, 1, 5, 2),
+    ]
+    packet = _reply(blocks)
+    pos, status, errors, state = [math.nan] * n, [1] * n, [0] * n, [-1] * n
+    assert (
+        tick_block.parse_block_reply(packet, [1, 2, 3, 4], [0, 1, 2, 3], pos, status, errors, state)
+        == 4
+    )
+    assert pos[0] == 0.0 and math.isclose(pos[1], (1000 - 2048) * 2 * math.pi / 4096)
+    assert math.isnan(pos[2]) and status == [0, 0, 1, 3]  # the reset block: no reading
+    assert [tick_block.unpack(s) for s in state] == [(1, 5, 2), (0, -1, 2), (0, 0, 0), (1, 5, 2)]
+    assert errors[3] == 0x80  # Alert: a hardware error, the reading valid
+    # a flipped bit in the third block: it and the blocks after it are no reading
+    bad = bytearray(packet)
+    bad[8 + 2 * 11 + 4] ^= 1
+    pos, status, errors, state = [math.nan] * n, [1] * n, [0] * n, [-1] * n
+    assert (
+        tick_block.parse_block_reply(
+            bytes(bad), [1, 2, 3, 4], [0, 1, 2, 3], pos, status, errors, state
+        )
+        == 2
+    )
+    assert status[2:] == [1, 1] and state[2:] == [-1, -1]
+    # another order asked: the first block's ID is not the one asked first
+    assert (
+        tick_block.parse_block_reply(packet, [2, 1, 3, 4], [1, 0, 2, 3], pos, status, errors, state)
+        == 0
+    )
