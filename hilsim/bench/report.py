@@ -112,8 +112,10 @@ class BenchReport:
             one_bus = len({(r.ids, r.baud, r.port) for r in rows}) == 1
             best = max(_as_run(rows), key=lambda r: r.achieved_hz) if target or one_bus else None
             if best is not None:
-                read = ("Fast" if best.fast else "plain") + " Sync Read" + (
-                    f" of the {best.read_bytes} B tick block" if best.read_bytes != 4 else ""
+                read = (
+                    ("Fast" if best.fast else "plain")
+                    + " Sync Read"
+                    + (f" of the {best.read_bytes} B tick block" if best.read_bytes != 4 else "")
                 )
                 if not target:
                     out.append(
