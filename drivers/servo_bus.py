@@ -463,6 +463,22 @@ class ServoBus(ABC):
     def _condition_read_s(self) -> float:
         return self._health_read_s()
 
+    #: a backend whose every read carries each servo's health (the X series' tick block)
+    #: sets this, per servo in bus order, to an opaque state of that read (-1: not read);
+    #: None: the reads carry positions only, health is read between ticks (read_health)
+    tick_health: list[int] | None = None
+
+    @property
+    def tick_health_ok(self) -> list[int]:
+        """Per servo, the :attr:`tick_health` of a servo that follows its goals as the show
+        set it (torque, Bus Watchdog)."""
+        return []
+
+    def tick_health_of(self, k: int) -> ServoHealth:
+        """Servo ``k``'s (bus order) health from :attr:`tick_health`, judged as
+        :meth:`read_health` judges; nothing read when the reads carry no health."""
+        return ServoHealth(self._ids[k], None, None, None, None)
+
     #: the raw bytes of the latest corrupt reply to a read, for diagnosis (None if none yet);
     #: a backend that keeps them sets it, the caller may reset it to None after sampling it
     corrupt_sample: bytes | None = None

@@ -145,10 +145,13 @@ class BenchBus:
             writer.addParam(servo_id, goal_bytes(goal))
         return writer
 
-    def position_reader(self, ids: Sequence[int]) -> sdk.GroupSyncRead:
-        """A GroupSyncRead of Present Position (4 B) from ``ids``, in that order."""
+    def position_reader(self, ids: Sequence[int], block_at: int | None = None) -> sdk.GroupSyncRead:
+        """A GroupSyncRead of Present Position (4 B) from ``ids``, in that order; or, with
+        ``block_at`` (Indirect Data 1's address), of the tick block hilsim's tick reads
+        (``ct.TICK_BLOCK_SIZE`` bytes: :mod:`drivers.dynamixel.tick_block`)."""
         item = ct.PRESENT_POSITION
-        reader = sdk.GroupSyncRead(self.port, self.ph, item.addr, item.size)
+        addr, size = (item.addr, item.size) if block_at is None else (block_at, ct.TICK_BLOCK_SIZE)
+        reader = sdk.GroupSyncRead(self.port, self.ph, addr, size)
         for servo_id in ids:
             reader.addParam(servo_id)
         return reader

@@ -28,13 +28,14 @@ from __future__ import annotations
 
 import math
 from collections.abc import Iterable, Sequence
+from functools import partial
 from operator import le
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from drivers.clock import Clock
-from drivers.dynamixel import health
+from drivers.dynamixel import health, tick_block
 from drivers.dynamixel.errors import (
     DynamixelError,
     Mismatch,
@@ -51,6 +52,7 @@ from drivers.dynamixel.startup import (
     StartupReport,
     all_support_fast,
     check_servo,
+    retry,
 )
 from drivers.dynamixel.tick_packets import (
     GoalFrame,
@@ -74,6 +76,7 @@ from drivers.servo_bus import (
     ExitPolicy,
     ExitReport,
     HealthPart,
+    HealthProblem,
     PresentReading,
     ServoBus,
     ServoHealth,
@@ -121,6 +124,13 @@ class DynamixelBus(ServoBus):
         self._rdt_s = np.full(n, FACTORY_RETURN_DELAY_S)
         self._watchdog_units: int | None = None
         self._models: dict[int, str] = {}  # servo ID -> model name, from check()
+        # the tick block (tick_block.py): Indirect Data 1's address once use_tick_block set
+        # it up, the bytes each servo's reply carries, what each servo's state should be
+        self._block_at: int | None = None
+        self._block_planned = False
+        self._size = _DATA_BYTES
+        self._torque_on = [False] * n
+        self._health_ok = [tick_block.expected(False, None)] * n  # tick_health_ok
         #: the bytes of the latest corrupt reply to a tick's read (None until one comes); the
         #: loop samples it into events.jsonl so a noisy line can be diagnosed afterwards
         self.corrupt_sample: bytes | None = None
@@ -227,21 +237,26 @@ class DynamixelBus(ServoBus):
         fast = self._fast
         untold: tuple[int, ...]
         late: frozenset[int]
-        size, untold, late = _DATA_BYTES, (), frozenset()
+        size, untold, late = self._size, (), frozenset()
         seen = status  # the replies as they came (the order follows them)
+        block = self._block_at is not None and fast
+        if block:
+            self.tick_health = state = [-1] * n
         if not fast and self._orders.busy_lengths:  # a late packet may come: another length
             size, untold = self._orders.plain_length(out.t)
             late = self._orders.late_ids(self.ids)
         request = self._request(fast, size)
         try:
             if request is None:
-                addr = ct.PRESENT_POSITION.addr
+                addr = ct.PRESENT_POSITION.addr if self._block_at is None else self._block_at
                 result = ph.syncReadTx(port, addr, size, self._read_param, n, fast)
             else:  # syncReadTx's txPacket; its own packet timeout is replaced just below
                 result = transmit(port, request)
             if result == OK:
                 want, order, sample = self._read_param, self._orders.order, self._sample
-                if fast:
+                if block:  # the tick block: each servo's state besides its position
+                    self._receive_block(out.t, pos, status, errors, state)
+                elif fast:
                     port.setPacketTimeoutMillis(self._fast_timeout_ms)
                     receive_fast_reply(port, want, order, pos, status, errors, sample)
                     if self._orders.suspect:  # a late block may be in flight (read_order),
@@ -286,6 +301,28 @@ class DynamixelBus(ServoBus):
                 if self._orders.order != order:  # (requests rebuilt only when it changed)
                     self._set_order()
 
+    def _receive_block(
+        self,
+        t: float,
+        pos: list[float],
+        status: list[int],
+        errors: list[int],
+        state: list[int],
+    ) -> None:
+        """The reply to a Fast Sync Read of the tick block, as the Fast read below; a state
+        taken back (read_order) goes with its block."""
+        port, orders = self._port, self._orders
+        port.setPacketTimeoutMillis(self._fast_timeout_ms)
+        tick_block.receive_block_reply(
+            port, self._read_param, orders.order, pos, status, errors, state, self._sample
+        )
+        if orders.suspect:
+            kept = [k for k in range(self._n) if status[k] != STALE]
+            orders.distrust(t, pos, status, errors)
+            for k in kept:
+                if status[k] == STALE:
+                    state[k] = -1
+
     def _set_order(self, order: Sequence[int] | None = None) -> None:
         if order is not None:  # (tests set one)
             self._orders.order = list(order)
@@ -298,6 +335,8 @@ class DynamixelBus(ServoBus):
         key = (fast, size)
         if key not in self._requests:
             ids, addr = self._read_param, ct.PRESENT_POSITION.addr
+            if fast and self._block_at is not None:
+                addr = self._block_at
             self._requests[key] = sync_read_request(addr, size, ids, fast)
         return self._requests[key]
 
@@ -317,7 +356,7 @@ class DynamixelBus(ServoBus):
         one in a fast reply). A longer timeout costs time only when a servo is silent."""
         port = self._port
         base = (
-            port.tx_time_per_byte * wire_time.status_bytes(_DATA_BYTES) * self.n
+            port.tx_time_per_byte * wire_time.status_bytes(self._size) * self.n
             + 2.0 * self.link.latency_timer_ms
             + 2.0
             + port.timeout_margin_ms
@@ -381,8 +420,85 @@ class DynamixelBus(ServoBus):
             self.link.name, self.link.baud, self.read_mode, tuple(states), tuple(notes)
         )
 
+    # -- the tick block -------------------------------------------------------------
+    def tick_block_possible(self) -> bool:
+        """Whether :meth:`use_tick_block` can work: Fast Sync Read, and Indirect Data 1 at
+        one address on every servo (known after :meth:`check`)."""
+        models = [self._models.get(sid) for sid in self.ids]
+        if not self._fast or None in models:
+            return False
+        return tick_block.block_addr([m for m in models if m is not None]) is not None
+
+    def use_tick_block(self) -> None:
+        """Have the tick's Fast Sync Read carry each servo's Torque Enable and Bus Watchdog
+        with its position (:mod:`drivers.dynamixel.tick_block`) from the first torque on:
+        the reads before it (the start's, which the hold-at-start goals come from) read
+        positions alone, and nothing is written before those goals. ValueError when the
+        bus cannot (:meth:`tick_block_possible`)."""
+        self._check_open()
+        if not self.tick_block_possible():
+            raise ValueError("the tick block needs Fast Sync Read and one indirect layout")
+        self._block_planned = True
+
+    def _set_up_tick_block(self) -> None:
+        """Every servo's Indirect Addresses read back and, where they are not the block's,
+        written and read back again; then the tick's read is the block's. Raises
+        :class:`DynamixelError` when a servo does not answer or confirm (the tick's read is
+        then as it was)."""
+        attempts = 1 + self.retries
+        self.link.recover()
+        for sid in self.ids:
+            try:
+                retry(
+                    attempts, partial(tick_block.restore, self.link, sid), settle=self.link.settle
+                )
+            except ValueError as exc:
+                raise DynamixelError(f"servo {sid}: tick block not set: {exc}") from None
+        self._block_at = tick_block.block_addr([self._models[sid] for sid in self.ids])
+        self._size = tick_block.SIZE
+        self._set_order()  # the requests read the block from now on
+        self._update_timeouts()
+
+    @property
+    def tick_health_ok(self) -> list[int]:
+        """Each servo's state as the show set it (torque, the armed watchdog): a servo whose
+        :attr:`tick_health` differs is judged by :meth:`tick_health_of`."""
+        return self._health_ok
+
+    def _expect(self) -> None:
+        units = self._watchdog_units
+        self._health_ok = [tick_block.expected(on, units) for on in self._torque_on]
+
+    def tick_health_of(self, k: int) -> ServoHealth:
+        """Servo ``k``'s (bus order) health as this tick's read found it (no transaction
+        unless a problem needs its temperature and voltage to be named)."""
+        sid = self.ids[k]
+        state = -1 if self.tick_health is None else self.tick_health[k]
+        if state < 0:
+            return ServoHealth(sid, None, None, None, None)
+        torque, wd, marker = tick_block.unpack(state)
+        if marker != tick_block.MARKER:
+            return ServoHealth(
+                sid,
+                torque == 1,
+                None,
+                None,
+                None,
+                HealthProblem.RESET,
+                f"its Indirect Addresses are back at their defaults (the tick's read carries "
+                f"no position: Status Return Level reads {marker}, not {tick_block.MARKER}): "
+                "the servo restarted (brownout or reboot) and its RAM is back to defaults"
+                + health.condition(self.link, sid),
+            )
+        return health.judge(self.link, sid, torque == 1, None, wd, self._watchdog_units)
+
     # -- state changes -------------------------------------------------------------
     def _set_torque(self, on: bool, ids: tuple[int, ...]) -> None:
+        if on and self._block_planned and self._block_at is None:
+            self._set_up_tick_block()
+        for sid in ids:  # what the tick block should find (set before: a failure is loud)
+            self._torque_on[self._index[sid]] = on
+        self._expect()
         health.write_all(self.link, ids, ct.TORQUE_ENABLE, int(on), 1 + self.retries, "torque")
 
     def _arm_watchdog(self, period_s: float) -> None:
@@ -395,12 +511,14 @@ class DynamixelBus(ServoBus):
             self.link, self.ids, ct.BUS_WATCHDOG, units, 1 + self.retries, "arm watchdog"
         )
         self._watchdog_units = units
+        self._expect()
 
     def _disarm_watchdog(self) -> None:
         health.write_all(
             self.link, self.ids, ct.BUS_WATCHDOG, 0, 1 + self.retries, "disarm watchdog"
         )
         self._watchdog_units = None
+        self._expect()
 
     def hardware_error_status(self, servo_id: int) -> int:
         """Hardware Error Status (addr 70) of one servo; see
@@ -416,6 +534,7 @@ class DynamixelBus(ServoBus):
         self._check_open()
         tripped = health.clear_watchdog_trips(self.link, self.ids, 1 + self.retries)
         self._watchdog_units = None
+        self._expect()
         return tripped
 
     # -- health (spread over ticks by the loop) -----------------------------------
@@ -457,6 +576,11 @@ class DynamixelBus(ServoBus):
                 f"{int(self._hi[k])}]"
             )
         health.recover_watchdog(self.link, servo_id, tick, self._watchdog_units, attempts)
+        if self._block_at is not None:  # the tick's read must carry its health again
+            try:
+                retry(attempts, partial(tick_block.restore, self.link, servo_id))
+            except ValueError as exc:
+                raise DynamixelError(f"servo {servo_id}: tick block not restored: {exc}") from None
 
     # -- exit ----------------------------------------------------------------------
     def _apply_exit_policy(self, policy: ExitPolicy, retries: int) -> ExitReport:

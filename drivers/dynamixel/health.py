@@ -96,6 +96,20 @@ def read_health(
             wd = ct.BUS_WATCHDOG.decode(block, item.addr)
         elif not torque or hw:  # something is wrong: the watchdog names the cause
             wd = link.read_item(servo_id, ct.BUS_WATCHDOG)
+    return judge(link, servo_id, torque, hw, wd, watchdog_units)
+
+
+def judge(
+    link: Link,
+    servo_id: int,
+    torque: bool | None,
+    hw: int | None,
+    wd: int | None,
+    watchdog_units: int | None,
+) -> ServoHealth:
+    """What is wrong with a servo whose Torque Enable, Hardware Error Status and Bus
+    Watchdog read ``torque``, ``hw``, ``wd`` (None: not read), if anything; a problem's
+    detail reads its temperature, voltage and load (best effort)."""
     tripped = None if wd is None else wd == ct.WATCHDOG_TRIPPED
     armed = None if wd is None else wd > 0
     expected = watchdog_units
@@ -273,15 +287,21 @@ def _read(link: Link, sid: int, item: Item, attempts: int, settle: bool = True) 
 def _confirm(
     link: Link, sid: int, item: Item, value: int, attempts: int, settle: bool = True
 ) -> None:
-    """Write ``item := value`` and read it back, up to ``attempts`` times (``settle``: as
-    :func:`_read`)."""
+    """Write ``item := value`` and read it back, up to ``attempts`` tries (``settle``: as
+    :func:`_read`). After a try that failed on the wire the write may have taken (its
+    status packet late or lost), so the next try reads first and writes only if the value
+    is not there: on a noisy line a try then needs one clean reply, not two."""
     last = ""
+    write = True
     for k in range(attempts):
         try:
+            if not write and link.read_item(sid, item) == value:
+                return
             link.write_item(sid, item, value)
             got = link.read_item(sid, item)
         except (CommError, ServoError) as exc:
             last = str(exc)
+            write = False
             if settle and k + 1 < attempts:
                 link.settle()
             continue

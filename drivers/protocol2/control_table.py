@@ -88,6 +88,32 @@ def _indirect_block(n: int) -> int:
     return 1 if n <= INDIRECT_COUNT // 2 else INDIRECT_COUNT // 2 + 1
 
 
+#: X330 servos have 20 indirect pairs: Indirect Address 1-20 at 168-206, Indirect Data 1-20
+#: at 208-227 (e-Manual XL330/XC330 control tables); the others' Indirect Data 1 is at 224.
+X330_INDIRECT_DATA_1 = 208
+
+
+def indirect_data_1(model: str) -> int:
+    """Address of Indirect Data 1 on ``model`` (a model name)."""
+    return X330_INDIRECT_DATA_1 if series(model) == "X330" else INDIRECT_DATA_1.addr
+
+
+#: What the tick's one read returns through Indirect Data 1..7 once the start-up check has
+#: written Indirect Address 1..7: Present Position, then a byte each of Torque Enable, Bus
+#: Watchdog and Status Return Level. The last reads 2 while the block is set (the start-up
+#: check requires 2) and 0 once a brownout or reboot has put the Indirect Addresses back at
+#: their defaults (each Indirect Data then reads its own 0). Hardware Error Status is not
+#: in it: every reply's Alert bit (ERR 0x80) already says it is not 0.
+TICK_BLOCK = (PRESENT_POSITION, TORQUE_ENABLE, BUS_WATCHDOG, STATUS_RETURN_LEVEL)
+TICK_BLOCK_SIZE = sum(item.size for item in TICK_BLOCK)
+
+
+def tick_block_targets() -> bytes:
+    """Indirect Address 1..7 as one 14-byte write: each byte's address, little-endian."""
+    addrs = [item.addr + b for item in TICK_BLOCK for b in range(item.size)]
+    return b"".join(a.to_bytes(2, "little") for a in addrs)
+
+
 #: One Read from address 0 of this many bytes covers every item the start-up check needs
 #: (EEPROM, Torque Enable, Status Return Level, Hardware Error, Bus Watchdog, Goal and
 #: Present Position). Gaps read as 0.

@@ -95,13 +95,12 @@ def read_reply_bytes(n: int, fast: bool, data_bytes: int = 4) -> int:
     return n * status_bytes(data_bytes)
 
 
-def cycle_bytes(n: int, fast: bool, data_bytes: int = 4) -> int:
-    """All bytes of one write+read cycle: 28 + 21N (plain) or 36 + 14N (fast) for 4-byte data."""
-    return (
-        sync_write_bytes(n, data_bytes)
-        + read_request_bytes(n)
-        + read_reply_bytes(n, fast, data_bytes)
-    )
+def cycle_bytes(n: int, fast: bool, data_bytes: int = 4, read_data_bytes: int | None = None) -> int:
+    """All bytes of one write+read cycle: 28 + 21N (plain) or 36 + 14N (fast) for 4-byte data.
+    ``read_data_bytes``: what each servo's reply carries, when not ``data_bytes`` (the X
+    series' tick block: 8, 40 + 18N fast)."""
+    read = data_bytes if read_data_bytes is None else read_data_bytes
+    return sync_write_bytes(n, data_bytes) + read_request_bytes(n) + read_reply_bytes(n, fast, read)
 
 
 def latency_term_s(reply_bytes: int, latency_s: float) -> float:
@@ -120,11 +119,13 @@ def cycle_time_s(
     turnaround_s: float = DEFAULT_TURNAROUND_S,
     latency_s: float = 0.0,
     data_bytes: int = 4,
+    read_data_bytes: int | None = None,
 ) -> float:
     """Model time (s) of one write+read cycle with ``n`` servos at ``baud`` bit/s.
 
     ``return_delay_s`` is one Return Delay Time for every servo or one per servo (in read
     order); plain Sync Read pays each servo's, Fast Sync Read only the first servo's.
+    ``read_data_bytes``: the read's bytes per servo when not ``data_bytes``.
     """
     if n < 1 or baud <= 0:
         raise ValueError(f"need n >= 1 and baud > 0, got n={n}, baud={baud}")
@@ -136,8 +137,9 @@ def cycle_time_s(
     if len(rdts) != n:
         raise ValueError(f"{len(rdts)} return delays for {n} servos")
     delays = rdts[0] + turnaround_s if fast else sum(rdts) + n * turnaround_s
-    wire = 10.0 * cycle_bytes(n, fast, data_bytes) / baud
-    return wire + delays + latency_term_s(read_reply_bytes(n, fast, data_bytes), latency_s)
+    read = data_bytes if read_data_bytes is None else read_data_bytes
+    wire = 10.0 * cycle_bytes(n, fast, data_bytes, read) / baud
+    return wire + delays + latency_term_s(read_reply_bytes(n, fast, read), latency_s)
 
 
 def cycle_rate_hz(
@@ -149,6 +151,7 @@ def cycle_rate_hz(
     turnaround_s: float = DEFAULT_TURNAROUND_S,
     latency_s: float = 0.0,
     data_bytes: int = 4,
+    read_data_bytes: int | None = None,
 ) -> float:
     """``1 / cycle_time_s(...)``: the most write+read cycles per second the bus allows."""
     return 1.0 / cycle_time_s(
@@ -159,4 +162,5 @@ def cycle_rate_hz(
         turnaround_s=turnaround_s,
         latency_s=latency_s,
         data_bytes=data_bytes,
+        read_data_bytes=read_data_bytes,
     )

@@ -1,7 +1,9 @@
 """Bus rate: back-to-back write+read cycles through the unmodified SDK, beside the wire model.
 
 One cycle = ``GroupSyncWrite.txPacket()`` (Goal Position, 4 B) + ``GroupSyncRead.txRxPacket()``
-(plain) or ``.fastSyncRead()`` (Fast) of Present Position, 4 B, as fast as they go. The
+(plain) or ``.fastSyncRead()`` (Fast) of Present Position, 4 B, as fast as they go; or, a
+``block`` row, the Fast read of the 7 B hilsim's X-series tick reads (position, Torque Enable,
+Bus Watchdog, Status Return Level through Indirect Data 1-7: ``drivers/dynamixel/tick_block``). The
 achieved rate is cycles / elapsed time on the bus's clock; the model rate comes from
 :mod:`drivers.protocol2.wire_time` with the bus's own Return Delay Times (read from addr 9),
 turnaround and latency timer. On a real clock the gap between them is host time (Python
@@ -23,6 +25,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 from drivers.dynamixel.bench_session import ADDR_RETURN_DELAY, BenchBus, BenchError
+from drivers.protocol2 import control_table as ct
 from drivers.protocol2.wire_time import DEFAULT_TURNAROUND_S, cycle_time_s
 from hilsim._types import JsonDict
 from hilsim.bench.sched import DEFAULT_PRIORITY, SCHED_OTHER, realtime
@@ -58,6 +61,12 @@ class BusRate:
     latency_timer_ms: float
     clock: str  # "real" or "virtual"
     port: str
+    read_bytes: int = 4  # what each servo's reply carries: 4 (position) or the tick block
+
+    @property
+    def carries(self) -> str:
+        """What each servo's reply carries, in a few words."""
+        return "position" if self.read_bytes == 4 else "tick block"
 
     @property
     def achieved_hz(self) -> float:
@@ -81,6 +90,7 @@ class BusRate:
             "ids": list(self.ids),
             "baud": self.baud,
             "read": "fast" if self.fast else "plain",
+            "read_bytes": self.read_bytes,
             "achieved_hz": self.achieved_hz,
             "model_hz": self.model_hz,
             "ratio": self.ratio,
@@ -113,8 +123,10 @@ def run_cycles(
     gap_s: float = 0.2,
     sched: str = "other",
     priority: int = DEFAULT_PRIORITY,
+    block: bool = False,
 ) -> CycleTiming:
-    """Time write+read cycles for ``duration_s`` (bus clock) or exactly ``cycles`` of them.
+    """Time write+read cycles for ``duration_s`` (bus clock) or exactly ``cycles`` of them
+    (``block``: the read is the tick block, from Indirect Data 1 at 224).
 
     ``goals`` default to the servos' own Goal Position registers (nothing changes). On a
     real clock a timed run is cut into chunks of at most ``chunk_s``, each run under
@@ -127,7 +139,7 @@ def run_cycles(
     if goals is None:
         goals = bb.read_goals(ids)
     writer = bb.goal_writer(goals)
-    reader = bb.position_reader(ids)
+    reader = bb.position_reader(ids, ct.INDIRECT_DATA_1.addr if block else None)
     tx = writer.txPacket
     rx = reader.fastSyncRead if fast else reader.txRxPacket
     now = bb.clock.now
@@ -218,18 +230,30 @@ def measure_bus_rate(
     latency_timer_ms: float | None = None,
     sched: str = "other",
     priority: int = DEFAULT_PRIORITY,
+    block: bool = False,
 ) -> BusRate:
     """Achieved vs model cycle rate of ``ids`` on ``bb`` (plain or Fast Sync Read).
 
     ``latency_timer_ms`` is the adapter's latency timer for the model on hardware (the
-    emulator brings its own); ``sched``/``priority`` as in :func:`run_cycles`.
+    emulator brings its own); ``sched``/``priority`` as in :func:`run_cycles`; ``block``:
+    the read is the X series' tick block (Fast only), not Present Position alone.
     """
     ids = tuple(ids)
+    if block and not fast:
+        raise ValueError("the tick block is read by Fast Sync Read only")
     rdts = return_delays_s(bb, ids)
     turnaround_s, latency_s = bus_timing_facts(bb, latency_timer_ms)
     timing = run_cycles(
-        bb, ids, fast, duration_s=duration_s, cycles=cycles, sched=sched, priority=priority
+        bb,
+        ids,
+        fast,
+        duration_s=duration_s,
+        cycles=cycles,
+        sched=sched,
+        priority=priority,
+        block=block,
     )
+    size = ct.TICK_BLOCK_SIZE if block else ct.PRESENT_POSITION.size
     model_s = cycle_time_s(
         len(ids),
         bb.baud,
@@ -237,6 +261,7 @@ def measure_bus_rate(
         return_delay_s=rdts,
         turnaround_s=turnaround_s,
         latency_s=latency_s,
+        read_data_bytes=size,
     )
     return BusRate(
         ids=ids,
@@ -249,4 +274,5 @@ def measure_bus_rate(
         latency_timer_ms=round(latency_s * 1e3, 9),
         clock="virtual" if bb.clock.virtual else "real",
         port=bb.url,
+        read_bytes=size,
     )

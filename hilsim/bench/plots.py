@@ -17,6 +17,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from drivers.protocol2.control_table import TICK_BLOCK_SIZE
 from drivers.protocol2.wire_time import cycle_rate_hz
 from hilsim.bench.busrate import BusRate
 from hilsim.bench.latency import FRACTION_63, LatencyResult
@@ -25,7 +26,7 @@ from hilsim.bench.report import EMULATED, LoopResult
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
 
-PLAIN_COLOR, FAST_COLOR = "#d95f02", "#1b9e77"
+PLAIN_COLOR, FAST_COLOR, BLOCK_COLOR = "#d95f02", "#1b9e77", "#7570b3"
 OURS_COLOR, CT_COLOR = "#1f77b4", "#7f7f7f"
 
 
@@ -118,14 +119,27 @@ def plot_bus_rate(rows: list[BusRate], path: str | Path) -> Path:
     for ax, baud in zip(axes[0], bauds, strict=True):
         ns = sorted({len(r.ids) for r in rows if r.baud == baud})
         n_line = np.arange(min(ns), max(ns) + 1)
-        for fast, color, marker in ((False, PLAIN_COLOR, "o"), (True, FAST_COLOR, "s")):
-            sel = sorted((r for r in rows if r.baud == baud and r.fast == fast), key=_n)
+        series = (
+            (False, 4, PLAIN_COLOR, "o", "plain Sync Read"),
+            (True, 4, FAST_COLOR, "s", "Fast Sync Read"),
+            (True, TICK_BLOCK_SIZE, BLOCK_COLOR, "D", "Fast, tick block"),
+        )
+        for fast, size, color, marker, name in series:
+            sel = sorted(
+                (r for r in rows if r.baud == baud and r.fast == fast and r.read_bytes == size),
+                key=_n,
+            )
             if not sel:
                 continue
-            name = "Fast Sync Read" if fast else "plain Sync Read"
             model = [
                 cycle_rate_hz(
-                    int(n), baud, fast, return_delay_s=rdt, turnaround_s=turn, latency_s=lat
+                    int(n),
+                    baud,
+                    fast,
+                    return_delay_s=rdt,
+                    turnaround_s=turn,
+                    latency_s=lat,
+                    read_data_bytes=size,
                 )
                 for n in n_line
             ]

@@ -118,11 +118,14 @@ def run_bench(plan: BenchPlan, progress: Callable[[str], None] = lambda _s: None
     if not plan.sweep and not fast_ok and True in modes:
         report.notes.append("the servos' firmware has no Fast Sync Read: plain rows only")
         modes = (False,)
+    # Fast: the SDK's own read of positions, then the X-series tick block hilsim reads
+    reads = [(fast, block) for fast in modes for block in ((False, True) if fast else (False,))]
     for row_ids, baud, url in rows:
-        for fast in modes:
+        for fast, block in reads:
+            what = "the tick block" if block else "Present Position"
             progress(
                 f"bus rate: {len(row_ids)} servo(s) at {baud} bps, "
-                f"{'Fast' if fast else 'plain'} Sync Read ({plan.bus_duration_s:g} s)"
+                f"{'Fast' if fast else 'plain'} Sync Read of {what} ({plan.bus_duration_s:g} s)"
             )
             with open_bus(url, baud, clock=plan.clock) as rb:
                 report.bus.append(
@@ -134,6 +137,7 @@ def run_bench(plan: BenchPlan, progress: Callable[[str], None] = lambda _s: None
                         latency_timer_ms=latency_ms,
                         sched=plan.sched,
                         priority=plan.priority,
+                        block=block,
                     )
                 )
 

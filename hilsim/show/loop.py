@@ -11,7 +11,8 @@ One tick (k = 0, 1, ...; t_k = k·period of simulation time)::
     telemetry.record(TickRecord)           queued; a writer thread owns the disk
     servo_watch                            faults that stop the show, raised once recorded
     stepper.advance                        the springs to t_{k+1} (substeps)
-    one health read                        round robin, only if the tick has time to spare
+    one health read                        round robin, if the tick has time to spare (X series
+                                           with the tick block: temperature and the rest only)
 
 Simulation time is ``k·period``, never the clock, so the numbers are the same on the real
 clock and the virtual one. A tick that ends after the next deadline is an overrun: counted,
@@ -326,6 +327,7 @@ class HilLoop:
             health_reads=self.watch.health.reads,
             health_deferred=self.watch.health.deferred,
             health_forced=self.watch.health.forced,
+            health_every_tick=self.bus.tick_health is not None,
             servo_condition=self.watch.condition.extremes(self.watch.names),
             spin_window_us=None if self.clock.virtual else getattr(self.clock, "window_s", 0) * 1e6,
         )
@@ -485,7 +487,7 @@ class HilLoop:
             if stall >= WATCHDOG_GAP_FRACTION * watch.watchdog_s:
                 watch.last_long_gap_t = t_read  # explains a watchdog trip found later
             watch.held_on_stall(stall, k, t_sim)
-        watch.check_reads(reading, t_read, self.stalls.total_s, stall > 0.0, all_ok)
+        watch.check_reads(reading, t_read, self.stalls.total_s, stall > 0.0, all_ok, k)
         watch.check_following(present, cmd)
         # -- advance the springs to the next tick (target held over each step)
         t_springs = clock.now()

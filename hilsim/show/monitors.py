@@ -254,6 +254,11 @@ class HealthSchedule:
             return HealthPart.CONDITION
         return HealthPart.STATE if self._checks % 2 == 0 else HealthPart.WATCHDOG
 
+    def postpone(self, t: float, rounds: int) -> None:
+        """The next read ``rounds`` intervals from ``t`` instead of one (the figures alone,
+        where every tick's read carries the checks)."""
+        self._due = t + rounds * self.interval_s
+
     def take(self, t: float, condition: bool = True) -> tuple[int, HealthPart]:
         """The servo to read now (its index) and what to read: rounds alternate between its
         state (torque, hardware error) and its Bus Watchdog, each short enough to fit in

@@ -5,7 +5,11 @@ servo is silent, looks for it at the other baud rates of its family and checks i
 (so a factory servo at 57600 bit/s shows its Return Delay Time and the rest at once); then
 the bus's capacity at the rig's rate, as the servos are now and as ``hilsim setup`` will
 leave them. Each row names its joint; the fix column names the rig key to change or the
-``hilsim setup`` command that writes the servos. Nothing is written here.
+``hilsim setup`` command that writes the servos. Nothing is written there.
+
+:func:`use_tick_block`, once everything passed: each servo's health in the tick's own read
+where the bus has room for it (:mod:`drivers.dynamixel.tick_block`: RAM only, read back,
+written by the bus with the first torque on).
 """
 
 from __future__ import annotations
@@ -256,6 +260,37 @@ def _capacity(
         f"tick (USB latency timer {latency_ms:g} ms; `hilsim bench` shows each cost)"
     )
     return Problem(None, "", "bus capacity", f"{rate:g} Hz: {limit}", found, fix), why
+
+
+def use_tick_block(
+    rig: Rig, bus: DynamixelBus, report: StartupReport, budget_s: float, latency_ms: float
+) -> list[str]:
+    """Have the tick's Fast Sync Read carry every servo's torque and Bus Watchdog with its
+    position (:meth:`DynamixelBus.use_tick_block`) when the bus can and the cycle with those
+    bytes still fits in ``budget_s``; else the health is read between ticks, as the notes
+    returned say (the block is written with the first torque on)."""
+    from drivers.dynamixel.tick_block import SIZE
+
+    if bus.read_mode is not ReadMode.FAST:
+        return []  # (the plain read's note says why already)
+    if not bus.tick_block_possible():
+        return [
+            "health read between ticks: Indirect Data 1 is not at one address on every "
+            "servo (X330 beside X430/X540), so one Sync Read cannot carry it"
+        ]
+    rdts = [s.return_delay_us * 1e-6 for s in report.servos]
+    n, latency = len(report.servos), latency_ms * 1e-3
+    with_block = cycle_time_s(
+        n, bus.link.baud, True, return_delay_s=rdts, latency_s=latency, read_data_bytes=SIZE
+    )
+    if with_block > budget_s:
+        return [
+            f"health read between ticks: the tick's read with each servo's health "
+            f"({SIZE} bytes a servo, not 4) takes {with_block * 1e3:.2f} ms a tick, over "
+            f"the bus's {budget_s * 1e3:.2f} ms"
+        ]
+    bus.use_tick_block()
+    return []
 
 
 def render(problems: list[Problem]) -> str:

@@ -8,8 +8,12 @@ naming the servo and the cause, or into a recovery. The rules and their numbers 
   silent beyond the comm budget, host stalls not counted, stops it naming the servo.
 * **following** (:meth:`ServoWatch.check_following`): present vs commanded beyond a joint's
   tolerance for longer than its time.
-* **health** (:meth:`ServoWatch.maybe_read_health`): one servo's torque / hardware error /
-  Bus Watchdog / RAM reset, round robin, only on ticks with time to spare.
+* **health** (:meth:`ServoWatch.check_reads`): where the tick's read carries every servo's
+  torque and Bus Watchdog (``ServoBus.tick_health``, the X series' tick block), each servo is
+  judged every tick: torque cut, watchdog trip, a RAM reset (the block itself gone). Else
+  (:meth:`ServoWatch.maybe_read_health`) one servo's torque / hardware error / Bus Watchdog /
+  RAM reset, round robin, only on ticks with time to spare. Temperature, voltage and load
+  are read that way in both cases (one servo at a time, about once a second each).
 * **after a bus silence** (:meth:`ServoWatch.after_bus_silence`): the host stalled long
   enough for a Bus Watchdog to trip: check every servo before sending goals; a trip that a
   host stall explains is recovered (cleared, goal = present, the joint rejoins through the
@@ -42,7 +46,12 @@ from drivers.servo_bus import (
 from hilsim._types import FloatArray
 from hilsim.rig.joint_map import JointMap
 from hilsim.rig.model import JointConfig
-from hilsim.show.monitors import FollowingMonitor, HealthSchedule, SilenceBudget
+from hilsim.show.monitors import (
+    CONDITION_EVERY_ROUNDS,
+    FollowingMonitor,
+    HealthSchedule,
+    SilenceBudget,
+)
 
 #: a health read runs only when the tick has its expected time, times this, plus
 #: HEALTH_SPARE_S (the SDK's own time) to spare: it must never make the tick late. Its
@@ -124,6 +133,7 @@ class ServoWatch:
         self.last_bus_t = -math.inf  # clock time of the last packet sent to the servos
         self.last_long_gap_t = -math.inf  # when the bus last went quiet for a watchdog's while
         self._last_health_ok = [-math.inf] * n
+        self._block_ok_t = -math.inf  # when the tick's read last found every servo well
         #: joints (indices, bus order) limp on purpose: see :meth:`set_limp`
         self.limp: frozenset[int] = frozenset()
 
@@ -185,12 +195,36 @@ class ServoWatch:
         stall_total_s: float,
         host_late: bool,
         all_ok: bool | None = None,
+        k: int = -1,
     ) -> None:
-        """``all_ok``: the caller knows whether every status is OK (else it is looked up)."""
+        """``all_ok``: the caller knows whether every status is OK (else it is looked up);
+        ``k``: the tick (its events name it)."""
         status = reading.status
         if (not status.any()) if all_ok is None else all_ok:  # OK is 0: the common tick
             self.silence.all_ok(t_now, stall_total_s)
-            return
+        else:
+            self._check_statuses(reading, t_now, stall_total_s, host_late)
+        block = self.bus.tick_health  # each servo's health in the same read
+        if block is not None:
+            if block == self.bus.tick_health_ok:
+                self._block_ok_t = t_now
+            else:
+                self._check_block(block, k)
+
+    def _check_block(self, block: list[int], k: int) -> None:
+        """The servos whose state in this tick's read is not what the show set, judged."""
+        ok = self.bus.tick_health_ok
+        for i, state in enumerate(block):
+            if state < 0 or state == ok[i]:  # not read (its status says so) / well
+                continue
+            health = self.bus.tick_health_of(i)
+            seen_ok = max(self._last_health_ok[i], self._block_ok_t)
+            self._handle(i, health, k, explained=self.last_long_gap_t > seen_ok)
+
+    def _check_statuses(
+        self, reading: PresentReading, t_now: float, stall_total_s: float, host_late: bool
+    ) -> None:
+        status = reading.status
         for i, s in enumerate(status):
             s = int(s)
             if s == ReadStatus.OK:
@@ -276,9 +310,13 @@ class ServoWatch:
 
     # ------------------------------------------------------------------ health
     def maybe_read_health(self, spare_s: float, t: float, k: int) -> None:
-        """One servo's health, round robin, if this tick has time to spare for it."""
+        """One servo's health, round robin, if this tick has time to spare for it (where
+        the tick's read carries the health: its temperature, voltage and load alone)."""
         sched = self.health
         if not sched.due(t):
+            return
+        if self.bus.tick_health is not None:
+            self._maybe_read_condition(spare_s, t)
             return
         took = self._health_took
         if took and t - took[0][0] > HEALTH_COST_MEMORY_S:
@@ -318,6 +356,24 @@ class ServoWatch:
         if part is HealthPart.CONDITION:
             return  # figures only: nothing judged
         self._handle(i, health, k, explained=self.last_long_gap_t > self._last_health_ok[i])
+
+    def _maybe_read_condition(self, spare_s: float, t: float) -> None:
+        """The figures alone, each servo's about once a second (the checks are the tick's);
+        only where they fit, never forced: a late figure costs nothing but its age."""
+        sched = self.health
+        if spare_s < HEALTH_MARGIN * self.bus.condition_read_s + HEALTH_SPARE_S:
+            sched.deferred += 1
+            return
+        i, _ = sched.take(t, condition=False)
+        sched.postpone(t, CONDITION_EVERY_ROUNDS)
+        sent = self.clock.now()
+        try:
+            health = self.bus.read_health(self.ids[i], HealthPart.CONDITION)
+        except ServoBusError:
+            return  # a failed read says nothing new: the per-tick reads keep the budget
+        self.last_bus_t = max(self.last_bus_t, sent)
+        if health.condition is not None:
+            self.condition.update(i, health.condition, sent)
 
     def _forget(self, t: float) -> float:
         """Drop the health reads older than HEALTH_COST_MEMORY_S; the lower median time of

@@ -136,7 +136,7 @@ def check_bus(rig: Rig, bus: DynamixelBus, say: Callable[[str], None]) -> list[s
     with one table of every problem found.
     """
     from drivers.dynamixel.errors import DynamixelError
-    from hilsim.show.servo_check import check_everything, render
+    from hilsim.show.servo_check import check_everything, render, use_tick_block
 
     if not bus.has_watchdog:
         return check_p1_bus(rig, bus, say)
@@ -168,9 +168,10 @@ def check_bus(rig: Rig, bus: DynamixelBus, say: Callable[[str], None]) -> list[s
             *why,
         ]
         raise ShowRefusedError("\n".join(lines))
-    for note in report.notes:
+    block_notes = use_tick_block(rig, bus, report, budget, latency_ms)
+    for note in (*report.notes, *block_notes):
         say(f"note: {note}")
-    notes += report.notes
+    notes += [*report.notes, *block_notes]
     return notes
 
 

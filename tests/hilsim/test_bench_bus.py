@@ -52,6 +52,19 @@ def test_measured_cycle_rate_equals_the_model(n, baud, rdt_us, turnaround_us, la
     assert row.return_delay_us == rdt_us and row.clock == "virtual"
 
 
+@pytest.mark.parametrize(("n", "baud", "latency_ms"), [(4, 1_000_000, 1.0), (16, 4_000_000, 0.0)])
+def test_the_tick_blocks_cycle_rate_equals_the_model_with_its_bytes(n, baud, latency_ms):
+    # the X series' tick reads 7 B a servo (position, torque, watchdog, marker), not 4
+    ids = list(range(1, n + 1))
+    with _bus(ids, baud, latency_ms=latency_ms) as bb:
+        row = measure_bus_rate(bb, ids, True, cycles=12, block=True)
+    model = cycle_rate_hz(n, baud, True, latency_s=latency_ms * 1e-3, read_data_bytes=7)
+    assert row.read_bytes == 7 and row.as_dict()["read_bytes"] == 7
+    assert row.model_hz == pytest.approx(model, rel=1e-12)
+    assert row.achieved_hz == pytest.approx(model, rel=1e-6)
+    assert row.model_hz < cycle_rate_hz(n, baud, True, latency_s=latency_ms * 1e-3)
+
+
 def test_timed_run_on_the_virtual_clock():
     ids = [1, 2, 3, 4]
     with _bus(ids, 1_000_000) as bb:

@@ -214,10 +214,20 @@ def test_cli_end_to_end_on_the_virtual_clock(tmp_path, capsys):
     assert code == 0
     d = json.loads((out / "bench.json").read_text())
     assert d["loop"] is None  # no loop timing in virtual time
-    rows = [(len(r["ids"]), r["read"]) for r in d["bus"]]
-    assert rows == [(1, "plain"), (1, "fast"), (2, "plain"), (2, "fast")]
+    rows = [(len(r["ids"]), r["read"], r["read_bytes"]) for r in d["bus"]]
+    # Fast: the SDK's read of positions, then the tick block the X series' tick reads
+    assert rows == [
+        (1, "plain", 4),
+        (1, "fast", 4),
+        (1, "fast", 7),
+        (2, "plain", 4),
+        (2, "fast", 4),
+        (2, "fast", 7),
+    ]
     assert all(r["achieved_hz"] == pytest.approx(r["model_hz"], rel=1e-6) for r in d["bus"])
-    assert "Bus rate" in capsys.readouterr().out
+    text = capsys.readouterr().out
+    assert "Bus rate" in text and "tick block 7 B" in text
+    assert "Torque Enable, Bus Watchdog" in text  # what each read carries, said
 
 
 def test_cli_diagnoses_a_slow_port(tmp_path, capsys):

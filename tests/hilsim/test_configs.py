@@ -61,4 +61,5 @@ def test_shipped_rig_runs_on_the_recommended_setup(rig, tmp_path, capsys):
         run = read_run(run_dir)
         assert run.summary["exit_policy_confirmed"] is True
         assert run.summary["overruns"] == 0
-        assert run.summary["loop"]["health_reads"] > 0  # the tick has room to check the servos
+        loop = run.summary["loop"]  # the tick has room to check the servos (or its read does)
+        assert loop["health_reads"] > 0 or loop["health_every_tick"]
