@@ -168,8 +168,16 @@ class CpuResult:
 @contextlib.contextmanager
 def emulator(ids: str = "1-4", baud: int = BAUD) -> Iterator[str]:
     """``hilsim emulate`` in a child process; yields its pty path, stops it afterwards."""
+    with emulate(ids, baud) as (path, _pid):
+        yield path
+
+
+@contextlib.contextmanager
+def emulate(ids: str, baud: int, model: str | None = None) -> Iterator[tuple[str, int]]:
+    """``hilsim emulate`` in a child process; yields (its pty path, its pid)."""
+    cmd = [sys.executable, "-m", "hilsim", "emulate", "--ids", ids, "--baud", str(baud)]
     proc = subprocess.Popen(
-        [sys.executable, "-m", "hilsim", "emulate", "--ids", ids, "--baud", str(baud)],
+        cmd + ([] if model is None else ["--model", model]),
         stdout=subprocess.PIPE,
         stderr=subprocess.DEVNULL,
         text=True,
@@ -180,7 +188,7 @@ def emulator(ids: str = "1-4", baud: int = BAUD) -> Iterator[str]:
         path = proc.stdout.readline().strip()
         if not path.startswith("/dev/"):
             raise RuntimeError(f"hilsim emulate printed {path!r}, not a pty path")
-        yield path
+        yield path, proc.pid
     finally:
         if proc.poll() is None:
             proc.send_signal(signal.SIGTERM)

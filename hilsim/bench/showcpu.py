@@ -26,13 +26,13 @@ import subprocess
 import sys
 import tempfile
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 from hilsim._types import JsonDict
-from hilsim.bench.cpu import REPO, _cpu_s, _wakeups
+from hilsim.bench.cpu import REPO, _cpu_s, _wakeups, emulate
 from hilsim.bench.report import EMULATED
 
 if TYPE_CHECKING:
@@ -131,34 +131,6 @@ class ShowCpuResult:
                 "on its thread and taken out of cpu_per_s and loop_per_s",
             },
         }
-
-
-@contextlib.contextmanager
-def emulate(ids: str, baud: int, model: str) -> Iterator[tuple[str, int]]:
-    """``hilsim emulate`` in a child process; yields (its pty path, its pid)."""
-    cmd = [sys.executable, "-m", "hilsim", "emulate", "--ids", ids, "--baud", str(baud)]
-    proc = subprocess.Popen(
-        [*cmd, "--model", model],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.DEVNULL,
-        text=True,
-        cwd=REPO,
-    )
-    assert proc.stdout is not None  # a pipe (stdout=PIPE)
-    try:
-        path = proc.stdout.readline().strip()
-        if not path.startswith("/dev/"):
-            raise RuntimeError(f"hilsim emulate printed {path!r}, not a pty path")
-        yield path, proc.pid
-    finally:
-        if proc.poll() is None:
-            proc.terminate()
-            try:
-                proc.wait(timeout=10)
-            except subprocess.TimeoutExpired:
-                proc.kill()
-                proc.wait()
-        proc.stdout.close()
 
 
 def _bus(rig: Path) -> tuple[str, int, str, float]:

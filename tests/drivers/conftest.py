@@ -3,9 +3,6 @@
 from __future__ import annotations
 
 import os
-import signal
-import subprocess
-import sys
 from dataclasses import dataclass
 
 import dynamixel_sdk as sdk
@@ -15,6 +12,7 @@ from drivers.clock import VirtualClock
 from drivers.dxlsim import DxlBus, VirtualServo, register_bus, unregister_bus
 from drivers.dxlsim.protocol import StreamParser
 from drivers.dynamixel.port import PortHandler
+from tests.emulate_pty import emulated_pty
 
 IDS = (1, 2, 3, 4)
 BAUD = 1_000_000
@@ -107,35 +105,9 @@ def dxl():
 @pytest.fixture
 def emulator_process():
     """``hilsim emulate`` in a subprocess; yields (process, pty path)."""
-    proc = subprocess.Popen(
-        [
-            sys.executable,
-            "-m",
-            "hilsim",
-            "emulate",
-            "--ids",
-            "1-4",
-            "--baud",
-            str(BAUD),
-            "--rdt-us",
-            "0",
-        ],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-    )
-    path = proc.stdout.readline().strip()
-    if not path.startswith("/dev/"):
-        proc.kill()
-        pytest.fail(f"hilsim emulate printed {path!r}; stderr: {proc.stderr.read()}")
-    yield proc, path
-    if proc.poll() is None:
-        proc.send_signal(signal.SIGTERM)
-        try:
-            proc.wait(timeout=10)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            raise
+    args = ("--ids", "1-4", "--baud", str(BAUD), "--rdt-us", "0")
+    with emulated_pty(*args, timeout_s=10) as (proc, path):
+        yield proc, path
 
 
 @pytest.fixture(params=["dxlsim", "pty"])

@@ -13,13 +13,12 @@ by a deadline; nothing asserts a speed).
 from __future__ import annotations
 
 import os
-import signal
-import subprocess
-import sys
 import time
 from collections.abc import Iterator
 
 import pytest
+
+from tests.emulate_pty import emulated_pty
 
 pytestmark = pytest.mark.skipif(not hasattr(os, "openpty"), reason="no pseudo-terminals")
 
@@ -31,25 +30,9 @@ DEADLINE_S = 20.0
 def emulate(request: pytest.FixtureRequest) -> Iterator[str]:
     """``hilsim emulate --ids IDS --model MODEL``; yields the pty path it prints first."""
     ids, model = request.param
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "hilsim", "emulate", "--ids", ids, "--model", model,
-         "--baud", str(BAUD), "--rdt-us", "0"],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-    )  # fmt: skip
-    assert proc.stdout is not None and proc.stderr is not None
-    path = proc.stdout.readline().strip()
-    if not path.startswith("/dev/"):
-        proc.kill()
-        pytest.fail(f"hilsim emulate printed {path!r}; stderr: {proc.stderr.read()}")
-    yield path
-    proc.send_signal(signal.SIGTERM)
-    try:
-        proc.wait(timeout=10)
-    except subprocess.TimeoutExpired:
-        proc.kill()
-        raise
+    args = ("--ids", ids, "--model", model, "--baud", str(BAUD), "--rdt-us", "0")
+    with emulated_pty(*args, timeout_s=10) as (_proc, path):
+        yield path
 
 
 def _until(check: object, what: str) -> None:

@@ -22,6 +22,7 @@ from drivers.p1bus.guardian import RECORD_FILE, Guardian
 from drivers.p1bus.link import P1Link
 from drivers.p1bus.table import family_of
 from drivers.protocol1 import packet
+from tests.emulate_pty import emulated_pty
 from tests.hilsim.test_p1_show import RIG
 
 pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="a Linux pty")
@@ -33,23 +34,8 @@ STS = family_of("STS3215")
 
 @pytest.fixture(scope="module")
 def pty() -> object:
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "hilsim", "emulate", "--ids", "1-3", "--model", "STS3215"],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-    )
-    path = proc.stdout.readline().strip()
-    if not path.startswith("/dev/"):
-        proc.kill()
-        pytest.fail(f"hilsim emulate printed {path!r}; stderr: {proc.stderr.read()}")
-    yield path
-    proc.send_signal(signal.SIGTERM)
-    try:
-        proc.wait(timeout=20)
-    except subprocess.TimeoutExpired:
-        proc.kill()
-        raise
+    with emulated_pty("--ids", "1-3", "--model", "STS3215") as (_proc, path):
+        yield path
 
 
 def _rig(tmp_path: Path, port: str, policy: str) -> Path:

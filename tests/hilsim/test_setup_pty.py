@@ -5,48 +5,21 @@ back; ``hilsim run`` then runs the show. Asserts behaviour, not speed."""
 
 from __future__ import annotations
 
-import signal
 import subprocess
 import sys
 
 import pytest
 
+from tests.emulate_pty import emulated_pty
 from tests.hilsim.test_servo_setup import RIG
 
 pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="a Linux pty")
 
 
 def _emulate(model: str, baud: int):
-    proc = subprocess.Popen(
-        [
-            sys.executable,
-            "-m",
-            "hilsim",
-            "emulate",
-            "--ids",
-            "1-3",
-            "--model",
-            model,
-            "--baud",
-            str(baud),
-            "--rdt-us",
-            "500",
-        ],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-    )
-    path = proc.stdout.readline().strip()
-    if not path.startswith("/dev/"):
-        proc.kill()
-        pytest.fail(f"hilsim emulate printed {path!r}; stderr: {proc.stderr.read()}")
-    yield path
-    proc.send_signal(signal.SIGTERM)
-    try:
-        proc.wait(timeout=20)
-    except subprocess.TimeoutExpired:
-        proc.kill()
-        raise
+    args = ("--ids", "1-3", "--model", model, "--baud", str(baud), "--rdt-us", "500")
+    with emulated_pty(*args) as (_proc, path):
+        yield path
 
 
 @pytest.fixture
