@@ -125,7 +125,8 @@ class DxlBus(WireBus[VirtualServo]):
                 for s in hearing:
                     data = by_id.get(s.id)
                     if data is not None:
-                        s.touch_write(addr, data, t)
+                        s.touch(t)
+                        s.write(addr, data, t)
         elif (read := read_items(inst, params)) is not None:
             self._read_chain(read[0], read[1], hearing, t)
         elif inst == Inst.PING:
@@ -166,7 +167,8 @@ class DxlBus(WireBus[VirtualServo]):
                 links.append(([], length))
             elif len(members) == 1:  # the usual case, without a comprehension
                 s = members[0]
-                links.append(([(s, *s.touch_read(addr, length, t))], length))
+                s.touch(t)
+                links.append(([(s, *s.read(addr, length, t))], length))
             else:
                 for s in members:
                     s.touch(t)

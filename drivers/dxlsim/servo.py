@@ -24,7 +24,7 @@ from . import registers as rg
 from .dual_axis import share_module
 from .hand import Hand, HandFn
 from .models import ServoModel, get_model
-from .motion import _GRID_EPS, Motion, MotionState, torque_on_by_goal
+from .motion import Motion, MotionState, torque_on_by_goal
 from .profile import ProfileType
 from .registers import ALERT as ALERT  # re-exported
 from .registers import RegisterFile, Updates
@@ -280,19 +280,14 @@ class VirtualServo:
             mo.now = self._wd_deadline
             self._trip()
         mo.now = t
-        if int((t - mo._t0) * mo._inv_dt + _GRID_EPS) > mo.k:  # run_to's own first test:
-            mo.run_to(t)  # a packet soon after the last one mostly crosses no grid step
+        mo.run_to(t)
         if self._hand is not None and not self._regs[_TORQUE_ENABLE]:
             self._hand.move(mo)
 
     def touch(self, t: float) -> None:
         """A valid instruction packet for this servo arrived at ``t``: restart the Bus
         Watchdog timer."""
-        mo = self._mo  # advance(t), its loop's test inline: mostly one stretch (hot path)
-        if t - mo.now > THERMAL_STEP_S and (mo.v or mo.acc):
-            self.advance(t)
-        else:
-            self._advance(t)
+        self.advance(t)
         self._wd_ref = t
         regs = self._regs  # _arm_watchdog(), inline: every packet to the servo comes here
         wd = regs[_BUS_WATCHDOG]
@@ -300,25 +295,6 @@ class VirtualServo:
             self._wd_deadline = t + wd * _WATCHDOG_UNIT_S
         else:
             self._wd_deadline = math.inf
-
-    def touch_read(self, addr: int, length: int, t: float) -> tuple[int, bytes]:
-        """:meth:`touch` then :meth:`read` at ``t``: a Sync Read's link in one call (the
-        read has nothing to advance after the touch). Hot path: each servo, every tick."""
-        self.touch(t)
-        err, data = self._reg.read(addr, length)
-        return (ALERT if self._regs[_HARDWARE_ERROR_STATUS] else 0) | err, data  # + Alert
-
-    def touch_write(self, addr: int, data: bytes, t: float) -> None:
-        """:meth:`touch` then :meth:`write` at ``t`` (a Sync Write's part: no reply). Hot
-        path: each servo, every tick."""
-        self.touch(t)
-        err, updates = self._reg.validate(addr, data)
-        if err:
-            return
-        if self.partner is None:
-            self._apply(updates)
-        else:
-            self.write(addr, data, t)  # the dual-axis rules, validated again (rare)
 
     # --- instructions --------------------------------------------------------------------
     def ping(self, t: float) -> tuple[int, bytes]:
