@@ -16,7 +16,7 @@ times and prints, for each run, from its ``summary.json`` and the counters below
   on the no-op) taken out of the wall time, nothing else changed: a free emulator would
   also leave the caches warmer, which this does not count.
 
-    python tools/virtual_budget.py [--rig configs/demo.toml] [--repeats 3]
+    python tools/virtual_budget.py [--rig configs/demo.toml] [--repeats 3] [--duration S]
 """
 
 from __future__ import annotations
@@ -82,6 +82,7 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--rig", default=str(REPO / "configs" / "demo.toml"))
     ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument("--duration", help="seconds of show (default: the rig's own)")
     args = ap.parse_args(argv)
     per_call, added = _counter_cost()
     from drivers.dxlsim.bus import DxlBus
@@ -101,8 +102,9 @@ def main(argv=None) -> int:
             run_dir = Path(tmp) / f"run{k}"
             out = io.StringIO()
             with contextlib.redirect_stderr(out), contextlib.suppress(SystemExit):
+                more = ["--duration", args.duration] if args.duration else []
                 hilsim_main(
-                    ["run", args.rig, "--virtual-time", "--no-plots", "--out", str(run_dir)]
+                    ["run", args.rig, "--virtual-time", "--no-plots", "--out", str(run_dir), *more]
                 )
             try:
                 summary = json.loads((run_dir / "summary.json").read_text(encoding="utf-8"))

@@ -148,6 +148,8 @@ class WireBus(Generic[S]):
         return 10.0 / self.baud
 
     def unplugged(self, t: float | None = None) -> bool:
+        if not self._events and self.unplugged_at is None:
+            return False  # no unplug to come (the port asks on every call: hot path)
         t = self.clock.now() if t is None else t
         self._apply_events(t)  # an unplug is due even if the host has not written since
         return self.unplugged_at is not None and t >= self.unplugged_at
