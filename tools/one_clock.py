@@ -226,7 +226,8 @@ def report(runs: list[Path]) -> int:
             print(f"{run.name} - {runs[0].name}, {what}: {d.size} ticks over "
                   f"{span:.1f} s; show-time offset median {np.median(d):+.3f} ms, "
                   f"|offset| p99 {np.percentile(ad, 99):.3f} ms, max {ad.max():.3f} ms "
-                  f"(one tick at 250 Hz: {TICK_S * 1e3:g} ms)")  # fmt: skip
+                  f"(one tick at 250 Hz: {TICK_S * 1e3:g} ms; "
+                  f"{int(np.sum(ad > TICK_S * 1e3))} ticks beyond it)")  # fmt: skip
             if key == "host":
                 worst = max(worst, float(ad.max()))
     print(f"worst |offset| {worst:.3f} ms: {'within' if worst <= TICK_S * 1e3 else 'OVER'} "
