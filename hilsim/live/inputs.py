@@ -174,6 +174,12 @@ class LiveInputs:
         ValueError / OSError / RuntimeError with one line on a port that cannot be opened
         (what was opened is closed first)."""
         spec = self.spec
+        if clock.virtual and spec.ltc is not None and not spec.ltc.is_wav:
+            raise ValueError(
+                f"inputs.ltc.source = {spec.ltc.source!r}: an audio input runs in real time, "
+                "a --virtual-time show does not; rehearse on a WAV of the timecode "
+                "(tools/make_ltc_wav.py), or run in real time"
+            )
         #: real clock: each datagram stamped when the kernel received it (netguard)
         stamps = not clock.virtual
         try:

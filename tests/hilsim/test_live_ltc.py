@@ -531,3 +531,21 @@ def test_a_wav_that_cannot_be_read_on_is_said_and_the_chase_lets_go(tmp_path) ->
         kinds += [e.kind for e in chase.poll(k * TICK).events]
     assert kinds == ["ltc_read_error", "timecode_stopped", "timecode_held"]
     assert chase.state == "held"
+
+
+def test_an_audio_input_under_virtual_time_is_refused_in_one_line(tmp_path) -> None:
+    """Real-time audio cannot be chased by a show on the virtual clock: refused before anything
+    moves, saying what to do (it used to run, chasing audio against jumping time)."""
+    import hilsim
+    from hilsim.show.session import ShowRefusedError
+    from tests.hilsim.test_live_run import RIG
+
+    (tmp_path / "rig.toml").write_text(RIG)
+    (tmp_path / "show.toml").write_text('[inputs.ltc]\nsource = "default"\n')
+    show = hilsim.Show(tmp_path / "rig.toml", show=tmp_path / "show.toml", virtual_time=True)
+    with pytest.raises(ShowRefusedError) as exc:
+        show.open()
+    message = str(exc.value)
+    assert "\n" not in message and "an audio input runs in real time" in message
+    assert "make_ltc_wav.py" in message
+    show.close()
