@@ -22,8 +22,9 @@ show on such a port starts this small process first, before torque goes on
   is the show's to handle (the show then releases it).
 
 What it cannot cover: the computer itself stopping (power cut, kernel panic), or the guardian
-killed together with the show (``kill -9`` of the process group, systemd's final SIGKILL of
-a unit's cgroup). ``docs/servos.md`` says it for users.
+killed together with the show (``kill -9`` of the process group; a systemd unit that SIGKILLs
+its whole cgroup when the main process dies, as ``KillMode=mixed`` does: the unit ``hilsim
+service print`` writes uses ``KillMode=process``). ``docs/servos.md`` says it for users.
 """
 
 from __future__ import annotations

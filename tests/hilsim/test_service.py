@@ -359,6 +359,9 @@ def test_the_generated_unit_passes_systemd_analyze_verify(tmp_path, capsys, monk
     }
     assert keys["Restart"] == "on-failure" and keys["WorkingDirectory"] == str(tmp_path)
     assert keys["StandardError"] == "journal"
+    # systemd kills hilsim alone: a guardian or a bus's process must outlive a crash of it
+    # (KillMode=mixed would SIGKILL them the moment it died, before the exit policy)
+    assert keys["KillMode"] == "process" and keys["TimeoutStopSec"] == "30"
     exec_start = shlex.split(keys["ExecStart"].replace("%%", "%"))
     assert Path(exec_start[0]).is_absolute() and Path(exec_start[0]).exists()
     assert exec_start[exec_start.index("--runs-dir") + 1] == "/srv/fig ure/r%s"
