@@ -24,8 +24,7 @@ from dataclasses import dataclass, field
 
 from hilsim.live.dmx_packets import ARTNET_PORT, E131_PORT
 from hilsim.live.inbox import MAX_LIVE_DEG
-from hilsim.live.netguard import GuardConfig
-from hilsim.rig import RigError
+from hilsim.live.netguard import GuardConfig, read_guard
 from hilsim.rig.reader import Reader
 
 ZERO_KINDS = ("hold", "min", "center", "max", "release")
@@ -95,24 +94,7 @@ def read_dmx(r: Reader, protocol: str, limits: Mapping[str, tuple[float, float]]
     """The section ``r`` (``inputs.sacn`` or ``inputs.artnet``); ``limits``: each joint's
     limits in degrees (the default ``degrees``). Raises RigError (one line)."""
     port = r.integer("port", DEFAULT_PORTS[protocol], lo=1, hi=65535)
-    allow = r.get("allow", list, [])
-    if not all(isinstance(a, str) for a in allow):
-        raise r.fail("allow", f"a list of addresses or networks as strings, got {allow!r}")
-    interface = r.get("interface", str, None)
-    # read first: a bad value is its own one line, not wrapped below
-    max_bytes = r.integer("max_packet_bytes", 638, lo=16, hi=65507)
-    rate = r.number("rate_per_s", 1000.0, positive=True, at_most=1e6)
-    burst = r.integer("burst", 200, lo=1, hi=1_000_000)
-    try:
-        guard = GuardConfig(
-            interface=interface,
-            allow=tuple(allow),
-            max_packet_bytes=max_bytes,
-            rate_per_s=rate,
-            burst=burst,
-        )
-    except ValueError as exc:
-        raise RigError(f"{r.path}: {r.where}: {exc}") from None
+    guard = read_guard(r, 638)
     off_loopback = not ipaddress.ip_address(guard.bind_address).is_loopback
     multicast = r.get("multicast", bool, protocol == "sacn" and off_loopback)
     if multicast and protocol != "sacn":

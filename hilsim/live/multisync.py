@@ -34,8 +34,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from hilsim.live.inbox import LineGate, LiveEvent
-from hilsim.live.netguard import Address, DropLog, GuardConfig, NetGuard, UdpReceiver
-from hilsim.rig import RigError
+from hilsim.live.netguard import Address, DropLog, GuardConfig, NetGuard, UdpReceiver, read_guard
 from hilsim.rig.reader import Reader
 
 MULTISYNC_PORT = 32320
@@ -251,23 +250,7 @@ def listen(remote: MultiSyncRemote, clock: Any, **kw: Any) -> UdpReceiver:
 
 def read_multisync(r: Reader) -> MultiSyncConfig:
     """``[inputs.multisync]`` from the show file. Raises RigError (one line)."""
-    allow = r.get("allow", list, [])
-    if not all(isinstance(a, str) for a in allow):
-        raise r.fail("allow", f"a list of addresses or networks as strings, got {allow!r}")
-    # read first: a bad value is its own one line, not wrapped below
-    max_bytes = r.integer("max_packet_bytes", 512, lo=16, hi=65507)
-    rate = r.number("rate_per_s", 1000.0, positive=True, at_most=1e6)
-    burst = r.integer("burst", 200, lo=1, hi=1_000_000)
-    try:
-        guard = GuardConfig(
-            interface=r.get("interface", str, None),
-            allow=tuple(allow),
-            max_packet_bytes=max_bytes,
-            rate_per_s=rate,
-            burst=burst,
-        )
-    except ValueError as exc:
-        raise RigError(f"{r.path}: {r.where}: {exc}") from None
+    guard = read_guard(r, 512)
     on_stop = r.get("on_stop", str, "hold")
     if on_stop not in ON_STOP:
         raise r.fail("on_stop", f"one of {', '.join(ON_STOP)}; got {on_stop!r}")

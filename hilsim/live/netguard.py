@@ -34,6 +34,10 @@ import time
 from collections import OrderedDict
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from hilsim.rig.reader import Reader
 
 DEFAULT_BIND = "127.0.0.1"
 LOG_INTERVAL_S = 1.0  # at most one drop line per kind per second of show time
@@ -129,6 +133,32 @@ class GuardConfig:
     @property
     def bind_address(self) -> str:
         return self.interface if self.interface else DEFAULT_BIND
+
+
+def read_guard(r: Reader, max_packet_bytes: int) -> GuardConfig:
+    """A show file's input section's guard keys (``interface``, ``allow``,
+    ``max_packet_bytes``, ``rate_per_s``, ``burst``). Each value is read first, so a bad one
+    is its own line; a guard that cannot be built is one line naming the section. Raises
+    RigError."""
+    from hilsim.rig import RigError
+
+    allow = r.get("allow", list, [])
+    if not all(isinstance(a, str) for a in allow):
+        raise r.fail("allow", f"a list of addresses or networks as strings, got {allow!r}")
+    interface = r.get("interface", str, None)
+    max_bytes = r.integer("max_packet_bytes", max_packet_bytes, lo=16, hi=65507)
+    rate = r.number("rate_per_s", 1000.0, positive=True, at_most=1e6)
+    burst = r.integer("burst", 200, lo=1, hi=1_000_000)
+    try:
+        return GuardConfig(
+            interface=interface,
+            allow=tuple(allow),
+            max_packet_bytes=max_bytes,
+            rate_per_s=rate,
+            burst=burst,
+        )
+    except ValueError as exc:
+        raise RigError(f"{r.path}: {r.where}: {exc}") from None
 
 
 class TokenBucket:

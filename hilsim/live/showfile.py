@@ -25,7 +25,7 @@ from typing import TYPE_CHECKING, Any
 
 from hilsim.live.inbox import MAX_LIVE_DEG
 from hilsim.live.midi import CcMapping
-from hilsim.live.netguard import GuardConfig
+from hilsim.live.netguard import GuardConfig, read_guard
 from hilsim.rig import Rig, RigError
 from hilsim.rig.reader import Reader
 
@@ -221,23 +221,7 @@ def _network_inputs(inputs: Reader, spec: ShowSpec, rig: Rig) -> None:
 
 def _osc(r: Reader, rig: Rig) -> OscConfig:
     port = r.integer("port", DEFAULT_OSC_PORT, lo=1, hi=65535)
-    allow = r.get("allow", list, [])
-    if not all(isinstance(a, str) for a in allow):
-        raise r.fail("allow", f"a list of addresses or networks as strings, got {allow!r}")
-    interface = r.get("interface", str, None)
-    max_packet_bytes = r.integer("max_packet_bytes", 1024, lo=16, hi=65507)
-    rate_per_s = r.number("rate_per_s", 1000.0, positive=True, at_most=1e6)
-    burst = r.integer("burst", 200, lo=1, hi=1_000_000)
-    try:
-        guard = GuardConfig(
-            interface=interface,
-            allow=tuple(allow),
-            max_packet_bytes=max_packet_bytes,
-            rate_per_s=rate_per_s,
-            burst=burst,
-        )
-    except ValueError as exc:
-        raise RigError(f"{r.path}: {r.where}: {exc}") from None
+    guard = read_guard(r, 1024)
     ranges = joint_ranges(rig)
     table = r.get("joints", dict, {})
     joints: dict[str, tuple[float, float]] = {}
