@@ -318,49 +318,77 @@ def _wakeups(pid: int) -> int:
     return int(status.split("\nvoluntary_ctxt_switches:")[1].split()[0])
 
 
+@dataclass(frozen=True)
+class ShowSample:
+    """A ``hilsim run`` process sampled over a window of its show: seconds of wall time, of
+    the process's CPU, of its main (loop) thread's, voluntary wake-ups, an emulator
+    process's CPU (0 without one), its exit code and its summary."""
+
+    wall_s: float
+    cpu_s: float
+    loop_s: float
+    wakeups: int
+    emulator_s: float
+    exit_code: int
+    summary: JsonDict
+
+
+def sample_show(
+    cmd: list[str], out: Path, label: str, *, settle_s: float, window_s: float,
+    emulator_pid: int | None = None,
+) -> ShowSample:  # fmt: skip
+    """Start ``cmd`` (a ``hilsim run ... --out OUT``), wait for the line that says the show
+    starts, let ``settle_s`` pass, then sample its CPU over ``window_s``; wait for its end and
+    read ``OUT/summary.json``. Raises RuntimeError (with its last lines) if it wrote none."""
+    proc = subprocess.Popen(
+        cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, cwd=REPO
+    )
+    assert proc.stderr is not None  # a pipe (stderr=PIPE)
+    err = []
+    emu = emulator_pid
+    try:
+        for line in proc.stderr:  # "hilsim run: NAME: ... -> DIR": the show starts
+            err.append(line)
+            if " -> " in line:
+                break
+        time.sleep(settle_s)
+        pid = proc.pid
+        c0, m0, w0, t0 = _cpu_s(pid), _cpu_s(pid, pid), _wakeups(pid), time.perf_counter()
+        e0 = _cpu_s(emu) if emu is not None else 0.0
+        time.sleep(window_s)
+        c1, m1, w1, t1 = _cpu_s(pid), _cpu_s(pid, pid), _wakeups(pid), time.perf_counter()
+        e1 = _cpu_s(emu) if emu is not None else 0.0
+        err.append(proc.stderr.read())
+        code = proc.wait(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+        proc.stderr.close()
+    summary_path = out / "summary.json"
+    if not summary_path.exists():
+        raise RuntimeError(f"{label} wrote no summary:\n" + "".join(err)[-2000:])
+    summary = json.loads(summary_path.read_text())
+    return ShowSample(t1 - t0, c1 - c0, m1 - m0, w1 - w0, e1 - e0, code, summary)
+
+
 def demo_once(path: str, *, window_s: float = 6.0, settle_s: float = 1.5) -> DemoCpu:
     """One ``hilsim run configs/demo.toml --port PATH`` of ``settle_s + window_s + 1`` s
     of show, measured over the window (a :class:`DemoCpu` of one run)."""
     with tempfile.TemporaryDirectory(prefix="hilsim-cpu-") as tmp:
         out = Path(tmp) / "run"
         show = ["--duration", f"{settle_s + window_s + 1.0:g}", "--no-plots", "--out", str(out)]
-        proc = subprocess.Popen(
-            [sys.executable, "-m", "hilsim", "run", str(DEMO_RIG), "--port", path, *show],
-            stdout=subprocess.DEVNULL,
-            stderr=subprocess.PIPE,
-            text=True,
-            cwd=REPO,
-        )
-        assert proc.stderr is not None  # a pipe (stderr=PIPE)
-        err = []
-        try:
-            for line in proc.stderr:  # "hilsim run: demo: ... -> DIR": the show starts
-                err.append(line)
-                if " -> " in line:
-                    break
-            time.sleep(settle_s)
-            pid = proc.pid
-            c0, m0, w0, t0 = _cpu_s(pid), _cpu_s(pid, pid), _wakeups(pid), time.perf_counter()
-            time.sleep(window_s)
-            c1, m1, w1, t1 = _cpu_s(pid), _cpu_s(pid, pid), _wakeups(pid), time.perf_counter()
-            err.append(proc.stderr.read())
-            code = proc.wait(timeout=60)
-        finally:
-            if proc.poll() is None:
-                proc.kill()
-                proc.wait()
-            proc.stderr.close()
-        summary_path = out / "summary.json"
-        if not summary_path.exists():
-            raise RuntimeError("the demo wrote no summary:\n" + "".join(err)[-2000:])
-        summary = json.loads(summary_path.read_text())
+        cmd = [sys.executable, "-m", "hilsim", "run", str(DEMO_RIG), "--port", path, *show]
+        got = sample_show(cmd, out, "the demo", settle_s=settle_s, window_s=window_s)
+    summary = got.summary
     rate = float(summary.get("rate_hz") or 0.0)
     stalls = int(((summary.get("loop") or {}).get("host_stalls") or {}).get("count", 0))
     late = summary.get("lateness_us") or {}
-    ticks = (t1 - t0) * rate or math.nan
-    cpu, loop = (c1 - c0) / ticks * 1e6, (m1 - m0) / ticks * 1e6
+    ticks = got.wall_s * rate or math.nan
+    cpu, loop = got.cpu_s / ticks * 1e6, got.loop_s / ticks * 1e6
     p50, p99 = (float(late.get(q, math.nan)) for q in ("p50", "p99"))
-    wake = (w1 - w0) / ticks
+    wake = got.wakeups / ticks
+    code = got.exit_code
     return DemoCpu(window_s, rate, cpu, [cpu], [code], [stalls], loop, cpu - loop, wake, p50, p99)
 
 

@@ -25,14 +25,13 @@ import os
 import subprocess
 import sys
 import tempfile
-import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 from hilsim._types import JsonDict
-from hilsim.bench.cpu import REPO, _cpu_s, _wakeups, emulate
+from hilsim.bench.cpu import REPO, emulate, sample_show
 from hilsim.bench.report import EMULATED
 
 if TYPE_CHECKING:
@@ -162,49 +161,25 @@ def show_once(
             cmd = [sys.executable, "-m", "hilsim", *argv, "--port", path]
         else:
             cmd = [sys.executable, "-c", CHILD, str(books), *argv]
-        proc = subprocess.Popen(
-            cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, cwd=REPO
-        )
-        assert proc.stderr is not None  # a pipe (stderr=PIPE)
-        err = []
-        try:
-            for line in proc.stderr:  # "hilsim run: NAME: ... -> DIR": the show starts
-                err.append(line)
-                if " -> " in line:
-                    break
-            time.sleep(settle_s)
-            pid = proc.pid
-            c0, m0, w0, t0 = _cpu_s(pid), _cpu_s(pid, pid), _wakeups(pid), time.perf_counter()
-            e0 = _cpu_s(emu) if emu is not None else 0.0
-            time.sleep(window_s)
-            c1, m1, w1, t1 = _cpu_s(pid), _cpu_s(pid, pid), _wakeups(pid), time.perf_counter()
-            e1 = _cpu_s(emu) if emu is not None else 0.0
-            err.append(proc.stderr.read())
-            code = proc.wait(timeout=60)
-        finally:
-            if proc.poll() is None:
-                proc.kill()
-                proc.wait()
-            proc.stderr.close()
-        summary_path = out / "summary.json"
-        if not summary_path.exists():
-            raise RuntimeError(f"{label} wrote no summary: " + "".join(err)[-500:])
-        summary = json.loads(summary_path.read_text())
+        got = sample_show(cmd, out, label, settle_s=settle_s, window_s=window_s, emulator_pid=emu)
+        summary = got.summary
         emu_ns = json.loads(books.read_text())[0] if where != "pty" else None
-    dt = t1 - t0
+    dt = got.wall_s
     ticks = int(summary.get("ticks") or 0)
     shown = float(summary.get("duration_s") or length)
     ticks_per_s = ticks / shown if shown > 0 else math.nan
     late = summary.get("lateness_us") or {}
-    wake = (w1 - w0) / (dt * ticks_per_s) if ticks_per_s else math.nan
-    cpu, loop = (c1 - c0) / dt, (m1 - m0) / dt
+    wake = got.wakeups / (dt * ticks_per_s) if ticks_per_s else math.nan
+    cpu, loop = got.cpu_s / dt, got.loop_s / dt
     if emu_ns is None:
-        emulator = (e1 - e0) / dt
+        emulator = got.emulator_s / dt
     else:  # the show's average a tick, over the window's ticks: out of the loop thread's
         emulator = emu_ns * 1e-9 / ticks * ticks_per_s if ticks else math.nan
         cpu, loop = cpu - emulator, loop - emulator
     p99 = float(late.get("p99", math.nan))
-    return ShowCpu(label, where, rate, window_s, cpu, loop, emulator, ticks_per_s, wake, p99, code)
+    return ShowCpu(
+        label, where, rate, window_s, cpu, loop, emulator, ticks_per_s, wake, p99, got.exit_code
+    )
 
 
 def measure(

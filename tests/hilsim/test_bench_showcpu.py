@@ -11,7 +11,7 @@ from pathlib import Path
 
 import pytest
 
-from hilsim.bench import showcpu
+from hilsim.bench import cpu, showcpu
 from hilsim.bench.report import BenchReport
 from hilsim.bench.showcpu import ShowCpu, ShowCpuResult
 
@@ -139,12 +139,12 @@ def test_an_in_process_emulators_work_is_timed_in_the_child_and_taken_out(tmp_pa
             pass
 
     monkeypatch.setattr(showcpu, "_bus", lambda rig: ("1-16", 4_000_000, "XM430-W350", 1000.0))
-    monkeypatch.setattr(showcpu.subprocess, "Popen", popen)
-    monkeypatch.setattr(showcpu, "_cpu_s", lambda pid, tid=None: next(fake_cpu))
-    monkeypatch.setattr(showcpu, "_wakeups", lambda pid: 0)
-    monkeypatch.setattr(showcpu.time, "sleep", lambda s: None)
+    monkeypatch.setattr(cpu.subprocess, "Popen", popen)
+    monkeypatch.setattr(cpu, "_cpu_s", lambda pid, tid=None: next(fake_cpu))  # (it samples)
+    monkeypatch.setattr(cpu, "_wakeups", lambda pid: 0)
+    monkeypatch.setattr(cpu.time, "sleep", lambda s: None)
     clock = iter([0.0, 1.0])
-    monkeypatch.setattr(showcpu.time, "perf_counter", lambda: next(clock))
+    monkeypatch.setattr(cpu.time, "perf_counter", lambda: next(clock))
     s = showcpu.show_once(
         Path("scale16.toml"), "scale16", window_s=1.0, settle_s=0.0, where="in-process"
     )
