@@ -38,24 +38,31 @@ def _hilsim(*args: str) -> subprocess.CompletedProcess[str]:
     )
 
 
-def test_refused_once_then_setup_on_the_pty_then_the_show_runs(factory_pty, tmp_path):
-    rig = tmp_path / "skull.toml"
-    rig.write_text(RIG.replace("PORT", factory_pty).replace("rate_hz = 250", "rate_hz = 50"))
+def _refused_then_setup_then_runs(rig, pty: str, tmp_path, found: str) -> None:
+    """`hilsim run` refused once (every mismatch in one table, the setup command named),
+    `hilsim setup --yes` finds the servos (``found``) and reads them back, then the show runs."""
     run = ["run", str(rig), "--duration", "1", "--no-plots", "--out"]
     first = _hilsim(*run, str(tmp_path / "a"))
     assert first.returncode == 2, first.stderr
     assert first.stderr.count("do not match") == 1
     for item in ("baud", "Return Delay Time"):
         assert first.stderr.count(f"  {item} ") == 3, first.stderr
-    assert f"hilsim setup {rig} --port {factory_pty} --yes" in first.stderr
+    assert f"hilsim setup {rig} --port {pty} --yes" in first.stderr
 
-    setup = _hilsim("setup", str(rig), "--port", factory_pty, "--yes")
+    setup = _hilsim("setup", str(rig), "--port", pty, "--yes")
     assert setup.returncode == 0, setup.stderr + setup.stdout
-    assert "57600 bit/s: 1 (XL430-W250), 2 (XL430-W250), 3 (XL430-W250)" in setup.stderr
+    assert found in setup.stderr
     assert "read back at 1000000 bit/s" in setup.stdout
 
     second = _hilsim(*run, str(tmp_path / "b"))
     assert second.returncode == 0, second.stderr
+
+
+def test_refused_once_then_setup_on_the_pty_then_the_show_runs(factory_pty, tmp_path):
+    rig = tmp_path / "skull.toml"
+    rig.write_text(RIG.replace("PORT", factory_pty).replace("rate_hz = 250", "rate_hz = 50"))
+    found = "57600 bit/s: 1 (XL430-W250), 2 (XL430-W250), 3 (XL430-W250)"
+    _refused_then_setup_then_runs(rig, factory_pty, tmp_path, found)
 
 
 def test_feetech_refused_once_then_setup_on_the_pty_then_the_show_runs(factory_sts_pty, tmp_path):
@@ -65,18 +72,5 @@ def test_feetech_refused_once_then_setup_on_the_pty_then_the_show_runs(factory_s
     rig = tmp_path / "arm.toml"
     text = P1RIG.replace("PORT", factory_sts_pty).replace("MODEL", "STS3215")
     rig.write_text(text.replace("RATE", "50"))
-    run = ["run", str(rig), "--duration", "1", "--no-plots", "--out"]
-    first = _hilsim(*run, str(tmp_path / "a"))
-    assert first.returncode == 2, first.stderr
-    assert first.stderr.count("do not match") == 1
-    for item in ("baud", "Return Delay Time"):
-        assert first.stderr.count(f"  {item} ") == 3, first.stderr
-    assert f"hilsim setup {rig} --port {factory_sts_pty} --yes" in first.stderr
-
-    setup = _hilsim("setup", str(rig), "--port", factory_sts_pty, "--yes")
-    assert setup.returncode == 0, setup.stderr + setup.stdout
-    assert "115200 bit/s: 1 (STS3215), 2 (STS3215), 3 (STS3215)" in setup.stderr
-    assert "read back at 1000000 bit/s" in setup.stdout
-
-    second = _hilsim(*run, str(tmp_path / "b"))
-    assert second.returncode == 0, second.stderr
+    found = "115200 bit/s: 1 (STS3215), 2 (STS3215), 3 (STS3215)"
+    _refused_then_setup_then_runs(rig, factory_sts_pty, tmp_path, found)
