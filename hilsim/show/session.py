@@ -23,7 +23,7 @@ one-line reason. The wire-time model behind the capacity check is
 from __future__ import annotations
 
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -43,6 +43,7 @@ if TYPE_CHECKING:
     from drivers.p1bus.guardian import Guardian
     from drivers.p1bus.startup import P1Expectation
     from hilsim.live.director import Director
+    from hilsim.show.servo_check import Problem
     from hilsim.telemetry import TelemetryWriter
 
 #: Fraction of a tick the bus transaction may take; the rest is for the host.
@@ -136,7 +137,7 @@ def check_bus(rig: Rig, bus: DynamixelBus, say: Callable[[str], None]) -> list[s
     with one table of every problem found.
     """
     from drivers.dynamixel.errors import DynamixelError
-    from hilsim.show.servo_check import check_everything, render, use_tick_block
+    from hilsim.show.servo_check import check_everything, use_tick_block
 
     if not bus.has_watchdog:
         return check_p1_bus(rig, bus, say)
@@ -159,20 +160,27 @@ def check_bus(rig: Rig, bus: DynamixelBus, say: Callable[[str], None]) -> list[s
     except (DynamixelError, ValueError) as exc:
         raise ShowRefusedError(f"start-up check failed on {rig.bus.port}: {exc}") from None
     if problems or report is None:
-        ids = sorted({p.servo_id for p in problems if p.servo_id is not None})
-        lines = [
-            f"the servos on {rig.bus.port} do not match {rig.path}: {len(problems)} problem(s)"
-            + (f" on servo(s) {ids}" if ids else "")
-            + "; nothing moved",
-            render(problems),
-            *why,
-        ]
-        raise ShowRefusedError("\n".join(lines))
+        raise _mismatch(rig, problems, why)
     block_notes = use_tick_block(rig, bus, report, budget, latency_ms)
     for note in (*report.notes, *block_notes):
         say(f"note: {note}")
     notes += [*report.notes, *block_notes]
     return notes
+
+
+def _mismatch(rig: Rig, problems: list[Problem], why: Sequence[str]) -> ShowRefusedError:
+    """The start-up check's one refusal: every problem in one table, then why."""
+    from hilsim.show.servo_check import render
+
+    ids = sorted({p.servo_id for p in problems if p.servo_id is not None})
+    lines = [
+        f"the servos on {rig.bus.port} do not match {rig.path}: {len(problems)} problem(s)"
+        + (f" on servo(s) {ids}" if ids else "")
+        + "; nothing moved",
+        render(problems),
+        *why,
+    ]
+    return ShowRefusedError("\n".join(lines))
 
 
 def check_p1_bus(rig: Rig, bus: DynamixelBus, say: Callable[[str], None]) -> list[str]:
@@ -182,7 +190,6 @@ def check_p1_bus(rig: Rig, bus: DynamixelBus, say: Callable[[str], None]) -> lis
     terms, silent ones looked for at the other bauds, the bus's capacity)."""
     from drivers.dynamixel.errors import DynamixelError
     from drivers.p1bus.bus import P1ServoBus
-    from hilsim.show.servo_check import render
     from hilsim.show.servo_check_p1 import check_everything_p1
 
     assert isinstance(bus, P1ServoBus)
@@ -193,15 +200,7 @@ def check_p1_bus(rig: Rig, bus: DynamixelBus, say: Callable[[str], None]) -> lis
     except (DynamixelError, ValueError) as exc:
         raise ShowRefusedError(f"start-up check failed on {rig.bus.port}: {exc}") from None
     if problems or report is None:
-        ids = sorted({p.servo_id for p in problems if p.servo_id is not None})
-        lines = [
-            f"the servos on {rig.bus.port} do not match {rig.path}: {len(problems)} problem(s)"
-            + (f" on servo(s) {ids}" if ids else "")
-            + "; nothing moved",
-            render(problems),
-            *why,
-        ]
-        raise ShowRefusedError("\n".join(lines))
+        raise _mismatch(rig, problems, why)
     notes = list(report.notes)
     rate = bus.read_rate_hz(rig.loop.rate_hz)
     notes.append(f"each servo's position is read {rate:.4g} times a second ({bus.read_mode})")
