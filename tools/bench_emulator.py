@@ -17,6 +17,10 @@ reply byte is read) and prints µs per emulated Sync Write + Fast Sync Read, bes
 when given):
 
     python tools/bench_emulator.py --direct [--repeats 7] [--cycles 2000] [--rate 250]
+
+``--block`` (with ``--direct``) reads what a show's tick reads on X series: each servo's
+Indirect Address 1..7 pointed at the tick block (Present Position, Torque Enable, Bus
+Watchdog, Status Return Level) once, then a Fast Sync Read of Indirect Data 1..7 per cycle.
 """
 
 from __future__ import annotations
@@ -33,6 +37,7 @@ import dynamixel_sdk as sdk
 from drivers.clock import VirtualClock
 from drivers.dxlsim import DxlBus, VirtualServo, register_bus
 from drivers.dxlsim.protocol import Instruction, encode_instruction
+from drivers.protocol2 import control_table as ct
 
 GOAL_POSITION, PRESENT_POSITION, TORQUE_ENABLE = 116, 132, 64
 
@@ -41,17 +46,25 @@ def _goal(k: int, period: float) -> int:
     return int(2048 + 800 * math.sin(2 * math.pi * 0.5 * k * period))
 
 
-def direct_cycles(n_servos: int, baud: int, rate: float, cycles: int, latency_ms: float) -> tuple:
-    """One run of the emulator alone: returns (wall s per cycle, failed cycles, bus)."""
+def direct_cycles(
+    n_servos: int, baud: int, rate: float, cycles: int, latency_ms: float, block: bool = False
+) -> tuple:
+    """One run of the emulator alone: returns (wall s per cycle, failed cycles, bus); with
+    ``block`` the read is the tick block's, through Indirect Data."""
     clock = VirtualClock()
     ids = list(range(1, n_servos + 1))
     servos = [VirtualServo("XM430-W350", i, baud=baud, return_delay_us=0, t=0.0) for i in ids]
     bus = DxlBus(servos, baud=baud, clock=clock, latency_timer_ms=latency_ms)
     period = 1.0 / rate
-    for i in ids:  # torque on, one Write each, its reply read like any other
-        bus.write(encode_instruction(i, Instruction.WRITE, bytes((TORQUE_ENABLE, 0, 1))))
-        clock.wait_until(bus.visible_at(bus.pending_rx))
-        bus.read(bus.pending_rx)
+    setup = [bytes((TORQUE_ENABLE, 0, 1))]  # torque on (and the block), one Write each
+    if block:
+        at = ct.INDIRECT_ADDRESS_1.addr
+        setup.insert(0, bytes((at & 0xFF, at >> 8)) + ct.tick_block_targets())
+    for i in ids:
+        for params in setup:  # each reply read like any other
+            bus.write(encode_instruction(i, Instruction.WRITE, params))
+            clock.wait_until(bus.visible_at(bus.pending_rx))
+            bus.read(bus.pending_rx)
     # Precomputed host bytes: a Sync Write per cycle of one period of the 0.5 Hz sine (the
     # goals move every cycle) ...
     head = bytes((GOAL_POSITION & 0xFF, GOAL_POSITION >> 8, 4, 0))
@@ -60,11 +73,12 @@ def direct_cycles(n_servos: int, baud: int, rate: float, cycles: int, latency_ms
         goal = _goal(k, period).to_bytes(4, "little")
         body = b"".join(bytes((i,)) + goal for i in ids)
         writes.append(encode_instruction(0xFE, Instruction.SYNC_WRITE, head + body))
-    # ... and the same Fast Sync Read of Present Position every cycle.
+    # ... and the same Fast Sync Read of Present Position (or the block) every cycle.
+    addr, size = (ct.INDIRECT_DATA_1.addr, ct.TICK_BLOCK_SIZE) if block else (PRESENT_POSITION, 4)
     fast_read = encode_instruction(
-        0xFE, Instruction.FAST_SYNC_READ, bytes((PRESENT_POSITION, 0, 4, 0, *ids))
+        0xFE, Instruction.FAST_SYNC_READ, bytes((addr & 0xFF, addr >> 8, size, 0, *ids))
     )
-    reply = 8 + 8 * n_servos  # header, ID, LEN, INST + per servo ERR ID data(4) CRC(2)
+    reply = 8 + (4 + size) * n_servos  # header, ID, LEN, INST + per servo ERR ID data CRC(2)
     failures = 0
     deadline = clock.now()
     n_writes = len(writes)
@@ -92,7 +106,8 @@ def direct(args) -> int:
         for b in ([args.baud] if args.baud_given else [1_000_000, 4_000_000])
     ]
     print(
-        f"emulator alone (DxlBus, no SDK): Sync Write + Fast Sync Read per cycle, "
+        f"emulator alone (DxlBus, no SDK): Sync Write + Fast Sync Read"
+        f"{' of the tick block' if args.block else ''} per cycle, "
         f"{args.cycles} cycles at {args.rate:g} Hz virtual, latency timer {args.latency_ms:g} "
         f"ms, best of {args.repeats}; load average {' '.join(f'{x:.2f}' for x in os.getloadavg())}"
     )
@@ -101,7 +116,7 @@ def direct(args) -> int:
         runs = []
         for _ in range(args.repeats):
             per_cycle, failures, bus = direct_cycles(
-                n, baud, args.rate, args.cycles, args.latency_ms
+                n, baud, args.rate, args.cycles, args.latency_ms, args.block
             )
             runs.append(per_cycle)
             failed += failures
@@ -125,6 +140,7 @@ def main(argv=None) -> int:
     ap.add_argument("--profile", action="store_true", help="print the top cProfile entries (SDK)")
     ap.add_argument("--direct", action="store_true", help="the emulator alone, no SDK")
     ap.add_argument("--repeats", type=int, default=7, help="--direct: runs per case")
+    ap.add_argument("--block", action="store_true", help="--direct: read the tick block")
     ap.add_argument("--latency-ms", type=float, default=1.0, help="--direct: USB latency timer")
     args = ap.parse_args(argv)
     args.servos_given, args.baud_given = args.servos is not None, args.baud is not None
