@@ -22,6 +22,7 @@ host's driver uses the item too, else from the emulator's X-series table.
 from __future__ import annotations
 
 from collections.abc import Callable
+from operator import itemgetter
 
 import drivers.protocol2.control_table as ct
 from drivers.protocol2.control_table import ALERT_BIT, OperatingMode, StatusError
@@ -103,6 +104,10 @@ BACKUP_RAM_ITEMS = (
 GOAL_ADDRS = frozenset((GOAL_PWM, GOAL_CURRENT, GOAL_VELOCITY, GOAL_POSITION))
 
 Updates = list[tuple[Field, int]]
+#: A compiled Read span (:meth:`RegisterFile._plan`): check, expected, pieces.
+_Piece = tuple[Callable[[], int] | None, int, int, int, int]
+_Plan = tuple[Callable[[dict[int, int]], object] | None, object, tuple[_Piece, ...] | None]
+_PLANS_KEPT = 64  # spans a servo keeps compiled (a show reads a few, again and again)
 # Enum members looked up once (through the class it costs ~0.15 µs a time on CPython 3.11).
 _OK = StatusError.NONE
 _POSITION_MODE = OperatingMode.POSITION
@@ -118,6 +123,9 @@ class RegisterFile:
         self.dynamic: dict[int, Callable[[], int]] = {}
         #: the Control Table Backup (address -> value), None until one is stored
         self.backup: dict[int, int] | None = None
+        #: compiled Read spans, (address, length) -> plan (see :meth:`_plan`); ``dynamic``
+        #: is complete before the first read (a plan holds its getters)
+        self._plans: dict[tuple[int, int], _Plan] = {}
         if model.has(BACKUP_READY):
             self.dynamic[BACKUP_READY] = lambda: int(self.backup is not None)
         self.reset_eeprom(keep=())
@@ -148,17 +156,36 @@ class RegisterFile:
         Length Error. A span may start or end inside a field (its bytes are sliced).
         """
         m = self.model
-        indirect = m.indirect
         f = m.by_addr.get(addr)
-        if f is not None and f.size == length and addr not in indirect:  # one whole field
+        if f is not None and f.size == length and addr not in m.indirect:  # one whole field
             getter = self.dynamic.get(addr)
             value = getter() if getter is not None else self.values[addr]
             return 0, (value & MASKS[length]).to_bytes(length, "little")
+        plan = self._plans.get((addr, length))
+        if plan is not None:
+            check, expect, pieces = plan
+            if pieces is not None and (check is None or check(self.values) == expect):
+                values = self.values
+                acc = 0
+                for getter, a, shift, mask, to in pieces:
+                    value = getter() if getter is not None else values[a]
+                    acc |= (value >> shift & mask) << to
+                return 0, acc.to_bytes(length, "little")
         if length < 1:
             return StatusError.DATA_LENGTH, b""
-        end = addr + length
-        if addr < 0 or end > m.table_end:
+        if addr < 0 or addr + length > m.table_end:
             return StatusError.ACCESS, b""
+        if plan is None or plan[0] is None or plan[0](self.values) != plan[1]:
+            if len(self._plans) >= _PLANS_KEPT:
+                self._plans.clear()  # a host reading every span there is: start again
+            self._plans[addr, length] = self._plan(addr, length)
+        return 0, self._read_span(addr, length)
+
+    def _read_span(self, addr: int, length: int) -> bytes:
+        """A valid span's bytes, byte by byte: the definition :meth:`_plan` compiles."""
+        m = self.model
+        indirect = m.indirect
+        end = addr + length
         out = bytearray(length)
         owner = m.byte_owner
         raws: dict[int, bytes] = {}  # each field computed once per read
@@ -176,7 +203,61 @@ class RegisterFile:
             lo, hi = a - f.addr, min(f.end, end) - f.addr
             out[a - addr : a - addr + hi - lo] = raw[lo:hi]
             a = f.addr + hi
-        return 0, bytes(out)
+        return bytes(out)
+
+    def _plan(self, addr: int, length: int) -> _Plan:
+        """A valid span compiled: which field's bytes land where, worked out once.
+
+        Returns ``(check, expect, pieces)``: the plan holds while ``check(values) ==
+        expect`` (the span's Indirect Addresses as they were; ``check`` None when it has
+        none), so a write, reboot, reset or restore that moves one is seen at the next read
+        whatever path it took. ``pieces`` lists ``(getter, field address, shift, mask,
+        to)``: the field's value (its getter's, else the stored one) ``>> shift & mask``
+        lands at bit ``to`` of the little-endian result; gaps are the zeros left. ``pieces``
+        is None where the byte loop must stay: an Indirect Data pointing at another (its
+        stored byte, not a field's), or a computed field in two places (read once there).
+        """
+        m = self.model
+        indirect, owner = m.indirect, m.byte_owner
+        sources: list[tuple[Field, int, int]] = []  # (field, its byte, the span's byte)
+        links: list[int] = []  # the span's Indirect Addresses
+        nested = False
+        for i in range(length):
+            a = addr + i
+            f = owner[a]
+            if f is None:
+                continue
+            if a in indirect:
+                links.append(indirect[a])
+                target = self.values[indirect[a]]
+                nested = nested or target in indirect
+                f = m.field_at(target)
+                if f is not None:
+                    sources.append((f, target - f.addr, i))
+                continue
+            sources.append((f, a - f.addr, i))
+        check = itemgetter(*links) if links else None
+        expect = check(self.values) if check is not None else None
+        if nested:
+            return check, expect, None
+        pieces: list[list[int]] = []  # [field address, first byte, bytes, span byte]
+        for f, byte, i in sources:
+            last = pieces[-1] if pieces else None
+            if last and last[0] == f.addr and last[1] + last[2] == byte and last[3] + last[2] == i:
+                last[2] += 1  # the next byte of the same field, next in the span
+            else:
+                pieces.append([f.addr, byte, 1, i])
+        dynamic = self.dynamic
+        computed = [p[0] for p in pieces if p[0] in dynamic]
+        if len(computed) != len(set(computed)):
+            return check, expect, None
+        return (
+            check,
+            expect,
+            tuple(
+                (dynamic.get(a), a, 8 * byte, (1 << 8 * n) - 1, 8 * i) for a, byte, n, i in pieces
+            ),
+        )
 
     def _raw(self, f: Field, raws: dict[int, bytes]) -> bytes:
         raw = raws.get(f.addr)
