@@ -10,8 +10,10 @@ the work of two rounds of :data:`CRC_TABLE`. The words are read in the machine's
 
 from __future__ import annotations
 
+import struct
 import sys
 from array import array
+from collections.abc import Callable
 from functools import cache
 
 
@@ -125,21 +127,40 @@ def crc16_blocks(bodies: list[bytes], crc: int = 0) -> list[int]:
             crc = crc16(bytes((crc & 0xFF, crc >> 8)), crc)
 
     In words: on a little-endian machine a CRC's own two bytes, read as a word, are the
-    CRC itself, and the register is kept byte-swapped, so it is one lookup."""
+    CRC itself, and the register is kept byte-swapped, so it is one lookup. A body's words
+    come out of one ``struct`` unpack (a Struct per length, made once); an odd body's last
+    byte is one step of the byte table, byte-swapped too."""
     out: list[int] = []
-    if not _LITTLE or any(len(body) & 1 for body in bodies):
+    if not _LITTLE:
         for body in bodies:
             crc = crc16(body, crc)
             out.append(crc)
             crc = crc16(bytes((crc & 0xFF, crc >> 8)), crc)
         return out
     words = _WORDS or word_table()
+    swapped = _SWAPPED_TABLE
     crc &= 0xFFFF
     r = ((crc & 0xFF) << 8) | (crc >> 8)
     for body in bodies:
-        for w in memoryview(body).cast("H"):
+        n = len(body)
+        unpack = _BODY_WORDS.get(n) or _body_words(n)
+        for w in unpack(body):
             r = words[r ^ w]
+        if n & 1:  # the byte loop's step, on the swapped register
+            r = (r >> 8) ^ swapped[(r ^ body[n - 1]) & 0xFF]
         crc = ((r & 0xFF) << 8) | (r >> 8)
         out.append(crc)
         r = words[r ^ crc]
     return out
+
+
+#: :data:`CRC_TABLE` with each entry's bytes swapped: one byte step on a swapped register
+#: ``r`` is ``(r >> 8) ^ _SWAPPED_TABLE[(r ^ byte) & 0xFF]``
+_SWAPPED_TABLE: tuple[int, ...] = tuple(map(_swap, CRC_TABLE))
+#: body length -> the unpacker of its whole little-endian words (see crc16_blocks)
+_BODY_WORDS: dict[int, Callable[[bytes], tuple[int, ...]]] = {}
+
+
+def _body_words(n: int) -> Callable[[bytes], tuple[int, ...]]:
+    unpack = _BODY_WORDS[n] = struct.Struct(f"<{n // 2}H").unpack_from
+    return unpack
