@@ -154,12 +154,17 @@ class DxlBus(WireBus[VirtualServo]):
         data)`` for every servo on that ID (several only with a duplicate-ID fault) and is
         empty when nobody answers, which stops the chain there.
         """
+        if fast:
+            hearing = [s for s in hearing if s.supports_fast_read]
+            one = {s.id: s for s in hearing}
+            if len(one) == len(hearing):  # no two servos on one ID: the common case
+                self._read_fast(items, one, t)
+                return
         # The servos on each ID, in bus order, looked up once (IDs and firmware do not change
         # while the chain is read, so this is the same list the scan per item would find).
         by_id: dict[int, list[VirtualServo]] = {}
         for s in hearing:
-            if not fast or s.supports_fast_read:
-                by_id.setdefault(s.id, []).append(s)
+            by_id.setdefault(s.id, []).append(s)
         links: list[tuple[list[_Answer], int]] = []
         for sid, addr, length in items:
             members = by_id.get(sid)
@@ -177,6 +182,55 @@ class DxlBus(WireBus[VirtualServo]):
             self._send_fast(links, t)
         else:
             self._send_chain_groups([answers or None for answers, _ in links], t)
+
+    def _read_fast(
+        self, items: list[tuple[int, int, int]], one: dict[int, VirtualServo], t: float
+    ) -> None:
+        """Fast Sync/Bulk Read with one servo at most on each ID: :meth:`_send_fast`'s work
+        without its links. Every listed servo is read; the blocks stop at the first ID
+        nobody answers, and the header still announces them all."""
+        size = 1  # INST + (ERR ID data CRC) per item
+        servos: list[VirtualServo] = []
+        bodies: list[bytes] = []
+        answering = True
+        for sid, addr, length in items:
+            size += 4 + length
+            s = one.get(sid)
+            if s is None:
+                answering = False
+                continue
+            s.touch(t)
+            err, data = s.read(addr, length, t)
+            if answering:
+                servos.append(s)
+                bodies.append(bytes((err, sid)) + (data if len(data) == length else bytes(length)))
+        if not servos:
+            return
+        header, heard = self._fast_header(size)
+        groups = [
+            [(s, body + bytes((crc & 0xFF, crc >> 8)))]
+            for s, body, crc in zip(servos, bodies, crc16_blocks(bodies, heard), strict=True)
+        ]
+        groups[0][0] = (servos[0], header + groups[0][0][1])
+        self._put_fast(groups, t + servos[0].return_delay_s + self.turnaround_s)
+
+    def _fast_header(self, size: int) -> tuple[bytes, int]:
+        """A Fast reply's header announcing ``size`` (INST and every block) and its CRC."""
+        cached = self._fast_headers.get(size)
+        if cached is None:
+            header = HEADER + bytes((BROADCAST_ID, size & 0xFF, size >> 8, Inst.STATUS))
+            cached = self._fast_headers[size] = (header, crc16(header))
+        return cached
+
+    def _put_fast(self, groups: list[list[tuple[VirtualServo, bytes]]], ready: float) -> None:
+        """A Fast reply's blocks on the wire from ``ready``, one after another."""
+        if self._emit_burst(groups, ready):
+            return
+        for packets in groups:
+            end = self._emit_group(packets, ready)
+            if end is None:
+                return
+            ready = end
 
     def _send_fast(self, links: list[tuple[list[_Answer], int]], t: float) -> None:
         """Fast Sync/Bulk Read: one packet, header and first block from the first servo,
@@ -197,11 +251,7 @@ class DxlBus(WireBus[VirtualServo]):
             return
         # the first servo announces every block: INST + (ERR ID data CRC) per link
         size = 1 + 4 * len(links) + sum(map(itemgetter(1), links))
-        cached = self._fast_headers.get(size)
-        if cached is None:
-            header = HEADER + bytes((BROADCAST_ID, size & 0xFF, size >> 8, Inst.STATUS))
-            cached = self._fast_headers[size] = (header, crc16(header))
-        header, heard = cached  # heard: the running CRC of the line so far, as servos hear it
+        header, heard = self._fast_header(size)  # heard: the running CRC of the line so far
         ready = t + answered[0][0][0].return_delay_s + self.turnaround_s
         bodies = []  # per link: what each of its servos sends, ERR ID data (and then CRC)
         collision = False
@@ -229,10 +279,4 @@ class DxlBus(WireBus[VirtualServo]):
                 heard = crc16(_merge([b for _, b in blocks]), heard)
                 groups.append(blocks)
         groups[0] = [(s, header + b) for s, b in groups[0]]  # the first with the header
-        if self._emit_burst(groups, ready):
-            return
-        for packets in groups:
-            end = self._emit_group(packets, ready)
-            if end is None:
-                return
-            ready = end
+        self._put_fast(groups, ready)
