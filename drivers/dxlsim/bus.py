@@ -26,6 +26,7 @@ Not modelled (host/servo collisions, noise beyond the fault plan, ...): the one 
 
 from __future__ import annotations
 
+import struct
 from operator import itemgetter
 from typing import Any
 
@@ -57,6 +58,9 @@ __all__ = ["INTER_BYTE_TIMEOUT_S", "DxlBus", "TraceRecord"]
 
 #: One servo's answer to a read: the servo, its ERR byte, its data.
 _Answer = tuple[VirtualServo, int, bytes]
+#: A CRC as the line carries it, low byte first; a read item's length
+_CRC_BYTES = struct.Struct("<H").pack
+_LENGTH = itemgetter(2)
 
 
 class DxlBus(WireBus[VirtualServo]):
@@ -189,26 +193,27 @@ class DxlBus(WireBus[VirtualServo]):
         """Fast Sync/Bulk Read with one servo at most on each ID: :meth:`_send_fast`'s work
         without its links. Every listed servo is read; the blocks stop at the first ID
         nobody answers, and the header still announces them all."""
-        size = 1  # INST + (ERR ID data CRC) per item
         servos: list[VirtualServo] = []
         bodies: list[bytes] = []
-        answering = True
         for sid, addr, length in items:
-            size += 4 + length
             s = one.get(sid)
             if s is None:
-                answering = False
-                continue
+                for sid, addr, length in items[len(servos) + 1 :]:  # read, never sent
+                    if (s := one.get(sid)) is not None:
+                        s.touch(t)
+                        s.read(addr, length, t)
+                break
             s.touch(t)
             err, data = s.read(addr, length, t)
-            if answering:
-                servos.append(s)
-                bodies.append(bytes((err, sid)) + (data if len(data) == length else bytes(length)))
+            servos.append(s)
+            bodies.append(bytes((err, sid)) + (data if len(data) == length else bytes(length)))
         if not servos:
             return
-        header, heard = self._fast_header(size)
+        # INST + (ERR ID data CRC) per item
+        header, heard = self._fast_header(1 + 4 * len(items) + sum(map(_LENGTH, items)))
+        crc_bytes = _CRC_BYTES
         groups = [
-            [(s, body + bytes((crc & 0xFF, crc >> 8)))]
+            [(s, body + crc_bytes(crc))]
             for s, body, crc in zip(servos, bodies, crc16_blocks(bodies, heard), strict=True)
         ]
         groups[0][0] = (servos[0], header + groups[0][0][1])

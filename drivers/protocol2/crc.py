@@ -13,8 +13,11 @@ from __future__ import annotations
 import struct
 import sys
 from array import array
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from functools import cache
+
+#: what the CRC reads words from
+Buffer = bytes | bytearray | memoryview
 
 
 def _make_table() -> tuple[int, ...]:
@@ -33,6 +36,8 @@ CRC_TABLE: tuple[int, ...] = _make_table()
 _LITTLE = sys.byteorder == "little"
 #: below this many bytes the per-byte loop is cheaper than setting up the word view
 _WORD_MIN = 8
+#: up to this many bytes the words come from a Struct kept per length (a packet's size)
+_STRUCT_MAX = 1100
 
 
 def _swap(x: int) -> int:
@@ -89,12 +94,17 @@ def crc16(data: bytes | bytearray | memoryview, crc: int = 0) -> int:
     n = len(data)
     if n >= _WORD_MIN:
         cls = type(data)
-        view = memoryview(data) if cls is bytes or cls is bytearray else _byte_view(data)
+        view = data if cls is bytes or cls is bytearray else _byte_view(data)
         if view is not None:
             words = _WORDS or word_table()
             crc &= 0xFFFF  # as the byte loop: only the register's 16 bits count
             r = ((crc & 0xFF) << 8) | (crc >> 8) if _LITTLE else crc
-            for w in view[: n & ~1].cast("H"):
+            it: Iterable[int]
+            if _LITTLE and n <= _STRUCT_MAX:  # the words by one unpack (see crc16_blocks)
+                it = (_BODY_WORDS.get(n) or _body_words(n))(view)
+            else:
+                it = memoryview(view)[: n & ~1].cast("H")
+            for w in it:
                 r = words[r ^ w]
             crc = ((r & 0xFF) << 8) | (r >> 8) if _LITTLE else r
             if n & 1:
@@ -158,9 +168,9 @@ def crc16_blocks(bodies: list[bytes], crc: int = 0) -> list[int]:
 #: ``r`` is ``(r >> 8) ^ _SWAPPED_TABLE[(r ^ byte) & 0xFF]``
 _SWAPPED_TABLE: tuple[int, ...] = tuple(map(_swap, CRC_TABLE))
 #: body length -> the unpacker of its whole little-endian words (see crc16_blocks)
-_BODY_WORDS: dict[int, Callable[[bytes], tuple[int, ...]]] = {}
+_BODY_WORDS: dict[int, Callable[[Buffer], tuple[int, ...]]] = {}
 
 
-def _body_words(n: int) -> Callable[[bytes], tuple[int, ...]]:
+def _body_words(n: int) -> Callable[[Buffer], tuple[int, ...]]:
     unpack = _BODY_WORDS[n] = struct.Struct(f"<{n // 2}H").unpack_from
     return unpack
