@@ -23,6 +23,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from operator import itemgetter
+from typing import Any
 
 import drivers.protocol2.control_table as ct
 from drivers.protocol2.control_table import ALERT_BIT, OperatingMode, StatusError
@@ -104,13 +105,28 @@ BACKUP_RAM_ITEMS = (
 GOAL_ADDRS = frozenset((GOAL_PWM, GOAL_CURRENT, GOAL_VELOCITY, GOAL_POSITION))
 
 Updates = list[tuple[Field, int]]
-#: A compiled Read span (:meth:`RegisterFile._plan`): check, expected, pieces.
-_Piece = tuple[Callable[[], int] | None, int, int, int, int]
-_Plan = tuple[Callable[[dict[int, int]], object] | None, object, tuple[_Piece, ...] | None]
+#: A compiled Read span (:meth:`RegisterFile._plan`), a list: it is updated in place.
+_Plan = list[Any]
 _PLANS_KEPT = 64  # spans a servo keeps compiled (a show reads a few, again and again)
 # Enum members looked up once (through the class it costs ~0.15 µs a time on CPython 3.11).
 _OK = StatusError.NONE
 _POSITION_MODE = OperatingMode.POSITION
+
+
+def _getter(addrs: list[int]) -> Callable[[dict[int, int]], tuple[int, ...]] | None:
+    """The values at ``addrs`` as a tuple in one call (None for no address)."""
+    if not addrs:
+        return None
+    if len(addrs) == 1:
+        one = itemgetter(addrs[0])
+        return lambda values: (one(values),)
+    return itemgetter(*addrs)
+
+
+def _links(plan: _Plan, values: dict[int, int] | None = None) -> tuple[int, ...]:
+    """A plan's Indirect Addresses: as it was built, or as they are in ``values``."""
+    key: tuple[int, ...] = plan[1] if values is None else plan[0](values)
+    return key[: plan[2]]
 
 
 class RegisterFile:
@@ -163,19 +179,28 @@ class RegisterFile:
             return 0, (value & MASKS[length]).to_bytes(length, "little")
         plan = self._plans.get((addr, length))
         if plan is not None:
-            check, expect, pieces = plan
-            if pieces is not None and (check is None or check(self.values) == expect):
-                values = self.values
-                acc = 0
-                for getter, a, shift, mask, to in pieces:
-                    value = getter() if getter is not None else values[a]
-                    acc |= (value >> shift & mask) << to
-                return 0, acc.to_bytes(length, "little")
+            check, expect, links, static, computed, stored = plan
+            if computed is not None:
+                if check is not None:
+                    key = check(self.values)
+                    if key != expect:
+                        if key[:links] != expect[:links]:
+                            computed = None  # an Indirect Address moved: build it again
+                        else:  # only stored values changed: their bits again
+                            static = 0
+                            for value, (shift, mask, to) in zip(key[links:], stored, strict=True):
+                                static |= (value >> shift & mask) << to
+                            plan[1], plan[3] = key, static
+                if computed is not None:
+                    acc = static
+                    for getter, shift, mask, to in computed:
+                        acc |= (getter() >> shift & mask) << to
+                    return 0, acc.to_bytes(length, "little")
         if length < 1:
             return StatusError.DATA_LENGTH, b""
         if addr < 0 or addr + length > m.table_end:
             return StatusError.ACCESS, b""
-        if plan is None or plan[0] is None or plan[0](self.values) != plan[1]:
+        if plan is None or (plan[0] is not None and _links(plan, self.values) != _links(plan)):
             if len(self._plans) >= _PLANS_KEPT:
                 self._plans.clear()  # a host reading every span there is: start again
             self._plans[addr, length] = self._plan(addr, length)
@@ -208,16 +233,20 @@ class RegisterFile:
     def _plan(self, addr: int, length: int) -> _Plan:
         """A valid span compiled: which field's bytes land where, worked out once.
 
-        Returns ``(check, expect, pieces)``: the plan holds while ``check(values) ==
-        expect`` (the span's Indirect Addresses as they were; ``check`` None when it has
-        none), so a write, reboot, reset or restore that moves one is seen at the next read
-        whatever path it took. ``pieces`` lists ``(getter, field address, shift, mask,
-        to)``: the field's value (its getter's, else the stored one) ``>> shift & mask``
-        lands at bit ``to`` of the little-endian result; gaps are the zeros left. ``pieces``
-        is None where the byte loop must stay: an Indirect Data pointing at another (its
-        stored byte, not a field's), or a computed field in two places (read once there).
+        Returns ``[check, expect, links, static, computed, stored]``. ``check(values)``
+        gives the span's Indirect Addresses (the first ``links``) and the stored values it
+        reads, as ``expect`` holds them when ``static`` (their bits of the result) was
+        worked out: while the Indirect Addresses are the same the plan holds, so a write,
+        reboot, reset or restore that moves one is seen at the next read whatever path it
+        took; when only stored values changed, ``static`` is worked out again from
+        ``stored``'s ``(shift, mask, to)``. ``computed`` lists ``(getter, shift, mask,
+        to)`` for the fields computed on read. A value ``>> shift & mask`` lands at bit
+        ``to`` of the little-endian result; gaps are the zeros left. ``computed`` is None
+        where the byte loop must stay: an Indirect Data pointing at another (its stored
+        byte, not a field's), or a computed field in two places (read once there).
         """
         m = self.model
+        values = self.values
         indirect, owner = m.indirect, m.byte_owner
         sources: list[tuple[Field, int, int]] = []  # (field, its byte, the span's byte)
         links: list[int] = []  # the span's Indirect Addresses
@@ -229,17 +258,13 @@ class RegisterFile:
                 continue
             if a in indirect:
                 links.append(indirect[a])
-                target = self.values[indirect[a]]
+                target = values[indirect[a]]
                 nested = nested or target in indirect
                 f = m.field_at(target)
                 if f is not None:
                     sources.append((f, target - f.addr, i))
                 continue
             sources.append((f, a - f.addr, i))
-        check = itemgetter(*links) if links else None
-        expect = check(self.values) if check is not None else None
-        if nested:
-            return check, expect, None
         pieces: list[list[int]] = []  # [field address, first byte, bytes, span byte]
         for f, byte, i in sources:
             last = pieces[-1] if pieces else None
@@ -248,16 +273,25 @@ class RegisterFile:
             else:
                 pieces.append([f.addr, byte, 1, i])
         dynamic = self.dynamic
-        computed = [p[0] for p in pieces if p[0] in dynamic]
-        if len(computed) != len(set(computed)):
-            return check, expect, None
-        return (
+        computed = [p for p in pieces if p[0] in dynamic]
+        stored = [p for p in pieces if p[0] not in dynamic]
+        if nested or len({p[0] for p in computed}) != len(computed):
+            check = _getter(links)
+            return [check, check(values) if check else None, len(links), 0, None, ()]
+        check = _getter(links + [p[0] for p in stored])
+        expect = check(values) if check is not None else None
+        bits = tuple((8 * byte, (1 << 8 * n) - 1, 8 * i) for _, byte, n, i in stored)
+        static = 0
+        for p, (shift, mask, to) in zip(stored, bits, strict=True):
+            static |= (values[p[0]] >> shift & mask) << to
+        return [
             check,
             expect,
-            tuple(
-                (dynamic.get(a), a, 8 * byte, (1 << 8 * n) - 1, 8 * i) for a, byte, n, i in pieces
-            ),
-        )
+            len(links),
+            static,
+            tuple((dynamic[a], 8 * byte, (1 << 8 * n) - 1, 8 * i) for a, byte, n, i in computed),
+            bits,
+        ]
 
     def _raw(self, f: Field, raws: dict[int, bytes]) -> bytes:
         raw = raws.get(f.addr)

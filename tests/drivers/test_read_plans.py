@@ -90,6 +90,18 @@ def test_one_byte_of_the_block_moved_through_indirect_data_itself():
     assert block(servo, 0.02)[6] == 0  # Indirect Data 7 standing for itself: its own 0
 
 
+def test_the_block_follows_its_stored_items_under_one_plan():
+    """Torque Enable and Bus Watchdog written between reads (Indirect Addresses unchanged):
+    the block's bytes of them follow at once."""
+    servo = moving_servo()
+    assert block(servo, 0.01)[4:6] == b"\x01\x00"
+    assert servo.write(ct.BUS_WATCHDOG.addr, b"\x05", 0.02) == OK
+    assert block(servo, 0.02)[4:6] == b"\x01\x05"
+    assert servo.write(TORQUE, b"\x00", 0.03) == OK
+    assert block(servo, 0.03) == direct_block(servo, 0.03)
+    assert block(servo, 0.03)[4:6] == b"\x00\x05"
+
+
 @pytest.mark.parametrize("how", ["reboot", "brownout", "factory_reset"])
 def test_a_restart_puts_the_indirect_addresses_back_and_the_block_reads_zeros(how):
     servo = moving_servo()
@@ -135,6 +147,14 @@ def test_every_span_reads_as_the_byte_loop_defines_it():
     indirect = servo.model.indirect
     links = list(indirect.values())
     plain = [a for a in range(64, 662) if a not in indirect]  # not Indirect Data
+    stored = [
+        f.addr
+        for f in servo.model.fields
+        if f.addr not in reg.dynamic
+        and f.addr not in indirect
+        and f.addr not in links
+        and f.addr >= 64  # RAM, not the ID or baud rate the servo answers on
+    ]
 
     def target() -> int:
         roll = rng.random()
@@ -153,6 +173,8 @@ def test_every_span_reads_as_the_byte_loop_defines_it():
             reg.values[at] = target()
         if round_ % 3 == 0:
             reg.values[ct.INDIRECT_ADDRESS_1.addr] = BLOCK_AT  # a default among the others
+        for at in rng.sample(stored, 6):  # stored values change under the same plan
+            reg.values[at] = rng.randint(-(2**31), 2**31 - 1)
         servo.advance(t)
         for addr, length in spans:
             for _ in range(2):
