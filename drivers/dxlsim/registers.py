@@ -2,10 +2,12 @@
 
 A :class:`RegisterFile` holds the stored values (``values``, address -> int). It answers
 Read spans, including registers computed on read (``dynamic``: address -> getter, filled in
-by the servo). :meth:`RegisterFile.validate` checks a Write against the field table and the
-present values, and returns what to store. Applying it, with its side effects on motion and
-the watchdog, is the servo's job. It also keeps the Control Table Backup
-(:meth:`store_backup`, :meth:`restore_eeprom`, :meth:`boot_ram`).
+by the servo); each span read is compiled once into which field's bytes land where, kept
+while its Indirect Addresses stay as they were (:meth:`RegisterFile._plan`; the byte loop
+:meth:`RegisterFile._read_span` is the definition). :meth:`RegisterFile.validate` checks a
+Write against the field table and the present values, and returns what to store. Applying
+it, with its side effects on motion and the watchdog, is the servo's job. It also keeps the
+Control Table Backup (:meth:`store_backup`, :meth:`restore_eeprom`, :meth:`boot_ram`).
 
 A Write is atomic, its fields checked in address order: Access Error (7), Data Length Error
 (5), Data Range Error (4), then Data Limit Error (6). An erroneous Read returns
