@@ -275,7 +275,6 @@ class Motion:
         regs = self._regs
         mode = regs[OPERATING_MODE]
         t = self.now
-        accel = regs[PROFILE_ACCELERATION] * PULSE_PER_S2_PER_ACCEL_UNIT or math.inf
         if mode in POSITION_MODES:
             self.velocity_loop = False
             goal = float(regs[GOAL_POSITION] - self.offset())
@@ -284,6 +283,7 @@ class Motion:
                 self.segs, self.seg_i, self.end_p, self.profile_end = [], 0, goal, t
                 self.profile_type, self.idle = _STEP, False
                 return
+            accel = regs[PROFILE_ACCELERATION] * PULSE_PER_S2_PER_ACCEL_UNIT or math.inf
             time_based = self.time_based()
             if not time_based and regs[VELOCITY_LIMIT] > 0:
                 vel = min(vel, regs[VELOCITY_LIMIT])  # Velocity Limit caps the profile (> 0)
@@ -297,6 +297,7 @@ class Motion:
             end_p = goal
         else:
             self.velocity_loop = True
+            accel = regs[PROFILE_ACCELERATION] * PULSE_PER_S2_PER_ACCEL_UNIT or math.inf
             p0, v0 = self.trajectory_at(t)
             if mode == OperatingMode.VELOCITY:
                 target = regs[GOAL_VELOCITY] * PULSE_PER_S_PER_VELOCITY_UNIT
