@@ -248,7 +248,8 @@ class VirtualServo:
         Watchdog timer."""
         mo = self._mo
         now = mo.now
-        if now < t <= self._wd_deadline and t - now <= THERMAL_STEP_S and self._hand is None:
+        dt = t - now  # > 0 exactly when t > now
+        if 0.0 < dt <= THERMAL_STEP_S and t <= self._wd_deadline and self._hand is None:
             # advance(t) for a packet of a running show, inline: one stretch, no watchdog
             # due, no hand. The thermal step is thermal_step()'s, term for term.
             amps = mo.current_a()
@@ -257,7 +258,7 @@ class VirtualServo:
                 frac = amps / self._stall_a
                 target = self._ambient_c + THERMAL_STALL_RISE_K * frac * frac
                 if celsius != target:
-                    temp = target + (celsius - target) * _exp(-(t - now) / THERMAL_TIME_CONSTANT_S)
+                    temp = target + (celsius - target) * _exp(-dt / THERMAL_TIME_CONSTANT_S)
                     if temp != celsius:
                         self._temp_c = temp
                         limit = self._regs[_TEMPERATURE_LIMIT]
