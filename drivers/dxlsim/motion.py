@@ -297,8 +297,12 @@ class Motion:
             goal = float(regs[GOAL_POSITION] - self.offset())
             vel = regs[PROFILE_VELOCITY]
             if vel == 0:  # a step (a cap cannot raise 0): nothing to plan, nowhere to start
-                self.segs, self.seg_i, self.end_p, self.profile_end = [], 0, goal, t
-                self.profile_type, self.idle = _STEP, False
+                self.segs = []
+                self.seg_i = 0
+                self.end_p = goal
+                self.profile_end = t
+                self.profile_type = _STEP
+                self.idle = False
                 return
             accel = regs[PROFILE_ACCELERATION] * PULSE_PER_S2_PER_ACCEL_UNIT or math.inf
             time_based = self.time_based()
