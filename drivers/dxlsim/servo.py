@@ -119,13 +119,31 @@ class VirtualServo:
         self._reg.dynamic.update(self._mo.present_getters())
         self._reg.dynamic[rg.REALTIME_TICK] = self._realtime_tick
         self._reg.dynamic[rg.PRESENT_TEMPERATURE] = self._present_temperature
+        self._derive()
         apply_initial(self, id, m.baud_index(baud), rdt_units, overrides)
 
-    # --- properties the bus needs --------------------------------------------------------
-    @property
-    def id(self) -> int:
-        """ID (addr 7)."""
-        return self._regs[_ID]
+    # --- what the bus needs ----------------------------------------------------------------
+    #: ID (addr 7)
+    id: int
+    #: the line rate at which this servo hears Protocol 2.0 packets; 0 when Protocol Type
+    #: (addr 13) selects another protocol (1.0, or the X330's S.BUS/iBUS/RC-PWM), which
+    #: dxlsim does not speak: the servo is then deaf to the bus, as a real one is to 2.0
+    listening_baud: int
+    #: Return Delay Time, s (addr 9 × 2 µs)
+    return_delay_s: float
+    #: Fast Sync/Bulk Read available on this firmware
+    supports_fast_read: bool
+
+    def _derive(self) -> None:
+        """The four values above, asked of every servo on every packet, kept as plain
+        attributes: computed again after whatever may change their registers (a Write
+        other than the goal's short way, a restart, the other axis's module)."""
+        regs, m = self._regs, self.model
+        self.id = regs[_ID]
+        protocol_2 = regs[_PROTOCOL_TYPE] == _PROTOCOL_2
+        self.listening_baud = m.baud_rates[regs[_BAUD_RATE]] if protocol_2 else 0
+        self.return_delay_s = regs[rg.RETURN_DELAY_TIME] * 2e-6
+        self.supports_fast_read = regs[_FIRMWARE_VERSION] >= m.fast_read_min_firmware
 
     @property
     def secondary_id(self) -> int | None:
@@ -139,21 +157,6 @@ class VirtualServo:
         return self.model.baud_rates[self._regs[rg.BAUD_RATE]]
 
     @property
-    def listening_baud(self) -> int:
-        """The line rate at which this servo hears Protocol 2.0 packets; 0 when Protocol Type
-        (addr 13) selects another protocol (1.0, or the X330's S.BUS/iBUS/RC-PWM), which
-        dxlsim does not speak: the servo is then deaf to the bus, as a real one is to 2.0."""
-        regs = self._regs
-        if regs[_PROTOCOL_TYPE] != _PROTOCOL_2:
-            return 0
-        return self.model.baud_rates[regs[_BAUD_RATE]]
-
-    @property
-    def return_delay_s(self) -> float:
-        """Return Delay Time, s (addr 9 × 2 µs)."""
-        return self._regs[rg.RETURN_DELAY_TIME] * 2e-6
-
-    @property
     def status_return_level(self) -> int:
         """0: reply to Ping only, 1: Ping and Read, 2: all (addr 68)."""
         return self._regs[rg.STATUS_RETURN_LEVEL]
@@ -165,11 +168,6 @@ class VirtualServo:
     @property
     def torque_enabled(self) -> bool:
         return self._regs[rg.TORQUE_ENABLE] == 1
-
-    @property
-    def supports_fast_read(self) -> bool:
-        """Fast Sync/Bulk Read available on this firmware."""
-        return self._regs[_FIRMWARE_VERSION] >= self.model.fast_read_min_firmware
 
     @property
     def alert(self) -> bool:
@@ -326,6 +324,7 @@ class VirtualServo:
             err = StatusError.DATA_LIMIT  # 2xl430-w250.md: both axes one ID -> 0x06
         if not err:
             self._apply(updates)
+            self._derive()
             if partner is not None:
                 share_module(self)
         return err | (ALERT if self._regs[_HARDWARE_ERROR_STATUS] else 0)  # + Alert
@@ -578,6 +577,7 @@ class VirtualServo:
         mo.profile_type = ProfileType.STEP
         self._boot_t = t
         mo.update_speed_limit()
+        self._derive()
         if startup_torque:
             self._torque_on()
 
