@@ -22,6 +22,7 @@ def share_module(servo: VirtualServo) -> None:
     if partner is not None:
         for a in (rg.BAUD_RATE, rg.PROTOCOL_TYPE):
             partner._regs[a] = servo._regs[a]
+        partner._derive()  # its listening baud
 
 
 def pair_axes(a: VirtualServo, b: VirtualServo) -> None:

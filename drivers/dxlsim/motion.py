@@ -74,6 +74,7 @@ from .registers import (
 
 _RAD_PER_PULSE = 2.0 * math.pi / PULSES_PER_REV
 _POSITION_MODE, _STEP = OperatingMode.POSITION, ProfileType.STEP  # one lookup (~0.15 µs each)
+_copysign = math.copysign
 _SETTLE_PULSES = 1e-3  # horn this close to a finished trajectory: snap and go idle
 _GRID_EPS = 1e-7  # grid steps are counted with this slack against float round-off
 _DRIVE_MODE = DRIVE_MODE.addr
@@ -153,6 +154,9 @@ class Motion:
         self.profile_type = ProfileType.STEP
         self._alpha = 1.0 - math.exp(-self._dt / m.lag_time_constant_s)
         self._kt = m.stall_torque_nm / m.stall_current_a  # torque constant, N·m/A
+        # the model's figures current_a() uses, one attribute away
+        self._inertia, self._running_a = m.reflected_inertia_kgm2, m.running_current_a
+        self._stall_a = m.stall_current_a
         self.update_speed_limit()
 
     def present_getters(self) -> dict[int, Callable[[], int]]:
@@ -186,22 +190,35 @@ class Motion:
         if not self.velocity_loop and self.seg_i >= len(self.segs):
             # No trajectory left (a step, or a profile over), Position modes: the loop below with
             # r = end_p every step and only the last two dx kept (v, acc computed as it does).
-            inv_dt, alpha, settle = self._inv_dt, self._alpha, _SETTLE_PULSES
-            x, r, lim, steps = self.x, self.end_p, self._vmax * self._dt, k_end - k
+            inv_dt = self._inv_dt
+            alpha = self._alpha
+            settle = _SETTLE_PULSES
+            neg_settle = -settle
+            lim = self._step_lim
+            neg_lim = -lim
+            x = self.x
+            r = self.end_p
+            steps = k_end - k
             dx = prev = 0.0
+            e = r - x  # the error, computed once a step and used twice
             for _ in range(steps):
-                prev, dx = dx, (r - x) * alpha
+                prev, dx = dx, e * alpha
                 if dx > lim:
                     dx = lim
-                elif dx < -lim:
-                    dx = -lim
+                elif dx < neg_lim:
+                    dx = neg_lim
                 x += dx
-                if -settle < r - x < settle:
+                e = r - x
+                if neg_settle < e < settle:
                     self.k, self.x, self.v, self.acc = k_end, r, 0.0, 0.0
                     self.hold(r)
                     return
             self.acc = (dx * inv_dt - (prev * inv_dt if steps > 1 else self.v)) * inv_dt
-            self.k, self.x, self.v, self.r, self.rv = k_end, x, dx * inv_dt, r, 0.0
+            self.k = k_end
+            self.x = x
+            self.v = dx * inv_dt
+            self.r = r
+            self.rv = 0.0
             return
         dt, inv_dt, t0, alpha = self._dt, self._inv_dt, self._t0, self._alpha
         vmax = self._vmax
@@ -275,15 +292,19 @@ class Motion:
         regs = self._regs
         mode = regs[OPERATING_MODE]
         t = self.now
-        accel = regs[PROFILE_ACCELERATION] * PULSE_PER_S2_PER_ACCEL_UNIT or math.inf
         if mode in POSITION_MODES:
             self.velocity_loop = False
             goal = float(regs[GOAL_POSITION] - self.offset())
             vel = regs[PROFILE_VELOCITY]
             if vel == 0:  # a step (a cap cannot raise 0): nothing to plan, nowhere to start
-                self.segs, self.seg_i, self.end_p, self.profile_end = [], 0, goal, t
-                self.profile_type, self.idle = _STEP, False
+                self.segs = []
+                self.seg_i = 0
+                self.end_p = goal
+                self.profile_end = t
+                self.profile_type = _STEP
+                self.idle = False
                 return
+            accel = regs[PROFILE_ACCELERATION] * PULSE_PER_S2_PER_ACCEL_UNIT or math.inf
             time_based = self.time_based()
             if not time_based and regs[VELOCITY_LIMIT] > 0:
                 vel = min(vel, regs[VELOCITY_LIMIT])  # Velocity Limit caps the profile (> 0)
@@ -297,6 +318,7 @@ class Motion:
             end_p = goal
         else:
             self.velocity_loop = True
+            accel = regs[PROFILE_ACCELERATION] * PULSE_PER_S2_PER_ACCEL_UNIT or math.inf
             p0, v0 = self.trajectory_at(t)
             if mode == OperatingMode.VELOCITY:
                 target = regs[GOAL_VELOCITY] * PULSE_PER_S_PER_VELOCITY_UNIT
@@ -333,6 +355,8 @@ class Motion:
         """Homing Offset(20) in effect: ignored in Position Control Mode outside ±1024."""
         regs = self._regs
         off = regs[HOMING_OFFSET]
+        if not off:  # the usual case: 0 whatever the mode
+            return 0
         if (
             regs[OPERATING_MODE] == _POSITION_MODE
             and not -HOMING_OFFSET_POSITION_MODE_LIMIT <= off <= HOMING_OFFSET_POSITION_MODE_LIMIT
@@ -375,6 +399,7 @@ class Motion:
         if self.load_nm:  # the motor's speed-torque line at this voltage and duty
             stall = m.stall_torque_nm * scale
             self._vmax *= max(0.0, 1.0 - abs(self.load_nm) / stall) if stall > 0.0 else 0.0
+        self._step_lim = self._vmax * self._dt  # the most the horn moves in one step
 
     def moving(self) -> int:
         return 1 if abs(self.present_velocity()) > self._regs[MOVING_THRESHOLD] else 0
@@ -405,14 +430,13 @@ class Motion:
         v = self.v
         if not self._regs[TORQUE_ENABLE] or (v == 0.0 and self.acc == 0.0 and not load):
             return 0.0
-        m = self.model
         kt = self._kt
-        amps = m.reflected_inertia_kgm2 * self.acc * _RAD_PER_PULSE / kt
+        amps = self._inertia * self.acc * _RAD_PER_PULSE / kt
         if v:
-            amps += math.copysign(m.running_current_a, v)
+            amps += _copysign(self._running_a, v)
         if load:
             amps += load / kt  # holding the external torque
-        stall = m.stall_current_a  # max(-stall, min(stall, amps)) without the two calls
+        stall = self._stall_a  # max(-stall, min(stall, amps)) without the two calls
         return stall if amps > stall else -stall if amps < -stall else amps
 
     def present_current(self) -> int:

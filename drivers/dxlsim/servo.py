@@ -28,7 +28,8 @@ from .motion import Motion, MotionState, torque_on_by_goal
 from .profile import ProfileType
 from .registers import ALERT as ALERT  # re-exported
 from .registers import RegisterFile, Updates
-from .thermal import thermal_step
+from .servo_setup import apply_initial, goal_write_range
+from .thermal import THERMAL_STALL_RISE_K, THERMAL_TIME_CONSTANT_S, thermal_step
 
 CLEAR_MULTI_TURN = b"\x01\x44\x58\x4c\x22"
 FACTORY_RESET_ALL, FACTORY_RESET_KEEP_ID, FACTORY_RESET_KEEP_ID_BAUD = 0xFF, 0x01, 0x02
@@ -39,11 +40,9 @@ _SUPPLY_LIMITS = frozenset(
 )
 _INPUT_VOLTAGE_ERROR = int(ct.HardwareError.INPUT_VOLTAGE)
 _OVERHEATING_ERROR = int(ct.HardwareError.OVERHEATING)
-# Physical quantities a constructor override may set although the field is read-only.
 #: the longest stretch heated at one motor current while the horn moves (s): a 100 Hz show's
 #: period, so a show at 100 Hz or faster never has its packets' gaps split
 THERMAL_STEP_S = 0.010
-_INITIAL_STATE_FIELDS = ("present_position", "present_input_voltage", "present_temperature")
 
 
 _PROTOCOL_2 = 2  # Protocol Type (addr 13) value of Protocol 2.0
@@ -52,6 +51,10 @@ _FIRMWARE_VERSION = rg.FIRMWARE_VERSION
 _BUS_WATCHDOG, _TORQUE_ENABLE = rg.BUS_WATCHDOG, rg.TORQUE_ENABLE
 _TEMPERATURE_LIMIT, _HARDWARE_ERROR_STATUS = rg.TEMPERATURE_LIMIT, rg.HARDWARE_ERROR_STATUS
 _WATCHDOG_UNIT_S = ct.WATCHDOG_UNIT_S
+_exp = math.exp
+_GOAL_POSITION, _OPERATING_MODE = rg.GOAL_POSITION, rg.OPERATING_MODE
+_MIN_POSITION_LIMIT, _MAX_POSITION_LIMIT = rg.MIN_POSITION_LIMIT, rg.MAX_POSITION_LIMIT
+_WATCHDOG_TRIPPED, _POSITION_MODE = ct.WATCHDOG_TRIPPED, int(OperatingMode.POSITION)
 
 
 class VirtualServo:
@@ -103,6 +106,8 @@ class VirtualServo:
         self._regs = self._reg.values  # the same dict: the servo's fast path to the values
         self._mo = Motion(m, self._regs, t, step_s)
         self._temp_c = self._ambient_c = m.ambient_temperature_c
+        self._stall_a = m.stall_current_a
+        self._goal_addr, self._goal_lo, self._goal_hi = goal_write_range(m)  # write()'s short way
         self._wd_ref = self._mo.now
         self._wd_deadline = math.inf
         self._pending: tuple[int, bytes] | None = None
@@ -114,59 +119,31 @@ class VirtualServo:
         self._reg.dynamic.update(self._mo.present_getters())
         self._reg.dynamic[rg.REALTIME_TICK] = self._realtime_tick
         self._reg.dynamic[rg.PRESENT_TEMPERATURE] = self._present_temperature
-        self._apply_initial(id, m.baud_index(baud), rdt_units, overrides)
+        self._derive()
+        apply_initial(self, id, m.baud_index(baud), rdt_units, overrides)
 
-    # --- construction helpers ------------------------------------------------------------
-    def _apply_initial(
-        self, id_: int, baud_index: int, rdt: int, overrides: dict[str, int]
-    ) -> None:
-        eeprom = {"id": id_, "baud_rate": baud_index, "return_delay_time": rdt}
-        ram: dict[str, int] = {}
-        state: dict[str, int] = {}
-        for name, value in overrides.items():
-            try:
-                f = self.model.field(name)
-            except KeyError as exc:
-                raise ValueError(str(exc).strip("'\"")) from None
-            if f.name in _INITIAL_STATE_FIELDS:
-                state[f.name] = value
-            elif not f.writable:
-                raise ValueError(f"{f.name} is read-only")
-            else:
-                (eeprom if f.eeprom else ram)[f.name] = value
-        # EEPROM first (torque is off), then the physical state, then torque, then RAM.
-        for name, value in sorted(eeprom.items(), key=lambda kv: self.model.field(kv[0]).addr):
-            self._initial_write(name, value)
-        if "present_position" in state:
-            self._mo.x = float(state["present_position"] - self._mo.offset())
-            self._mo.hold(self._mo.x)
-        if "present_input_voltage" in state:
-            self.set_input_voltage(state["present_input_voltage"] / 10.0)
-        if "present_temperature" in state:
-            self.set_temperature(float(state["present_temperature"]))
-        self._regs[rg.GOAL_POSITION] = self._mo.present_position()
-        if "torque_enable" in ram:
-            self._initial_write("torque_enable", ram.pop("torque_enable"))
-        for name, value in sorted(ram.items(), key=lambda kv: self.model.field(kv[0]).addr):
-            self._initial_write(name, value)
+    # --- what the bus needs ----------------------------------------------------------------
+    #: ID (addr 7)
+    id: int
+    #: the line rate at which this servo hears Protocol 2.0 packets; 0 when Protocol Type
+    #: (addr 13) selects another protocol (1.0, or the X330's S.BUS/iBUS/RC-PWM), which
+    #: dxlsim does not speak: the servo is then deaf to the bus, as a real one is to 2.0
+    listening_baud: int
+    #: Return Delay Time, s (addr 9 × 2 µs)
+    return_delay_s: float
+    #: Fast Sync/Bulk Read available on this firmware
+    supports_fast_read: bool
 
-    def _initial_write(self, name: str, value: int) -> None:
-        f = self.model.field(name)
-        try:
-            data = (value & rg.MASKS[f.size]).to_bytes(f.size, "little")
-        except (TypeError, AttributeError):
-            raise ValueError(f"{name} must be an int, got {value!r}") from None
-        if not f.accepts(value):
-            raise ValueError(f"{name}={value} is outside {f.lo}..{f.hi} {f.choices or ''}")
-        err = self.write(f.addr, data, self._mo.now) & 0x7F
-        if err:
-            raise ValueError(f"{name}={value} refused: {StatusError(err).name}")
-
-    # --- properties the bus needs --------------------------------------------------------
-    @property
-    def id(self) -> int:
-        """ID (addr 7)."""
-        return self._regs[_ID]
+    def _derive(self) -> None:
+        """The four values above, asked of every servo on every packet, kept as plain
+        attributes: computed again after whatever may change their registers (a Write
+        other than the goal's short way, a restart, the other axis's module)."""
+        regs, m = self._regs, self.model
+        self.id = regs[_ID]
+        protocol_2 = regs[_PROTOCOL_TYPE] == _PROTOCOL_2
+        self.listening_baud = m.baud_rates[regs[_BAUD_RATE]] if protocol_2 else 0
+        self.return_delay_s = regs[rg.RETURN_DELAY_TIME] * 2e-6
+        self.supports_fast_read = regs[_FIRMWARE_VERSION] >= m.fast_read_min_firmware
 
     @property
     def secondary_id(self) -> int | None:
@@ -180,21 +157,6 @@ class VirtualServo:
         return self.model.baud_rates[self._regs[rg.BAUD_RATE]]
 
     @property
-    def listening_baud(self) -> int:
-        """The line rate at which this servo hears Protocol 2.0 packets; 0 when Protocol Type
-        (addr 13) selects another protocol (1.0, or the X330's S.BUS/iBUS/RC-PWM), which
-        dxlsim does not speak: the servo is then deaf to the bus, as a real one is to 2.0."""
-        regs = self._regs
-        if regs[_PROTOCOL_TYPE] != _PROTOCOL_2:
-            return 0
-        return self.model.baud_rates[regs[_BAUD_RATE]]
-
-    @property
-    def return_delay_s(self) -> float:
-        """Return Delay Time, s (addr 9 × 2 µs)."""
-        return self._regs[rg.RETURN_DELAY_TIME] * 2e-6
-
-    @property
     def status_return_level(self) -> int:
         """0: reply to Ping only, 1: Ping and Read, 2: all (addr 68)."""
         return self._regs[rg.STATUS_RETURN_LEVEL]
@@ -206,11 +168,6 @@ class VirtualServo:
     @property
     def torque_enabled(self) -> bool:
         return self._regs[rg.TORQUE_ENABLE] == 1
-
-    @property
-    def supports_fast_read(self) -> bool:
-        """Fast Sync/Bulk Read available on this firmware."""
-        return self._regs[_FIRMWARE_VERSION] >= self.model.fast_read_min_firmware
 
     @property
     def alert(self) -> bool:
@@ -287,7 +244,28 @@ class VirtualServo:
     def touch(self, t: float) -> None:
         """A valid instruction packet for this servo arrived at ``t``: restart the Bus
         Watchdog timer."""
-        self.advance(t)
+        mo = self._mo
+        now = mo.now
+        dt = t - now  # > 0 exactly when t > now
+        if 0.0 < dt <= THERMAL_STEP_S and t <= self._wd_deadline and self._hand is None:
+            # advance(t) for a packet of a running show, inline: one stretch, no watchdog
+            # due, no hand. The thermal step is thermal_step()'s, term for term.
+            amps = mo.current_a()
+            celsius = self._temp_c
+            if amps or celsius != self._ambient_c:
+                frac = amps / self._stall_a
+                target = self._ambient_c + THERMAL_STALL_RISE_K * frac * frac
+                if celsius != target:
+                    temp = target + (celsius - target) * _exp(-dt / THERMAL_TIME_CONSTANT_S)
+                    if temp != celsius:
+                        self._temp_c = temp
+                        limit = self._regs[_TEMPERATURE_LIMIT]
+                        if temp > limit - 1 and round(temp) > limit:
+                            self._latch(_OVERHEATING_ERROR)
+            mo.now = t
+            mo.run_to(t)
+        else:
+            self.advance(t)
         self._wd_ref = t
         regs = self._regs  # _arm_watchdog(), inline: every packet to the servo comes here
         wd = regs[_BUS_WATCHDOG]
@@ -319,6 +297,23 @@ class VirtualServo:
         """Write ``data`` at ``addr`` atomically; returns the error byte."""
         if t != self._mo.now or t > self._wd_deadline:  # else advance(t) has nothing to do
             self.advance(t)
+        regs = self._regs
+        if addr == self._goal_addr and len(data) == 4 and regs[_TORQUE_ENABLE]:
+            # A goal position with torque on (every Sync Write of goals) that validate()
+            # accepts: stored and planned as _apply() would; anything else takes the long way.
+            value = int.from_bytes(data, "little", signed=True)
+            if (
+                self._goal_lo <= value <= self._goal_hi
+                and regs[_BUS_WATCHDOG] != _WATCHDOG_TRIPPED
+                and (
+                    regs[_OPERATING_MODE] != _POSITION_MODE
+                    or regs[_MIN_POSITION_LIMIT] <= value <= regs[_MAX_POSITION_LIMIT]
+                )
+                and self.partner is None
+            ):
+                regs[_GOAL_POSITION] = value
+                self._mo.plan_goal()
+                return ALERT if regs[_HARDWARE_ERROR_STATUS] else 0
         err, updates = self._reg.validate(addr, data)
         partner = self.partner
         if (
@@ -329,6 +324,7 @@ class VirtualServo:
             err = StatusError.DATA_LIMIT  # 2xl430-w250.md: both axes one ID -> 0x06
         if not err:
             self._apply(updates)
+            self._derive()
             if partner is not None:
                 share_module(self)
         return err | (ALERT if self._regs[_HARDWARE_ERROR_STATUS] else 0)  # + Alert
@@ -581,6 +577,7 @@ class VirtualServo:
         mo.profile_type = ProfileType.STEP
         self._boot_t = t
         mo.update_speed_limit()
+        self._derive()
         if startup_torque:
             self._torque_on()
 
