@@ -362,6 +362,7 @@ class DynamixelBus(ServoBus):
             + port.timeout_margin_ms
         )
         delays = self._rdt_s + TURNAROUND_ALLOWANCE_S
+        self._rdt_max_s = float(self._rdt_s.max())  # (a health read's time: every tick at 1 kHz)
         self._plain_timeout_ms = base + 1e3 * float(delays.sum())
         self._fast_timeout_ms = base + 1e3 * float(delays.max())
 
@@ -553,7 +554,7 @@ class DynamixelBus(ServoBus):
         n_bytes = wire_time.read_bytes(size)  # Read instruction + status
         return (
             self._port.tx_time_per_byte * 1e-3 * n_bytes
-            + float(self._rdt_s.max())
+            + self._rdt_max_s
             + TURNAROUND_ALLOWANCE_S
             + self.link.latency_timer_ms * 1e-3
         )

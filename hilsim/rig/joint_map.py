@@ -15,6 +15,7 @@ and ``(s − home)·d`` — so results are bit-for-bit what the loop has always 
 from __future__ import annotations
 
 from collections.abc import Sequence
+from operator import add, mul, sub
 from typing import Protocol
 
 import numpy as np
@@ -79,14 +80,14 @@ class JointMap:
         d, h = self._direction_l, self._home_l
         if len(x) != len(h):
             raise ValueError(f"{len(x)} joint angles for {len(h)} joints")
-        return [x[j] * d[j] + h[j] for j in range(len(h))]
+        return list(map(add, map(mul, x, d), h))  # x·d + h, element by element in C
 
     def to_joint_list(self, servo: Sequence[float]) -> list[float]:
         """:meth:`to_joint` on Python floats (NaN stays NaN)."""
         d, h = self._direction_l, self._home_l
         if len(servo) != len(h):
             raise ValueError(f"{len(servo)} servo angles for {len(h)} joints")
-        return [(servo[j] - h[j]) * d[j] for j in range(len(h))]
+        return list(map(mul, map(sub, servo, h), d))  # (s − h)·d
 
     def joint_angle(self, i: int, servo_rad: float) -> float:
         """One joint's angle from its servo's angle."""

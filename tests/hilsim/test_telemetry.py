@@ -300,6 +300,33 @@ def test_block_overflow_is_lossless(tmp_path: Path) -> None:
     np.testing.assert_array_equal(run.joint("target")[:, 0], np.arange(500.0))
 
 
+def test_rows_go_in_larger_chunks_while_the_free_time_has_no_end(tmp_path: Path) -> None:
+    """A virtual-time show never sets the writer's free time an end: no tick can be made
+    late, so the writer takes the ring's rows many chunks at a time (fewer turns of its loop
+    and of the interpreter lock); all rows written, in order."""
+    from hilsim.telemetry import sinks, writer_thread
+
+    asked: list[int] = []
+    take = sinks.CsvSink.take
+
+    def counted(self, ring, n):
+        asked.append(n)
+        return take(self, ring, n)
+
+    sinks.CsvSink.take = counted  # type: ignore[method-assign]
+    try:
+        w = TelemetryWriter(tmp_path, JOINTS, queue_size=1024, overflow="block")
+        w.slack.clear()  # rows pile up first
+        for i in range(600):
+            assert _record_row(w, i, np.full(3, float(i)))
+        w.slack.set()
+        w.close()
+    finally:
+        sinks.CsvSink.take = take  # type: ignore[method-assign]
+    assert max(asked) == writer_thread._FREE_CHUNKS * w._chunk_rows
+    np.testing.assert_array_equal(read_run(tmp_path).tick, np.arange(600))
+
+
 # ----------------------------------------------------------------------------- disk trouble
 
 
