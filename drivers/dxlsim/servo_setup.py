@@ -53,7 +53,7 @@ def apply_initial(
         try:
             f = model.field(name)
         except KeyError as exc:
-            raise ValueError(str(exc).strip("'\"")) from None
+            raise ValueError(str(exc.args[0])) from None
         if f.name in INITIAL_STATE_FIELDS:
             state[f.name] = value
         elif not f.writable:

@@ -99,7 +99,7 @@ def test_constructor_maps_baud_delay_and_overrides():
         ({"baud": 12345}, "bps"),
         ({"return_delay_us": 3}, "multiple of 2"),
         ({"return_delay_us": 510}, "multiple of 2"),
-        ({"no_such_field": 1}, "no_such_field"),
+        ({"no_such_field": 1}, "no control-table field 'no_such_field'$"),
         ({"moving": 1}, "read-only"),
         ({"led": 2}, "outside"),
         ({"operating_mode": 2}, "outside"),
