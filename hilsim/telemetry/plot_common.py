@@ -143,14 +143,21 @@ def place_column(
         y -= gaps[i] if i < len(gaps) else 0.0
 
 
-#: zlib level of the PNGs: 1 encodes a figure about three times faster than Pillow's default (6)
-#: for a file ~10 % larger (flat colours and thin lines compress well at any level)
-PNG_COMPRESS_LEVEL = 1
+def save(fig: Figure, path: Path, dpi: float) -> Path:
+    """Draw ``fig`` (made at ``dpi``: :func:`new_figure`) and write it as a PNG
+    (:mod:`hilsim.telemetry.png`): the pixels ``savefig`` would write, encoded faster."""
+    import matplotlib as mpl
 
+    from hilsim.telemetry import png
 
-def save(fig: Figure, path: Path, dpi: int) -> Path:
     path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=dpi, pil_kwargs={"compress_level": PNG_COMPRESS_LEVEL})
+    if fig.dpi != dpi:  # not drawn at that size: matplotlib's own way
+        fig.savefig(path, dpi=dpi)
+        return path
+    fig.canvas.draw()
+    rgba = np.asarray(fig.canvas.buffer_rgba())  # type: ignore[attr-defined]  # (Agg's canvas)
+    software = f"Matplotlib version{mpl.__version__}, https://matplotlib.org/"  # as savefig
+    path.write_bytes(png.encode(rgba, dpi=dpi, text={"Software": software}))
     return path
 
 
