@@ -164,6 +164,10 @@ def run(args: argparse.Namespace) -> int:
         _say(str(exc))
         return EXIT_USAGE
     rig, parts = show.rig, show.parts
+    if args.virtual_time and not args.no_plots and rig.telemetry.format not in ("none", "off"):
+        from hilsim.telemetry.plots import prepare
+
+        prepare(len(rig.joints), virtual=True)  # its figures made while the show runs
     if parts.director is not None:
         for note in parts.director.spec.notes:
             _say(f"note: {note}")

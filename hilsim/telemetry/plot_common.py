@@ -44,6 +44,52 @@ def new_figure(width: float, height: float, dpi: float = 110) -> Figure:
     return fig
 
 
+#: figures made before their data (:func:`make_ahead`), by their :func:`figure_axes` arguments
+_AHEAD: dict[tuple[float, float, float, int, bool], list[tuple[Figure, list[Any]]]] = {}
+
+#: Tick objects :func:`make_ahead` gives each axes: major x, major y, and minor y where asked
+#: (a log axis's 2-9 of each decade); the demo's figures use up to 11, 9 and 48
+AHEAD_TICKS = (12, 10, 48)
+
+
+def figure_axes(
+    width: float, height: float, dpi: float, rows: int, *, sharex: bool = False
+) -> tuple[Figure, list[Any]]:
+    """A new figure (:func:`new_figure`) with ``rows`` axes in one column (``subplots``); the
+    one :func:`make_ahead` made with the same arguments, if it is waiting."""
+    waiting = _AHEAD.get((width, height, dpi, rows, sharex))
+    if waiting:
+        return waiting.pop()
+    fig = new_figure(width, height, dpi)
+    return fig, list(fig.subplots(rows, 1, sharex=sharex, squeeze=False)[:, 0])
+
+
+def make_ahead(
+    width: float,
+    height: float,
+    dpi: float,
+    rows: int,
+    *,
+    sharex: bool = False,
+    minor_y: tuple[int, ...] = (),
+) -> None:
+    """Make now, before the data is there, the figure a later :func:`figure_axes` call with
+    the same arguments returns, with Tick objects on its axes (:data:`AHEAD_TICKS`; minor y
+    ones on the axes numbered in ``minor_y``). Matplotlib makes the ticks it lacks while it
+    draws, a quarter of a figure's drawing time, and uses the ones it has, which follow every
+    later setting as new ones would: the picture is the same (tests/hilsim/test_plot_speed.py).
+    The plotting process prestarted before a show calls this while the show runs."""
+    fig = new_figure(width, height, dpi)
+    axes = list(fig.subplots(rows, 1, sharex=sharex, squeeze=False)[:, 0])
+    major_x, major_y, minor = AHEAD_TICKS
+    for i, ax in enumerate(axes):
+        ax.xaxis.get_major_ticks(major_x)
+        ax.yaxis.get_major_ticks(major_y)
+        if i in minor_y:
+            ax.yaxis.get_minor_ticks(minor)
+    _AHEAD.setdefault((width, height, dpi, rows, sharex), []).append((fig, axes))
+
+
 def title(fig: Figure, text: str) -> Any:
     """The figure's title, top left, one pad below the edge."""
     return fig.suptitle(text, x=0.01, y=1 - PAD / fig.get_figheight(), ha="left", va="top")
