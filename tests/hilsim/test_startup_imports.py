@@ -81,3 +81,23 @@ def test_hilsim_version_prints_the_version_on_stdout(capsys):
         main(["--version"])
     assert exit_info.value.code == 0
     assert capsys.readouterr().out == f"hilsim {__version__}\n"
+
+
+def test_the_plotting_process_starts_before_the_show_is_imported(tmp_path):
+    """``hilsim run --virtual-time`` (plots on) starts its plotting process before it imports
+    the show, the rig and the emulator: matplotlib's import runs beside theirs."""
+    code = (
+        "import json, os, sys\n"
+        "import hilsim.telemetry.plots as plots\n"
+        "def prestart():\n"
+        "    seen = {m: m in sys.modules for m in json.loads(sys.argv[1])}\n"
+        "    print(json.dumps(seen), flush=True)\n"
+        "    os._exit(0)\n"
+        "plots.prestart = prestart\n"
+        "from hilsim.cli import main\n"
+        "main(['run', 'configs/demo.toml', '--virtual-time', '--out', sys.argv[2]])\n"
+        "print(json.dumps({'no prestart': True}))"
+    )
+    names = ["hilsim.show", "hilsim.rig", "hilsim.live", "drivers.dxlsim", "dynamixel_sdk"]
+    seen = loaded(code, json.dumps(names), str(tmp_path / "run"))
+    assert seen == dict.fromkeys(names, False)
