@@ -5,7 +5,9 @@ Matplotlib is imported inside the functions.
 The figures are laid out here rather than by matplotlib's constrained layout, which measures
 every axis twice before the figure is drawn (as long as drawing it): :class:`Ruler` measures
 the few texts and tick labels around the axes once and :func:`place_column` puts the axes in
-one column with those margins, the pads constrained layout would leave.
+one column with those margins, the pads constrained layout would leave. A figure and its axes
+can be made before the data is there (:func:`make_ahead`, in the plotting process prestarted
+before a show), and :func:`save` writes the PNG itself (:mod:`hilsim.telemetry.png`).
 """
 
 from __future__ import annotations
