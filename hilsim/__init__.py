@@ -21,7 +21,6 @@ first use.
 
 from __future__ import annotations
 
-from importlib.metadata import PackageNotFoundError, version
 from typing import TYPE_CHECKING, Any
 
 from hilsim.dynamics import (
@@ -39,11 +38,6 @@ from hilsim.exit_codes import ExitCode
 if TYPE_CHECKING:
     from hilsim.rig import Rig, RigError, load_rig
     from hilsim.show import Show, ShowError, ShowRefusedError, ShowResult
-
-try:
-    __version__ = version("hilsim")
-except PackageNotFoundError:  # a source tree that was never installed
-    __version__ = "0+unknown"
 
 #: names loaded on first use (the show and rig modules import the drivers)
 _LAZY = {
@@ -77,7 +71,22 @@ __all__ = [
 ]
 
 
+def _version() -> str:
+    """The installed distribution's version (importlib.metadata costs a command's start-up
+    some 25 ms, so it is read only when asked for: ``hilsim --version``)."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version("hilsim")
+    except PackageNotFoundError:  # a source tree that was never installed
+        return "0+unknown"
+
+
 def __getattr__(name: str) -> Any:
+    if name == "__version__":
+        value: Any = _version()
+        globals()[name] = value
+        return value
     module = _LAZY.get(name)
     if module is None:
         raise AttributeError(f"module 'hilsim' has no attribute {name!r}")

@@ -11,6 +11,11 @@ machine is shared: compare best-of-N taken at a similar load; the CPU seconds of
 forked helper's included, vary less with the load than wall time).
 
     python tools/bench_plots.py [RUN_DIR] [-n 7] [--serial] [--out DIR] [--json FILE]
+    python tools/bench_plots.py [RUN_DIR] --prestarted 3   # as `hilsim run --virtual-time`
+
+``--prestarted S`` times what `hilsim run --virtual-time` waits for after its show instead: a
+plotting process prestarted (plots.prestart, plots.prepare) S seconds before ``plot_run`` of
+the run directory (phase "plot" is that wait; "import" and "read" are then 0).
 
 Without RUN_DIR, the demo is run once first (``hilsim run configs/demo.toml --virtual-time
 --no-plots``) into a temporary directory.
@@ -45,6 +50,22 @@ print(json.dumps({"import": t1 - t0, "read": t2 - t1, "plot": t3 - t2, "total": 
                   "pngs": [str(p) for p in paths]}))
 """
 
+#: the same, through a prestarted process told the run's shape, given argv[3] seconds first
+PRESTARTED = """
+import json, sys, time
+from hilsim.telemetry import plots
+from hilsim.telemetry.reader import read_run
+run = read_run(sys.argv[1])
+plots.prestart()
+plots.prepare(len(run.joint_names), virtual=plots.is_virtual_time(run))
+time.sleep(float(sys.argv[3]))
+t0 = time.perf_counter()
+paths = plots.plot_run(sys.argv[1], sys.argv[2])
+t1 = time.perf_counter()
+print(json.dumps({"import": 0.0, "read": 0.0, "plot": t1 - t0, "total": t1 - t0,
+                  "pngs": [str(p) for p in paths]}))
+"""
+
 PHASES = ("import", "read", "plot", "total", "process", "cpu")
 
 
@@ -72,8 +93,9 @@ def _cpu() -> float:
 def sample(run_dir: Path, out: Path, mode: str) -> dict[str, float]:
     cpu = _cpu()
     start = time.perf_counter()
+    code, arg = (CHILD, mode) if not mode.startswith("prestarted:") else (PRESTARTED, mode[11:])
     proc = subprocess.run(
-        [sys.executable, "-c", CHILD, str(run_dir), str(out), mode],
+        [sys.executable, "-c", code, str(run_dir), str(out), arg],
         capture_output=True,
         text=True,
         check=False,
@@ -97,12 +119,20 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument(
         "--serial", action="store_true", help="all figures in one process (no forked helper)"
     )
+    ap.add_argument(
+        "--prestarted",
+        type=float,
+        metavar="S",
+        help="time plot_run through a process prestarted S seconds before (hilsim run's way)",
+    )
     args = ap.parse_args(argv)
     with tempfile.TemporaryDirectory(prefix="bench_plots_") as tmp:
         run_dir = Path(args.run_dir) if args.run_dir else demo_run(Path(tmp))
         out = Path(args.out) if args.out else Path(tmp) / "plots"
         before = loadavg()
         mode = "serial" if args.serial else "auto"
+        if args.prestarted is not None:
+            mode = f"prestarted:{args.prestarted}"
         samples = [sample(run_dir, out, mode) for _ in range(args.n)]
         after = loadavg()
     print(f"plot_run on {run_dir}: {args.n} fresh processes{' (serial)' if args.serial else ''}")

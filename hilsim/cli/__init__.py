@@ -40,6 +40,17 @@ SUBCOMMANDS: dict[str, str] = {
 }
 
 
+class _Version(argparse.Action):
+    """``--version``: the installed version, looked up only when asked for (reading the
+    package metadata would cost every command's start-up)."""
+
+    def __call__(self, parser: argparse.ArgumentParser, *_: object) -> None:
+        from hilsim import __version__
+
+        print(f"hilsim {__version__}")  # on stdout, as argparse's own version action
+        parser.exit()
+
+
 def build_parser(only: str | None = None) -> argparse.ArgumentParser:
     """The ``hilsim`` parser with every subcommand, or with ``only`` that one."""
     parser = argparse.ArgumentParser(
@@ -47,9 +58,9 @@ def build_parser(only: str | None = None) -> argparse.ArgumentParser:
         description="Drive animatronic joints as damped springs on Dynamixel servos "
         "(or on the built-in emulated bus).",
     )
-    from hilsim import __version__
-
-    parser.add_argument("--version", action="version", version=f"hilsim {__version__}")
+    parser.add_argument(
+        "--version", action=_Version, nargs=0, help="show program's version number and exit"
+    )
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     for name, module_name in SUBCOMMANDS.items():
         if only is not None and name != only:

@@ -11,7 +11,6 @@ or the ``panel`` extra missing.
 from __future__ import annotations
 
 import argparse
-import asyncio
 import contextlib
 import json
 import os
@@ -149,6 +148,8 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _serve(server: object, child: bool) -> int:
+    import asyncio  # here: `hilsim run` imports this module for its panel options
+
     from hilsim.panel.server import PanelServer
 
     assert isinstance(server, PanelServer)

@@ -28,23 +28,18 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from hilsim.cli._args import add_port
-from hilsim.cli._report import StatusLine, print_stats, verdict
 from hilsim.cli.panel import add_panel_options
 from hilsim.exit_codes import ExitCode, for_signal
-from hilsim.show.run_dir import (
-    RunDir,
-    RunDirError,
-    cap_removal_line,
-    make_run_dir,
-    prune_under_caps,
-)
-from hilsim.show.stop import STOP_SIGNALS
+
+# The show's modules are imported inside the functions: `run` starts the plotting process
+# (plots.prestart) first, so it imports matplotlib while this one imports the rest.
 
 if TYPE_CHECKING:
     from hilsim.rig import Rig
     from hilsim.show import Show, ShowResult
     from hilsim.show.feed import PanelFeed
     from hilsim.show.group import GroupResult
+    from hilsim.show.run_dir import RunDir
     from hilsim.targets import TargetSet
 
 HELP = "run a rig: springs follow the animation, streamed to the servos (or the emulator)"
@@ -127,6 +122,7 @@ def run(args: argparse.Namespace) -> int:
     from hilsim.rig import RigError, load_rigs, select_bus
     from hilsim.show.api import Show, endless_in_virtual_time
     from hilsim.show.parts import build_parts
+    from hilsim.show.run_dir import RunDirError, make_run_dir
     from hilsim.show.session import port_for
 
     if args.duration is not None and not (math.isfinite(args.duration) and args.duration > 0):
@@ -164,6 +160,10 @@ def run(args: argparse.Namespace) -> int:
         _say(str(exc))
         return EXIT_USAGE
     rig, parts = show.rig, show.parts
+    if args.virtual_time and not args.no_plots and rig.telemetry.format not in ("none", "off"):
+        from hilsim.telemetry.plots import prepare
+
+        prepare(len(rig.joints), virtual=True)  # its figures made while the show runs
     if parts.director is not None:
         for note in parts.director.spec.notes:
             _say(f"note: {note}")
@@ -203,6 +203,7 @@ def run(args: argparse.Namespace) -> int:
 def _run_group(args: argparse.Namespace, rigs: tuple[Rig, ...]) -> int:
     """Several buses: one child process each (:mod:`hilsim.show.group`), a table at the end."""
     from hilsim.show.group import run_group
+    from hilsim.show.run_dir import RunDirError, make_run_dir
 
     rig = rigs[0]
     if args.shared_start:  # a child runs one bus, never a group
@@ -242,6 +243,8 @@ def _run_group(args: argparse.Namespace, rigs: tuple[Rig, ...]) -> int:
 def _prune_group_runs(args: argparse.Namespace, rig: Rig, run_dir: Path) -> list[dict[str, object]]:
     """The runs root's caps, applied once for the figure (its buses' runs are inside its
     directory): each run removed said; a failure is a warning, never a stop."""
+    from hilsim.show.run_dir import RunDirError, cap_removal_line, prune_under_caps
+
     tel = rig.telemetry
     root = args.runs_dir or tel.out_dir
     try:
@@ -314,7 +317,9 @@ def _tell_parent(code: int, reason: str) -> None:
 
 def _run_show(args: argparse.Namespace, show: Show, made: RunDir, shown: list[bool]) -> int:
     """Open and check the bus, run the show, print how it went. ``shown[0]``: the show began."""
+    from hilsim.cli._report import StatusLine
     from hilsim.show.session import ShowRefusedError
+    from hilsim.show.stop import STOP_SIGNALS
 
     rig, run_dir = show.rig, made.path
     show.out = run_dir
@@ -449,6 +454,8 @@ def _report(
     args: argparse.Namespace, rig: Rig, show: ShowResult, run_dir: Path, virtual: bool
 ) -> int:
     """What the show did, on stderr; the plots; returns its exit code."""
+    from hilsim.cli._report import print_stats, verdict
+
     _say_telemetry_failed(show, run_dir)
     summary = show.summary
     show_s = show.ticks / rig.loop.rate_hz

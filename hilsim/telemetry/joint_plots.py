@@ -201,6 +201,17 @@ def _safety_note(run: Run, name: str, acted_s: float, soft_s: float) -> str:
     return "\n".join(lines)
 
 
+def _size(n_joints: int) -> tuple[float, float]:
+    """The joints figure's width and height (in)."""
+    return 12.0, 1.2 + 2.1 * n_joints
+
+
+def make_ahead(n_joints: int, dpi: float = 110) -> None:
+    """Make the joints figure of a run of ``n_joints`` before its data is there
+    (:func:`hilsim.telemetry.plot_common.make_ahead`)."""
+    common.make_ahead(*_size(n_joints), dpi, n_joints, sharex=True)
+
+
 def plot_joints(
     run: Run,
     path: str | os.PathLike[str],
@@ -234,8 +245,7 @@ def joints_figure(
     if run.decimated:  # two rows a bucket: the tick period from the ticks' span
         dt = common.period_s(run)
     n = len(names)
-    fig = common.new_figure(12.0, 1.2 + 2.1 * n, dpi)
-    axes = fig.subplots(n, 1, sharex=True, squeeze=False)[:, 0]
+    fig, axes = common.figure_axes(*_size(n), dpi, n, sharex=True)
     # a first guess of the layout, so the tick locators see about the axes' final lengths
     common.place_column(
         fig, list(axes), left=0.8, right=1.6, top=0.25, bottom=0.85, gaps=[0.13] * (n - 1)

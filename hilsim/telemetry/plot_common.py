@@ -5,7 +5,9 @@ Matplotlib is imported inside the functions.
 The figures are laid out here rather than by matplotlib's constrained layout, which measures
 every axis twice before the figure is drawn (as long as drawing it): :class:`Ruler` measures
 the few texts and tick labels around the axes once and :func:`place_column` puts the axes in
-one column with those margins, the pads constrained layout would leave.
+one column with those margins, the pads constrained layout would leave. A figure and its axes
+can be made before the data is there (:func:`make_ahead`, in the plotting process prestarted
+before a show), and :func:`save` writes the PNG itself (:mod:`hilsim.telemetry.png`).
 """
 
 from __future__ import annotations
@@ -42,6 +44,52 @@ def new_figure(width: float, height: float, dpi: float = 110) -> Figure:
     fig = Figure(figsize=(width, height), dpi=dpi)
     FigureCanvasAgg(fig)
     return fig
+
+
+#: figures made before their data (:func:`make_ahead`), by their :func:`figure_axes` arguments
+_AHEAD: dict[tuple[float, float, float, int, bool], list[tuple[Figure, list[Any]]]] = {}
+
+#: Tick objects :func:`make_ahead` gives each axes: major x, major y, and minor y where asked
+#: (a log axis's 2-9 of each decade); the demo's figures use up to 11, 9 and 48
+AHEAD_TICKS = (12, 10, 48)
+
+
+def figure_axes(
+    width: float, height: float, dpi: float, rows: int, *, sharex: bool = False
+) -> tuple[Figure, list[Any]]:
+    """A new figure (:func:`new_figure`) with ``rows`` axes in one column (``subplots``); the
+    one :func:`make_ahead` made with the same arguments, if it is waiting."""
+    waiting = _AHEAD.get((width, height, dpi, rows, sharex))
+    if waiting:
+        return waiting.pop()
+    fig = new_figure(width, height, dpi)
+    return fig, list(fig.subplots(rows, 1, sharex=sharex, squeeze=False)[:, 0])
+
+
+def make_ahead(
+    width: float,
+    height: float,
+    dpi: float,
+    rows: int,
+    *,
+    sharex: bool = False,
+    minor_y: tuple[int, ...] = (),
+) -> None:
+    """Make now, before the data is there, the figure a later :func:`figure_axes` call with
+    the same arguments returns, with Tick objects on its axes (:data:`AHEAD_TICKS`; minor y
+    ones on the axes numbered in ``minor_y``). Matplotlib makes the ticks it lacks while it
+    draws, a quarter of a figure's drawing time, and uses the ones it has, which follow every
+    later setting as new ones would: the picture is the same (tests/hilsim/test_plot_speed.py).
+    The plotting process prestarted before a show calls this while the show runs."""
+    fig = new_figure(width, height, dpi)
+    axes = list(fig.subplots(rows, 1, sharex=sharex, squeeze=False)[:, 0])
+    major_x, major_y, minor = AHEAD_TICKS
+    for i, ax in enumerate(axes):
+        ax.xaxis.get_major_ticks(major_x)
+        ax.yaxis.get_major_ticks(major_y)
+        if i in minor_y:
+            ax.yaxis.get_minor_ticks(minor)
+    _AHEAD.setdefault((width, height, dpi, rows, sharex), []).append((fig, axes))
 
 
 def title(fig: Figure, text: str) -> Any:
@@ -143,14 +191,21 @@ def place_column(
         y -= gaps[i] if i < len(gaps) else 0.0
 
 
-#: zlib level of the PNGs: 1 encodes a figure about three times faster than Pillow's default (6)
-#: for a file ~10 % larger (flat colours and thin lines compress well at any level)
-PNG_COMPRESS_LEVEL = 1
+def save(fig: Figure, path: Path, dpi: float) -> Path:
+    """Draw ``fig`` (made at ``dpi``: :func:`new_figure`) and write it as a PNG
+    (:mod:`hilsim.telemetry.png`): the pixels ``savefig`` would write, encoded faster."""
+    import matplotlib as mpl
 
+    from hilsim.telemetry import png
 
-def save(fig: Figure, path: Path, dpi: int) -> Path:
     path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=dpi, pil_kwargs={"compress_level": PNG_COMPRESS_LEVEL})
+    if fig.dpi != dpi:  # not drawn at that size: matplotlib's own way
+        fig.savefig(path, dpi=dpi)
+        return path
+    fig.canvas.draw()
+    rgba = np.asarray(fig.canvas.buffer_rgba())  # type: ignore[attr-defined]  # (Agg's canvas)
+    software = f"Matplotlib version{mpl.__version__}, https://matplotlib.org/"  # as savefig
+    path.write_bytes(png.encode(rgba, dpi=dpi, text={"Software": software}))
     return path
 
 

@@ -24,7 +24,8 @@ canvas: no pyplot, no global backend switch), so ``import hilsim.telemetry.plots
 draws the joints figure in a forked child process while this one draws the other two (2 CPUs:
 about half the time; see :func:`plot_run`). :func:`prestart`, called before a show, has a process
 import matplotlib (half a second) while the show runs, and the next :func:`plot_run` of a run
-directory hands the drawing to it.
+directory hands the drawing to it; told the run's shape (:func:`prepare`), that process also
+makes the figures and their axes' ticks while the show runs (a quarter of the drawing).
 """
 
 from __future__ import annotations
@@ -41,6 +42,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+from hilsim.telemetry import joint_plots, timing_plots
 from hilsim.telemetry.joint_plots import (
     ACTED_TOLERANCE_RAD,
     MIN_SPAN_DEG,
@@ -66,6 +68,7 @@ __all__ = [
     "plot_lateness",
     "plot_run",
     "plot_timing",
+    "prepare",
     "prestart",
     "safety_acted",
     "soft_start_s",
@@ -118,7 +121,7 @@ def plot_run(
             if outcome is not None:
                 paths: list[Path] = _unpack(outcome)  # the worker's draw(): the paths
                 return paths
-        worker.close()
+        worker.close(kill=True)  # not needed: it stops importing or making figures at once
     if not isinstance(run, Run):
         run = read_run(run, max_rows=PLOT_MAX_ROWS)  # bounded: a week plots in the same memory
     out = Path(out_dir) if out_dir is not None else run.path / "plots"
@@ -253,8 +256,9 @@ def prestart() -> None:
     waits for the next :func:`plot_run` of a run directory in this process to draw for it.
 
     Nothing happens with fewer than two CPUs (it would take the show's), or when one is already
-    waiting. The process leaves by itself when this one ends (its stdin closes), is closed at
-    exit, ignores SIGINT (the show's Ctrl-C stops the show, which still gets its plots) and
+    waiting. The process leaves by itself when this one ends (its stdin closes), is terminated
+    at exit if it was never asked to draw (a refused show does not wait for matplotlib's
+    import), ignores SIGINT (the show's Ctrl-C stops the show, which still gets its plots) and
     stops on SIGTERM.
     """
     global _prestarted
@@ -263,6 +267,15 @@ def prestart() -> None:
     if _cpus() >= 2:
         with contextlib.suppress(OSError):
             _prestarted = _Worker()
+
+
+def prepare(n_joints: int, *, virtual: bool, dpi: int = 110) -> None:
+    """Tell the prestarted process (if one waits) what the next :func:`plot_run` draws: a run
+    of ``n_joints`` joints, in virtual time or not, at ``dpi``. It makes those figures while
+    the show runs (:func:`hilsim.telemetry.plot_common.make_ahead`); a run of another shape
+    is drawn as ever."""
+    if _prestarted is not None:
+        _prestarted.tell(("ahead", {"n_joints": n_joints, "virtual": virtual, "dpi": dpi}))
 
 
 def _cpus() -> int:
@@ -283,7 +296,15 @@ class _Worker:
         self.proc = subprocess.Popen(
             [sys.executable, "-c", code], stdin=subprocess.PIPE, stdout=subprocess.PIPE, env=env
         )
-        atexit.register(self.close)
+        atexit.register(self.close, True)  # never asked to draw: it need not finish importing
+
+    def tell(self, message: tuple[str, dict[str, Any]]) -> None:
+        """A message before the request (:func:`prepare`); a worker that cannot take it is
+        found out by :meth:`draw`."""
+        assert self.proc.stdin is not None
+        with contextlib.suppress(OSError):
+            self.proc.stdin.write(pickle.dumps(message))
+            self.proc.stdin.flush()
 
     def draw(self, request: dict[str, Any]) -> tuple[str, Any] | None:
         """The worker's outcome for ``request``; None when it could not answer (it had died)."""
@@ -305,6 +326,8 @@ class _Worker:
             return None
 
     def close(self, kill: bool = False) -> None:
+        """End the process: its stdin closed (an idle worker leaves), with ``kill`` terminated
+        too (SIGTERM: it may be importing matplotlib or drawing), then reaped."""
         with contextlib.suppress(OSError):
             if self.proc.stdin is not None:
                 self.proc.stdin.close()  # EOF: an idle worker leaves
@@ -321,9 +344,9 @@ class _Worker:
 
 
 def _serve() -> None:
-    """The prestarted process: import matplotlib, then draw what the one request asks; leave
-    without the interpreter's clean-up (a tenth of a second with matplotlib loaded) that the
-    caller would wait for."""
+    """The prestarted process: import matplotlib, make the figures :func:`prepare` announces,
+    then draw what the one request asks; leave without the interpreter's clean-up (a tenth of
+    a second with matplotlib loaded) that the caller would wait for."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, lambda _s, _f: sys.exit(143))  # plot_run reaps its child
     failure: BaseException | None = None
@@ -331,14 +354,13 @@ def _serve() -> None:
         _warm_up()
     except Exception as exc:  # said when the plots are asked for
         failure = exc
-    data = sys.stdin.buffer.read()
-    if not data:  # the show ended without plots
+    request = _next_request(failure is None)
+    if request is None:  # the show ended without plots
         os._exit(0)
     outcome: tuple[str, object]
     try:
         if failure is not None:
             raise failure
-        request = pickle.loads(data)
         outcome = ("ok", plot_run(request.pop("run"), **request))
     except Exception as exc:
         outcome = ("error", exc)
@@ -348,8 +370,47 @@ def _serve() -> None:
     os._exit(0)
 
 
+def _next_request(make: bool) -> dict[str, Any] | None:
+    """The request on stdin, after the figures of any :func:`prepare` message are made (when
+    ``make``); None at the end of stdin (or what does not unpickle: the caller died)."""
+    while True:
+        try:
+            message = pickle.load(sys.stdin.buffer)
+        except Exception:
+            return None
+        if not (isinstance(message, tuple) and message[0] == "ahead"):
+            request: dict[str, Any] = message
+            return request
+        if make:
+            shape = message[1]
+            with contextlib.suppress(Exception):  # made ahead or not, the figures are drawn
+                timing_plots.make_ahead(shape["virtual"], shape["dpi"])
+                joint_plots.make_ahead(shape["n_joints"], shape["dpi"])
+
+
+def _lean_import() -> None:
+    """The prestarted process only (it draws and leaves): as matplotlib imports, each Artist
+    class builds the signature and docstring of its ``set()`` from every setter's docstring,
+    43 % of the import's instructions (valgrind), for ``help()``; this process never reads
+    them. Artist's own hook is replaced by one that keeps only the flag the next classes
+    look for, so ``set()`` works as ever (its keywords are checked against the setters, not
+    the signature). If this matplotlib has no such hook, it is imported as it is."""
+    import matplotlib.artist as artist
+
+    hook = "_update_set_signature_and_docstring"
+    if not hasattr(artist.Artist, hook) or "matplotlib.figure" in sys.modules:
+        return  # another matplotlib, or too late: the classes are built
+
+    def flag_only(cls: Any) -> None:
+        cls.set._autogenerated_signature = True
+
+    setattr(artist.Artist, hook, classmethod(flag_only))
+
+
 def _warm_up() -> None:
-    """Import what drawing needs and measure a text once (loads the font)."""
+    """Import what drawing needs (:func:`_lean_import`) and measure a text once (loads the
+    font)."""
+    _lean_import()
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 

@@ -18,6 +18,19 @@ if TYPE_CHECKING:
 
 STAGE_COLORS = {"sim": "tab:blue", "safety": "tab:orange", "bus": "tab:green", "telemetry": "0.5"}
 
+#: the figures' sizes (in): lateness (a virtual-time run's: a note), time per stage
+LATENESS_SIZE, VIRTUAL_LATENESS_SIZE, TIMING_SIZE = (11.0, 8.0), (11.0, 3.0), (11.0, 7.5)
+
+
+def make_ahead(virtual: bool, dpi: float = 110) -> None:
+    """Make the lateness and timing figures of a run before its data is there
+    (:func:`hilsim.telemetry.plot_common.make_ahead`); ``virtual``: a virtual-time run's."""
+    if virtual:
+        common.make_ahead(*VIRTUAL_LATENESS_SIZE, dpi, 1)
+    else:
+        common.make_ahead(*LATENESS_SIZE, dpi, 2)
+    common.make_ahead(*TIMING_SIZE, dpi, 2, minor_y=(1,))  # the bars' axis: log, as a rule
+
 
 def _percentiles(run: Run, name: str, values: np.ndarray, qs: list[float]) -> list[float]:
     """Percentiles of a column: from the rows, or a decimated run's histogram (whole run)."""
@@ -57,11 +70,10 @@ def plot_lateness(
     keep = common.window(run, start, end)
     t = run.t_sched[keep]
     if common.is_virtual_time(run):
-        fig = common.new_figure(11.0, 3.0, dpi)
+        fig, (ax,) = common.figure_axes(*VIRTUAL_LATENESS_SIZE, dpi, 1)
         where = common.window_note(start, end)
         ticks = common.tick_count(run, common.rows_in(run, keep), start, end)
         title = common.title(fig, f"Tick lateness: {run.path.name}{where} ({ticks})")
-        ax = fig.subplots()
         top = common.Ruler(fig).size(title)[1] + common.PAD
         common.place_column(fig, [ax], left=0.0, right=0.0, top=top, bottom=0.0)
         ax.set_axis_off()
@@ -76,8 +88,7 @@ def plot_lateness(
     lat_all = run.lateness_us[keep]
     lat = lat_all[np.isfinite(lat_all)]
     overrun = run.overrun[keep]
-    fig = common.new_figure(11.0, 8.0, dpi)
-    ax_h, ax_t = fig.subplots(2, 1)
+    fig, (ax_h, ax_t) = common.figure_axes(*LATENESS_SIZE, dpi, 2)
     n_over = int(np.count_nonzero(overrun))
     n_rows = lat.size
     if run.decimated and run.counts is not None:  # counted while reading
@@ -245,8 +256,7 @@ def plot_timing(
     t = run.t_sched[keep]
     stages = np.column_stack([run.stage_us(s)[keep] for s in STAGES]).reshape(-1, len(STAGES))
     virtual = common.is_virtual_time(run)
-    fig = common.new_figure(11.0, 7.5, dpi)
-    ax_s, ax_b = fig.subplots(2, 1)
+    fig, (ax_s, ax_b) = common.figure_axes(*TIMING_SIZE, dpi, 2)
     title = common.title(
         fig,
         f"Time per tick by stage: {run.path.name}{common.window_note(start, end)} "

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import os
 import pickle
+import signal
 import time
 from pathlib import Path
 
@@ -146,6 +147,46 @@ def test_a_prestarted_process_draws_the_next_run_directory(run_dir: Path, tmp_pa
     serial = plot_run(read_run(run_dir), tmp_path / "here", dpi=50, parallel=False)
     for a, b in zip(serial, paths, strict=True):
         assert a.read_bytes() == b.read_bytes(), a.name
+
+
+@needs_fork
+@pytest.mark.usefixtures("no_worker")
+def test_a_prestarted_process_told_the_runs_shape_draws_the_same_bytes(
+    run_dir: Path, tmp_path: Path
+) -> None:
+    plots.prestart()
+    if plots._prestarted is None:
+        pytest.skip("one CPU: nothing is prestarted")
+    run = read_run(run_dir)
+    plots.prepare(len(run.joint_names), virtual=False, dpi=50)  # figures made while it waits
+    plots.prepare(7, virtual=True, dpi=50)  # a shape not drawn: no harm
+    paths = plot_run(run_dir, tmp_path, dpi=50)
+    serial = plot_run(run, tmp_path / "here", dpi=50, parallel=False)
+    for a, b in zip(serial, paths, strict=True):
+        assert a.read_bytes() == b.read_bytes(), a.name
+
+
+def test_prepare_without_a_prestarted_process_does_nothing() -> None:
+    assert plots._prestarted is None
+    plots.prepare(4, virtual=True)
+
+
+@pytest.mark.usefixtures("no_worker")
+def test_a_prestarted_process_never_asked_to_draw_is_terminated_at_exit(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """A show refused at start-up exits at once, not after matplotlib's import."""
+    import atexit
+
+    at_exit = []
+    monkeypatch.setattr(atexit, "register", lambda f, *a: at_exit.append((f, a)))
+    plots.prestart()
+    worker = plots._prestarted
+    if worker is None:
+        pytest.skip("one CPU: nothing is prestarted")
+    ((f, a),) = at_exit
+    f(*a)  # what the interpreter's exit runs
+    assert worker.proc.returncode in (-signal.SIGTERM, 143)  # not a clean exit after importing
 
 
 @needs_fork
@@ -327,3 +368,104 @@ def test_ctrl_c_while_the_prestarted_process_draws_leaves_nothing_running(
     while _serving_here() and time.monotonic() < deadline:
         time.sleep(0.05)
     assert _serving_here() == []
+
+
+# ------------------------------------------------------------------ the PNG writer, figures ahead
+
+
+@pytest.mark.parametrize("opaque", [True, False])
+def test_the_png_writer_reads_back_pixel_for_pixel(opaque: bool) -> None:
+    import io
+
+    import numpy as np
+    from PIL import Image
+
+    from hilsim.telemetry import png
+
+    rgba = np.random.default_rng(3).integers(0, 256, (37, 53, 4), dtype=np.uint8)
+    if opaque:
+        rgba[:, :, 3] = 255
+    data = png.encode(rgba, dpi=110, text={"Software": "hilsim test"})
+    image = Image.open(io.BytesIO(data))
+    assert image.mode == ("RGB" if opaque else "RGBA")
+    back = np.asarray(image.convert("RGBA"))
+    assert np.array_equal(back, rgba)
+    assert image.info["Software"] == "hilsim test"
+    assert [round(d) for d in image.info["dpi"]] == [110, 110]
+
+
+def _pixels(path: Path):
+    import numpy as np
+    from PIL import Image
+
+    return np.asarray(Image.open(path).convert("RGBA"))
+
+
+def test_save_writes_the_pixels_savefig_draws(run_dir: Path, tmp_path: Path) -> None:
+    import numpy as np
+
+    from hilsim.telemetry.joint_plots import joints_figure
+
+    run = read_run(run_dir)
+    ours = common.save(joints_figure(run, dpi=60), tmp_path / "ours.png", 60)
+    theirs = tmp_path / "theirs.png"
+    joints_figure(run, dpi=60).savefig(theirs, dpi=60)
+    assert np.array_equal(_pixels(ours), _pixels(theirs))
+
+
+@pytest.mark.parametrize("clock", ["real time", "virtual time"])
+def test_figures_made_ahead_draw_the_same_pixels(
+    run_dir: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, clock: str
+) -> None:
+    """The synthetic run has log axes (lateness, the timing bars: minor ticks made ahead)."""
+    import numpy as np
+
+    from hilsim.telemetry import joint_plots, timing_plots
+
+    if clock == "real time":
+        run = read_run(run_dir)
+    else:
+        run = _write_run(tmp_path / "r", config_text=RIG_TEXT, summary={"clock": clock})
+    assert common.is_virtual_time(run) == (clock == "virtual time")
+    fresh = plot_run(run, tmp_path / "fresh", dpi=60, parallel=False)
+    monkeypatch.setattr(common, "_AHEAD", {})
+    joint_plots.make_ahead(len(run.joint_names), dpi=60)
+    timing_plots.make_ahead(common.is_virtual_time(run), dpi=60)
+    made = [fig for figs in common._AHEAD.values() for fig, _ in figs]
+    assert len(made) == 3
+    ahead = plot_run(run, tmp_path / "ahead", dpi=60, parallel=False)
+    assert not any(common._AHEAD.values())  # each was used
+    for a, b in zip(fresh, ahead, strict=True):
+        assert np.array_equal(_pixels(a), _pixels(b)), a.name
+    if clock == "real time":  # the minor ticks made ahead were drawn
+        assert made[-1].axes[1].get_yscale() == "log"
+
+
+def test_the_prestarted_process_imports_matplotlib_without_the_set_docstrings() -> None:
+    """The plotting process skips building help() text for every Artist's set(); set() still
+    sets and still refuses what is not a property."""
+    import json
+    import subprocess
+    import sys
+
+    code = (
+        "import json\n"
+        "from hilsim.telemetry.plots import _warm_up\n"
+        "_warm_up()\n"
+        "from matplotlib.lines import Line2D\n"
+        "line = Line2D([0, 1], [0, 1])\n"
+        "line.set(linewidth=3.5, color='red')\n"
+        "try:\n"
+        "    line.set(no_such_thing=1)\n"
+        "    refused = False\n"
+        "except AttributeError:\n"
+        "    refused = True\n"
+        "print(json.dumps({'doc': 'linewidth' in (Line2D.set.__doc__ or ''),\n"
+        "                  'width': line.get_linewidth(), 'refused': refused}))\n"
+    )
+    root = Path(__file__).resolve().parents[2]
+    out = subprocess.run(
+        [sys.executable, "-c", code], cwd=root, capture_output=True, text=True, check=True
+    ).stdout
+    seen = json.loads(out.strip().splitlines()[-1])
+    assert seen == {"doc": False, "width": 3.5, "refused": True}

@@ -13,6 +13,9 @@ from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[2]
 NOT_BEFORE_THE_SHOW = ("matplotlib", "hilsim.cli.emulate", "hilsim.bench", "hilsim.studies")
+#: what a show without a panel never needs: the package metadata (``hilsim --version``) and
+#: the panel server's event loop
+NOT_IN_A_PLAIN_RUN = ("importlib.metadata", "asyncio")
 
 
 def loaded(code: str, *args: str) -> dict[str, bool]:
@@ -51,7 +54,50 @@ def test_the_first_tick_of_the_demo_comes_without_matplotlib(tmp_path):
         "main(['run', 'configs/demo.toml', '--virtual-time', '--out', sys.argv[2]])\n"
         "print(json.dumps({'no first tick': True}))"
     )
-    names = ["dynamixel_sdk", *NOT_BEFORE_THE_SHOW]
+    names = ["dynamixel_sdk", *NOT_BEFORE_THE_SHOW, *NOT_IN_A_PLAIN_RUN]
     seen = loaded(code, json.dumps(names), str(tmp_path / "run"))
     assert seen.pop("dynamixel_sdk", False), seen  # it did reach the first tick
     assert not any(seen.values()), seen
+
+
+def test_importing_hilsim_leaves_the_version_lookup_until_asked():
+    code = (
+        "import json, sys, hilsim\n"
+        "before = 'importlib.metadata' in sys.modules\n"
+        "print(json.dumps({'before': before, 'version': hilsim.__version__}))"
+    )
+    seen = loaded(code)
+    assert seen["before"] is False
+    assert seen["version"]  # still there when asked for
+
+
+def test_hilsim_version_prints_the_version_on_stdout(capsys):
+    import pytest
+
+    from hilsim import __version__
+    from hilsim.cli import main
+
+    with pytest.raises(SystemExit) as exit_info:
+        main(["--version"])
+    assert exit_info.value.code == 0
+    assert capsys.readouterr().out == f"hilsim {__version__}\n"
+
+
+def test_the_plotting_process_starts_before_the_show_is_imported(tmp_path):
+    """``hilsim run --virtual-time`` (plots on) starts its plotting process before it imports
+    the show, the rig and the emulator: matplotlib's import runs beside theirs."""
+    code = (
+        "import json, os, sys\n"
+        "import hilsim.telemetry.plots as plots\n"
+        "def prestart():\n"
+        "    seen = {m: m in sys.modules for m in json.loads(sys.argv[1])}\n"
+        "    print(json.dumps(seen), flush=True)\n"
+        "    os._exit(0)\n"
+        "plots.prestart = prestart\n"
+        "from hilsim.cli import main\n"
+        "main(['run', 'configs/demo.toml', '--virtual-time', '--out', sys.argv[2]])\n"
+        "print(json.dumps({'no prestart': True}))"
+    )
+    names = ["hilsim.show", "hilsim.rig", "hilsim.live", "drivers.dxlsim", "dynamixel_sdk"]
+    seen = loaded(code, json.dumps(names), str(tmp_path / "run"))
+    assert seen == dict.fromkeys(names, False)
