@@ -439,33 +439,3 @@ def test_figures_made_ahead_draw_the_same_pixels(
         assert np.array_equal(_pixels(a), _pixels(b)), a.name
     if clock == "real time":  # the minor ticks made ahead were drawn
         assert made[-1].axes[1].get_yscale() == "log"
-
-
-def test_the_prestarted_process_imports_matplotlib_without_the_set_docstrings() -> None:
-    """The plotting process skips building help() text for every Artist's set(); set() still
-    sets and still refuses what is not a property."""
-    import json
-    import subprocess
-    import sys
-
-    code = (
-        "import json\n"
-        "from hilsim.telemetry.plots import _warm_up\n"
-        "_warm_up()\n"
-        "from matplotlib.lines import Line2D\n"
-        "line = Line2D([0, 1], [0, 1])\n"
-        "line.set(linewidth=3.5, color='red')\n"
-        "try:\n"
-        "    line.set(no_such_thing=1)\n"
-        "    refused = False\n"
-        "except AttributeError:\n"
-        "    refused = True\n"
-        "print(json.dumps({'doc': 'linewidth' in (Line2D.set.__doc__ or ''),\n"
-        "                  'width': line.get_linewidth(), 'refused': refused}))\n"
-    )
-    root = Path(__file__).resolve().parents[2]
-    out = subprocess.run(
-        [sys.executable, "-c", code], cwd=root, capture_output=True, text=True, check=True
-    ).stdout
-    seen = json.loads(out.strip().splitlines()[-1])
-    assert seen == {"doc": False, "width": 3.5, "refused": True}
