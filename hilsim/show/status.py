@@ -7,6 +7,7 @@ from __future__ import annotations
 from typing import TYPE_CHECKING
 
 import numpy as np
+import numpy.ma  # np.percentile imports it at its first call: here, not in a tick
 
 from hilsim._types import JsonDict
 

@@ -373,27 +373,6 @@ def test_ctrl_c_while_the_prestarted_process_draws_leaves_nothing_running(
 # ------------------------------------------------------------------ the PNG writer, figures ahead
 
 
-@pytest.mark.parametrize("opaque", [True, False])
-def test_the_png_writer_reads_back_pixel_for_pixel(opaque: bool) -> None:
-    import io
-
-    import numpy as np
-    from PIL import Image
-
-    from hilsim.telemetry import png
-
-    rgba = np.random.default_rng(3).integers(0, 256, (37, 53, 4), dtype=np.uint8)
-    if opaque:
-        rgba[:, :, 3] = 255
-    data = png.encode(rgba, dpi=110, text={"Software": "hilsim test"})
-    image = Image.open(io.BytesIO(data))
-    assert image.mode == ("RGB" if opaque else "RGBA")
-    back = np.asarray(image.convert("RGBA"))
-    assert np.array_equal(back, rgba)
-    assert image.info["Software"] == "hilsim test"
-    assert [round(d) for d in image.info["dpi"]] == [110, 110]
-
-
 def _pixels(path: Path):
     import numpy as np
     from PIL import Image

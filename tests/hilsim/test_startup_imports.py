@@ -101,3 +101,19 @@ def test_the_plotting_process_starts_before_the_show_is_imported(tmp_path):
     names = ["hilsim.show", "hilsim.rig", "hilsim.live", "drivers.dxlsim", "dynamixel_sdk"]
     seen = loaded(code, json.dumps(names), str(tmp_path / "run"))
     assert seen == dict.fromkeys(names, False)
+
+
+def test_the_status_twice_a_second_imports_nothing_in_the_loop():
+    """An import inside the loop is a stall in a real show: the status the loop builds twice
+    a second takes a percentile, and numpy's imports numpy.ma at its first call (~17 ms on
+    a slow host). Importing the loop loads it beforehand."""
+    code = (
+        "import json, sys\n"
+        "import numpy as np\n"
+        "import hilsim.show.loop\n"
+        "before = set(sys.modules)\n"
+        "from hilsim.show import status\n"
+        "status.np.percentile(np.zeros(3), 99)\n"
+        "print(json.dumps({'new': sorted(set(sys.modules) - before)}))"
+    )
+    assert loaded(code, "[]") == {"new": []}
