@@ -69,3 +69,12 @@ class BusConfig:
         },
         example=0,
     )
+    health_in_tick: bool = rig_key(
+        "bool",
+        "X series: every servo's Torque Enable and Bus Watchdog read in the tick's own Fast Sync "
+        "Read (3 more bytes a servo through indirect addresses; a torque cut seen within a "
+        "tick). `false`: the tick reads positions only and the health is read between ticks, "
+        "one servo at a time (each about every 80 ms), leaving the host more of each tick.",
+        default=True,
+        allowed="`true` | `false`",
+    )

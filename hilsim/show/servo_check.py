@@ -273,6 +273,8 @@ def use_tick_block(
 
     if bus.read_mode is not ReadMode.FAST:
         return []  # (the plain read's note says why already)
+    if not rig.bus.health_in_tick:
+        return ["health read between ticks: `bus.health_in_tick = false`"]
     if not bus.tick_block_possible():
         return [
             "health read between ticks: Indirect Data 1 is not at one address on every "

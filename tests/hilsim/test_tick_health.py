@@ -216,12 +216,32 @@ def test_the_block_is_used_only_where_the_tick_has_room_for_it():
     with_block = wire_time.cycle_time_s(n, baud, True, read_data_bytes=ct.TICK_BLOCK_SIZE)
     assert round(cycle * 1e6) == 670 and round(with_block * 1e6) == 790
     roomy, tight = _fake_bus(baud), _fake_bus(baud)
-    assert use_tick_block(None, roomy, report, 0.8e-3, 0.0) == []  # type: ignore[arg-type]
+    rig = SimpleNamespace(bus=SimpleNamespace(health_in_tick=True))
+    assert use_tick_block(rig, roomy, report, 0.8e-3, 0.0) == []  # type: ignore[arg-type]
     assert roomy.calls == ["use"]
-    notes = use_tick_block(None, tight, report, 0.75e-3, 0.0)  # type: ignore[arg-type]
+    notes = use_tick_block(rig, tight, report, 0.75e-3, 0.0)  # type: ignore[arg-type]
     assert tight.calls == []
     assert len(notes) == 1 and notes[0].startswith("health read between ticks")
     assert "0.79 ms" in notes[0]
+
+
+def test_a_rig_may_keep_the_health_out_of_the_tick(emulated, capsys):
+    """`bus.health_in_tick = false`: positions only in the tick, the health between ticks
+    (the host keeps the 3 bytes a servo's wire time), and the start-up says so."""
+    rig = _demo_rig().replace("[bus]", "[bus]\nhealth_in_tick = false", 1)
+    assert "health_in_tick = false" in rig
+    emu = emulated(rig, ids=(1, 2, 3, 4))
+    assert emu.run(duration=2.0) == ExitCode.OK
+    run, wire = emu.read(), Wire.of(emu.bus)
+    fast = [tx for tx in wire.txs if tx.inst == INST.FAST_SYNC_READ]
+    assert fast and {(tx.addr, tx.params[2]) for tx in fast} == {
+        (ct.PRESENT_POSITION.addr, ct.PRESENT_POSITION.size)
+    }
+    assert run.summary["loop"]["health_every_tick"] is False
+    assert run.summary["loop"]["health_reads"] > 0
+    assert (
+        "note: health read between ticks: `bus.health_in_tick = false`" in capsys.readouterr().err
+    )
 
 
 def test_the_wire_model_counts_the_blocks_bytes():
